@@ -1,0 +1,37 @@
+"""The one place where dtalign sets Numba compilation flags.
+
+* ``cache=True``: compiled machine code is written beside the source (or,
+  when the package directory is read-only, to Numba's user-wide cache
+  directory; ``NUMBA_CACHE_DIR`` overrides both), so a new process does not
+  pay the compile time again.
+* ``nogil=True``: kernels release the GIL, so the public functions scale in
+  a ``ThreadPoolExecutor``.
+* ``fastmath=False``: every kernel's result is compared bit-for-bit or to
+  1e-9 with the NumPy specification; reassociation would break that.
+* ``error_model="numpy"``: a division by zero gives inf/nan as in NumPy
+  instead of raising from inside a kernel (the wrappers validate first).
+
+Nothing here touches Numba's global configuration (threading layer,
+thread count): that belongs to the application. Kernels carry no explicit
+signatures, so compilation is lazy and ``import dtalign`` stays fast.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, TypeVar
+
+import numba
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+JIT_OPTIONS: dict[str, Any] = {
+    "cache": True,
+    "nogil": True,
+    "fastmath": False,
+    "error_model": "numpy",
+}
+
+
+def kernel(fn: F) -> F:
+    """Compile ``fn`` lazily with the project's Numba flags."""
+    return numba.njit(**JIT_OPTIONS)(fn)  # type: ignore[no-any-return]

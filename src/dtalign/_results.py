@@ -1,0 +1,96 @@
+"""Frozen result types returned by the fitters (SPEC sections 3 and 4)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["LMRefineResult", "RidgeRefineResult"]
+
+
+def _readonly(name: str, value: object) -> NDArray[np.float64]:
+    if not isinstance(value, np.ndarray):
+        raise TypeError(f"{name} must be a numpy.ndarray, got {type(value).__name__}")
+    # A read-only view: the result cannot be edited through it, and the
+    # caller's own array (if they built the result by hand) is untouched.
+    view = value.view()
+    view.flags.writeable = False
+    return view
+
+
+@dataclass(frozen=True)
+class LMRefineResult:
+    """Outcome of :func:`dtalign.lm_subpixel_refine`.
+
+    Attributes
+    ----------
+    offset_vu : tuple of float
+        Fitted translation ``(dv, du)`` in pixels.
+    rotation_rad : float
+        Fitted rotation about the pivot (the initial rotation when rotation
+        is not fitted).
+    covariance : ndarray, shape (P, P)
+        Pseudoinverse of the information matrix ``J^T W J`` at the final
+        pose (P = 2, or 3 with rotation); all ``+inf`` when degenerate.
+    residuals_px : ndarray, shape (N,)
+        DT residual of every vertex at the final pose; polarity-rejected
+        vertices carry the penalty residual ``1e6``.
+    weights : ndarray, shape (N,)
+        Final IRLS weights ``(1 / sigma^2) * tukey * polarity``.
+    rms_px : float
+        Weighted RMS residual, ``+inf`` when degenerate.
+    raw_rms_px : float
+        Unweighted RMS over all vertices (penalised ones included).
+    iterations : int
+        LM iterations taken (accepted and rejected steps).
+    converged : bool
+        True when an accepted step fell below the step tolerance.
+    inlier_count : int
+        Number of vertices with a positive weight.
+    degenerate : bool
+        True when no vertex carries weight: the covariance is then ``+inf``.
+    """
+
+    offset_vu: tuple[float, float]
+    rotation_rad: float
+    covariance: NDArray[np.float64]
+    residuals_px: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    rms_px: float
+    raw_rms_px: float
+    iterations: int
+    converged: bool
+    inlier_count: int
+    degenerate: bool
+
+    def __post_init__(self) -> None:
+        for name in ("covariance", "residuals_px", "weights"):
+            object.__setattr__(self, name, _readonly(name, getattr(self, name)))
+
+
+@dataclass(frozen=True)
+class RidgeRefineResult:
+    """Outcome of :func:`dtalign.gradient_ridge_refine`.
+
+    Attributes
+    ----------
+    offset_vu : tuple of float
+        Refined translation, or the input offset when ``applied`` is False.
+    rotation_rad : float
+        Refined rotation, or the input rotation when ``applied`` is False.
+    iterations : int
+        Gauss-Newton iterations run.
+    converged : bool
+        True when a step fell below the step tolerance.
+    applied : bool
+        False when no iteration ran or the polish walked farther than
+        ``max_total_displacement_px``; the inputs are then returned.
+    """
+
+    offset_vu: tuple[float, float]
+    rotation_rad: float
+    iterations: int
+    converged: bool
+    applied: bool

@@ -1,0 +1,256 @@
+"""Input checks and conversions shared by every public function.
+
+Each helper checks one argument, names it in the message, and returns it
+converted once to what the kernels assume: a C-contiguous, native-endian
+float64 array (or a Python scalar). Kernels never validate, so everything a
+kernel could trip on (a NaN cast to an index, a wrong trailing dimension)
+must be refused here. The message fragments quoted in SPEC section 1 are
+part of the drop-in contract.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+def _as_float_array(value: Any, name: str) -> FloatArray:
+    """Convert to a C-contiguous native float64 array, refusing non-numbers."""
+    if isinstance(value, np.ndarray) and value.dtype == np.float64:
+        arr = value
+    else:
+        try:
+            probe = np.asarray(value)
+        except Exception as exc:  # ragged sequences and the like
+            raise TypeError(f"{name} must be a numeric array: {exc}") from exc
+        if probe.dtype.kind not in "biuf":
+            raise TypeError(
+                f"{name} must be a real numeric array, got dtype {probe.dtype}"
+            )
+        arr = probe
+    return np.ascontiguousarray(arr, dtype=np.float64)
+
+
+def require_finite(arr: FloatArray, name: str) -> None:
+    """Refuse NaN and +/-inf entries, naming the argument."""
+    if arr.size and not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite (found NaN or inf)")
+
+
+def vertices(value: Any, name: str = "vertices_vu", *, allow_empty: bool = True) -> FloatArray:
+    """``(N, 2)`` finite float64 vertices; ``N == 0`` only if ``allow_empty``."""
+    arr = _as_float_array(value, name)
+    if arr.ndim != 2 or arr.shape[1] != 2 or (not allow_empty and arr.shape[0] == 0):
+        what = "(N, 2) with N > 0" if not allow_empty else "(N, 2)"
+        raise ValueError(f"{name} must have shape {what}, got {arr.shape}")
+    require_finite(arr, name)
+    return arr
+
+
+def normals(value: Any, n_vertices: int) -> FloatArray:
+    """Finite normals of the same ``(N, 2)`` shape as the vertices."""
+    arr = _as_float_array(value, "normals_vu")
+    if arr.shape != (n_vertices, 2):
+        raise ValueError(
+            f"normals_vu must match vertices_vu shape ({n_vertices}, 2), got {arr.shape}"
+        )
+    require_finite(arr, "normals_vu")
+    return arr
+
+
+def sigmas(value: Any, n_vertices: int) -> FloatArray:
+    """Per-vertex prior sigmas: 1-D, length N, finite and strictly positive."""
+    arr = _as_float_array(value, "sigma_normal_per_vertex_px")
+    if arr.ndim != 1 or arr.shape[0] != n_vertices:
+        raise ValueError(
+            "sigma_normal_per_vertex_px must be a 1-D vector of length "
+            f"{n_vertices}, got shape {arr.shape}"
+        )
+    if not (np.isfinite(arr).all() and (arr > 0.0).all()):
+        raise ValueError("sigma_normal_per_vertex_px values must be finite and > 0")
+    return arr
+
+
+def image2d(value: Any, name: str, *, finite: bool = True) -> FloatArray:
+    """A non-empty 2-D float64 array (DT, gradient magnitude)."""
+    arr = _as_float_array(value, name)
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must be 2-D, got {arr.ndim}-D")
+    if arr.size == 0:
+        raise ValueError(f"{name} must not be empty, got shape {arr.shape}")
+    if finite:
+        require_finite(arr, name)
+    return arr
+
+
+def gradient(value: Any, name: str = "image_gradient_vu") -> FloatArray:
+    """A finite ``(H, W, 2)`` gradient-vector image."""
+    arr = _as_float_array(value, name)
+    if arr.ndim != 3 or arr.shape[2] != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"{name} must have shape (H, W, 2), got {arr.shape}")
+    require_finite(arr, name)
+    return arr
+
+
+def pair(value: Any, name: str) -> tuple[float, float]:
+    """A finite length-2 pair of real numbers (offsets, pivots)."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a length-2 sequence of numbers") from exc
+    if arr.shape != (2,):
+        raise ValueError(f"{name} must be a length-2 sequence of numbers, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite, got {tuple(arr.tolist())}")
+    return float(arr[0]), float(arr[1])
+
+
+def real(value: Any, name: str) -> float:
+    """A real scalar (bool refused) as a Python float; finiteness not checked."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    return float(value)
+
+
+def finite_real(value: Any, name: str) -> float:
+    """A finite real scalar."""
+    out = real(value, name)
+    if not math.isfinite(out):
+        raise ValueError(f"{name} must be finite, got {out!r}")
+    return out
+
+
+def nonnegative_real(value: Any, name: str) -> float:
+    """A finite real scalar >= 0."""
+    out = real(value, name)
+    if not (math.isfinite(out) and out >= 0.0):
+        raise ValueError(f"{name} must be finite and >= 0, got {out!r}")
+    return out
+
+
+def positive_real(value: Any, name: str) -> float:
+    """A finite real scalar > 0."""
+    out = real(value, name)
+    if not (math.isfinite(out) and out > 0.0):
+        raise ValueError(f"{name} must be a finite positive number, got {out!r}")
+    return out
+
+
+def count(value: Any, name: str) -> int:
+    """A non-negative integer (bool refused)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an int, got {type(value).__name__}")
+    out = int(value)
+    if out < 0:
+        raise ValueError(f"{name} must be non-negative, got {out}")
+    return out
+
+
+def shape2(value: Any, name: str = "shape_vu") -> tuple[int, int]:
+    """A length-2 image shape of non-negative ints."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise ValueError(f"{name} must be a length-2 sequence of ints, got {value!r}")
+    return count(value[0], f"{name}[0]"), count(value[1], f"{name}[1]")
+
+
+def search_window(value: Any) -> tuple[int, int]:
+    """The coarse-search margin: a tuple/list of two non-negative ints."""
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise ValueError(
+            f"search_window_vu must be a length-2 sequence of ints, got {value!r}"
+        )
+    out = []
+    for i, item in enumerate(value):
+        if isinstance(item, (bool, np.bool_)) or not isinstance(item, numbers.Integral):
+            raise TypeError(
+                f"search_window_vu[{i}] must be int, got {type(item).__name__}"
+            )
+        if int(item) < 0:
+            raise ValueError(f"search_window_vu[{i}] must be non-negative, got {item}")
+        out.append(int(item))
+    return out[0], out[1]
+
+
+def mask2d(value: Any, name: str) -> NDArray[np.bool_]:
+    """A 2-D array read as a boolean mask (nonzero is True)."""
+    arr = np.asarray(value)
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must be 2-D, got {arr.ndim}-D")
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must be a numeric or boolean array, got dtype {arr.dtype}")
+    if arr.dtype.kind == "f" and arr.size and not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite (found NaN or inf)")
+    return np.ascontiguousarray(arr != 0)
+
+
+def weight_mask(value: Any, n_vertices: int) -> FloatArray:
+    """Optional per-vertex 0/1 mask for the ridge polish, as float64."""
+    if value is None:
+        return np.ones(n_vertices, dtype=np.float64)
+    arr = np.asarray(value)
+    if arr.ndim != 1 or arr.shape[0] != n_vertices:
+        raise ValueError(
+            f"weight_mask must be a 1-D vector of length {n_vertices}, got shape {arr.shape}"
+        )
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"weight_mask must be boolean or numeric, got dtype {arr.dtype}")
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        raise ValueError("weight_mask must be finite (found NaN or inf)")
+    return np.ascontiguousarray(arr != 0, dtype=np.float64)
+
+
+def polyline(
+    vertices_vu: Any, normals_vu: Any, sigma_normal_per_vertex_px: Any
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Vertices (N > 0), normals and sigmas: the first checks of LM and ridge."""
+    verts = vertices(vertices_vu, allow_empty=False)
+    norms = normals(normals_vu, verts.shape[0])
+    sig = sigmas(sigma_normal_per_vertex_px, verts.shape[0])
+    return verts, norms, sig
+
+
+def pose(
+    verts: FloatArray,
+    *,
+    fit_rotation: bool,
+    pivot_vu: Any,
+    pivot_distance_px: Any,
+    initial_offset_vu: Any,
+    initial_rotation_rad: Any,
+) -> tuple[tuple[float, float], float, tuple[float, float], float]:
+    """The pose arguments LM and ridge share, after the field check.
+
+    Returns the initial offset, the initial rotation, the resolved pivot
+    (centroid unless given) and the pivot distance.
+    """
+    distance = real(pivot_distance_px, "pivot_distance_px")
+    if fit_rotation and not (math.isfinite(distance) and distance > 0.0):
+        raise ValueError(
+            f"fit_rotation=True requires a finite pivot_distance_px > 0, got {distance!r}"
+        )
+    if not math.isfinite(distance):
+        raise ValueError(f"pivot_distance_px must be finite, got {distance!r}")
+    offset = pair(initial_offset_vu, "initial_offset_vu")
+    rotation = finite_real(initial_rotation_rad, "initial_rotation_rad")
+    pivot = resolve_pivot(verts, pivot_vu)
+    return offset, rotation, pivot, distance
+
+
+def resolve_pivot(verts: FloatArray, pivot_vu: Any) -> tuple[float, float]:
+    """The rotation pivot: the vertex centroid unless the caller gives one.
+
+    Both the compiled path and the NumPy specification take the pivot from
+    here, so they rotate about bit-identical points.
+    """
+    if pivot_vu is None:
+        centroid = verts.mean(axis=0)
+        return float(centroid[0]), float(centroid[1])
+    return pair(pivot_vu, "pivot_vu")

@@ -1,0 +1,42 @@
+"""The NumPy specification of dtalign: same names, same contract, no Numba.
+
+``dtalign.reference`` implements SPEC.md in plain NumPy/SciPy, one readable
+function per rule. It is the oracle the compiled path is tested against and
+the baseline every benchmark ratio is measured against. It shares the
+package's argument checks, constants and result types, so it refuses the
+same inputs with the same messages and returns the same dataclasses.
+"""
+
+from __future__ import annotations
+
+from .fitting import (
+    apply_translation,
+    build_polyline_mask,
+    coarse_ncc_search,
+    gradient_ridge_refine,
+    information_matrix_to_covariance,
+    lm_subpixel_refine,
+    polarity_filter,
+    sample_dt_bilinear,
+    tukey_biweight_weights,
+)
+from .image import (
+    build_image_edge_dt,
+    compute_all_image_derivatives,
+    compute_image_gradient_vu,
+)
+
+__all__ = [
+    "apply_translation",
+    "build_image_edge_dt",
+    "build_polyline_mask",
+    "coarse_ncc_search",
+    "compute_all_image_derivatives",
+    "compute_image_gradient_vu",
+    "gradient_ridge_refine",
+    "information_matrix_to_covariance",
+    "lm_subpixel_refine",
+    "polarity_filter",
+    "sample_dt_bilinear",
+    "tukey_biweight_weights",
+]

@@ -1,0 +1,511 @@
+"""Plain NumPy fitting: the executable specification of SPEC sections 2-4.
+
+This module is written to be read next to SPEC.md, one function per rule.
+It is what the compiled path is tested against and benchmarked against, so
+it stays vectorised NumPy of the kind the navigation techniques run today:
+no Numba, no cleverness, no shortcuts that change a floating-point result.
+Argument checks are the package's shared ones, so both paths refuse the
+same inputs with the same messages.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from .. import _validation as check
+from .._constants import (
+    DEFAULT_LM_DAMPING,
+    DEFAULT_LM_MAX_ITERATIONS,
+    DEFAULT_LM_STEP_TOLERANCE,
+    DEFAULT_PINVH_RCOND,
+    DEFAULT_RIDGE_HALF_WIDTH_PX,
+    DEFAULT_RIDGE_MAX_ITERATIONS,
+    DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
+    DEFAULT_RIDGE_SAMPLE_STEP_PX,
+    DEFAULT_TUKEY_C,
+    JACOBIAN_ROTATION_EPS_RAD,
+    JACOBIAN_TRANSLATION_EPS_PX,
+    LM_DAMPING_MAX,
+    LM_DAMPING_MIN,
+    POLARITY_PENALTY_RESIDUAL,
+    RIDGE_CURVATURE_EPS,
+)
+from .._results import LMRefineResult, RidgeRefineResult
+from .._validation import FloatArray
+from .._args import (
+    check_covariance_inputs,
+    check_lm_inputs,
+    check_ridge_inputs,
+    no_information_covariance,
+    tukey_c_value,
+)
+
+# --------------------------------------------------------------------------
+# Sampling and pose (SPEC 2: bilinear sampler, pose transform)
+# --------------------------------------------------------------------------
+
+
+def sample_dt_bilinear(dt: Any, vertices_vu: Any) -> FloatArray:
+    """Bilinear sample of ``dt`` at ``vertices_vu``, clamped to the image."""
+    dt = check.image2d(dt, "dt")
+    pts = check.vertices(vertices_vu, "vertices_vu")
+    return _sample(dt, pts)
+
+
+def _sample(dt: FloatArray, pts: FloatArray) -> FloatArray:
+    h, w = dt.shape
+    v = np.clip(pts[:, 0], 0.0, h - 1)
+    u = np.clip(pts[:, 1], 0.0, w - 1)
+    v0 = np.floor(v).astype(np.int64)
+    u0 = np.floor(u).astype(np.int64)
+    v1 = np.minimum(v0 + 1, h - 1)
+    u1 = np.minimum(u0 + 1, w - 1)
+    fv = v - v0
+    fu = u - u0
+    a = dt[v0, u0]
+    b = dt[v0, u1]
+    c = dt[v1, u0]
+    d = dt[v1, u1]
+    return a * (1 - fv) * (1 - fu) + b * (1 - fv) * fu + c * fv * (1 - fu) + d * fv * fu
+
+
+def apply_translation(vertices_vu: Any, dv: float, du: float) -> FloatArray:
+    """A shifted copy of the vertices."""
+    pts = check.vertices(vertices_vu, "vertices_vu")
+    dv = check.finite_real(dv, "dv")
+    du = check.finite_real(du, "du")
+    out = pts.copy()
+    out[:, 0] += dv
+    out[:, 1] += du
+    return out
+
+
+def _transform(pts: FloatArray, pose: FloatArray, pivot: tuple[float, float]) -> FloatArray:
+    """Rotate about the pivot by ``pose[2]`` (if any), then translate."""
+    theta = pose[2]
+    if theta == 0.0:
+        v = pts[:, 0]
+        u = pts[:, 1]
+    else:
+        pv, pu = pivot
+        c = np.cos(theta)
+        s = np.sin(theta)
+        v = pv + c * (pts[:, 0] - pv) - s * (pts[:, 1] - pu)
+        u = pu + s * (pts[:, 0] - pv) + c * (pts[:, 1] - pu)
+    return np.stack([v + pose[0], u + pose[1]], axis=1)
+
+
+def _rotate_normals(normals: FloatArray, theta: float) -> FloatArray:
+    if theta == 0.0:
+        return normals
+    c = np.cos(theta)
+    s = np.sin(theta)
+    return np.stack(
+        [c * normals[:, 0] - s * normals[:, 1], s * normals[:, 0] + c * normals[:, 1]],
+        axis=1,
+    )
+
+
+def _with_rotation(pose: FloatArray, theta: float) -> FloatArray:
+    out = pose.copy()
+    out[2] = theta
+    return out
+
+
+def _residuals_and_jacobian(
+    dt: FloatArray, pts: FloatArray, pose: FloatArray, pivot: tuple[float, float], fit_rotation: bool
+) -> tuple[FloatArray, FloatArray]:
+    pos = _transform(pts, pose, pivot)
+    r = _sample(dt, pos)
+    eps = JACOBIAN_TRANSLATION_EPS_PX
+    ev = np.array([eps, 0.0])
+    eu = np.array([0.0, eps])
+    cols = [
+        (_sample(dt, pos + ev) - _sample(dt, pos - ev)) / (2 * eps),
+        (_sample(dt, pos + eu) - _sample(dt, pos - eu)) / (2 * eps),
+    ]
+    if fit_rotation:
+        h = JACOBIAN_ROTATION_EPS_RAD
+        plus = _sample(dt, _transform(pts, _with_rotation(pose, pose[2] + h), pivot))
+        minus = _sample(dt, _transform(pts, _with_rotation(pose, pose[2] - h), pivot))
+        cols.append((plus - minus) / (2 * h))
+    return r, np.stack(cols, axis=1)
+
+
+def _step_norm(step: FloatArray, pivot_distance_px: float) -> float:
+    if step.shape[0] == 2:
+        return float(np.hypot(step[0], step[1]))
+    return float(np.sqrt(step[0] ** 2 + step[1] ** 2 + (step[2] * pivot_distance_px) ** 2))
+
+
+def _solve_normal_equations(matrix: FloatArray, rhs: FloatArray, rcond: float) -> FloatArray:
+    """``-solve(matrix, rhs)``, the pseudoinverse when the solve is singular."""
+    try:
+        return -np.linalg.solve(matrix, rhs)
+    except np.linalg.LinAlgError:
+        return -(scipy.linalg.pinvh(matrix, rtol=rcond) @ rhs)
+
+
+# --------------------------------------------------------------------------
+# Coarse search (SPEC 2: polyline mask, coarse search)
+# --------------------------------------------------------------------------
+
+
+def build_polyline_mask(vertices_vu: Any, shape_vu: Any) -> np.ndarray:
+    """Rasterise vertices (round half to even) into a boolean mask."""
+    pts = check.vertices(vertices_vu, "vertices_vu")
+    h, w = check.shape2(shape_vu)
+    mask = np.zeros((h, w), dtype=bool)
+    iv = np.rint(pts[:, 0])
+    iu = np.rint(pts[:, 1])
+    keep = (iv >= 0) & (iv < h) & (iu >= 0) & (iu < w)
+    mask[iv[keep].astype(np.int64), iu[keep].astype(np.int64)] = True
+    return mask
+
+
+def coarse_ncc_search(edge_mask: Any, polyline_mask: Any, search_window_vu: Any) -> tuple[int, int]:
+    """Integer shift maximising the per-vertex edge match fraction."""
+    edge, poly, mv, mu = _coarse_inputs(edge_mask, polyline_mask, search_window_vu)
+    pv, pu = np.nonzero(poly)
+    if pv.size == 0:
+        return 0, 0
+    h, w = edge.shape
+    best_key: tuple[float, int, int, int, int] | None = None
+    for dv in range(-mv, mv + 1):
+        for du in range(-mu, mu + 1):
+            sv = pv + dv
+            su = pu + du
+            inside = (sv >= 0) & (sv < h) & (su >= 0) & (su < w)
+            n = int(np.count_nonzero(inside))
+            if n == 0:
+                continue
+            overlap = int(np.count_nonzero(edge[sv[inside], su[inside]]))
+            score = overlap / n
+            key = (-score, abs(dv) + abs(du), abs(dv), dv, du)
+            if best_key is None or key < best_key:
+                best_key = key
+    if best_key is None:
+        return 0, 0
+    return int(best_key[3]), int(best_key[4])
+
+
+def _coarse_inputs(edge_mask: Any, polyline_mask: Any, search_window_vu: Any) -> tuple[Any, Any, int, int]:
+    """Shared checks of the coarse search; the window is clipped to the image."""
+    edge = check.mask2d(edge_mask, "edge_mask")
+    poly = check.mask2d(polyline_mask, "polyline_mask")
+    if edge.shape != poly.shape:
+        raise ValueError(
+            f"edge_mask and polyline_mask shape mismatch: {edge.shape} vs {poly.shape}"
+        )
+    mv, mu = check.search_window(search_window_vu)
+    # A shift of H or more rows moves every polyline pixel off the image.
+    mv = min(mv, max(edge.shape[0] - 1, 0))
+    mu = min(mu, max(edge.shape[1] - 1, 0))
+    return edge, poly, mv, mu
+
+
+# --------------------------------------------------------------------------
+# Polarity, Tukey, covariance (SPEC 2)
+# --------------------------------------------------------------------------
+
+
+def polarity_filter(
+    vertices_vu: Any, normals_vu: Any, image_gradient_vu: Any, *, offset_vu: Any = (0.0, 0.0)
+) -> np.ndarray:
+    """Accept a vertex iff its normal points up the gradient at its pixel."""
+    pts = check.vertices(vertices_vu, "vertices_vu")
+    nrm = check.normals(normals_vu, pts.shape[0])
+    grad = check.gradient(image_gradient_vu)
+    dv, du = check.pair(offset_vu, "offset_vu")
+    return _polarity(pts, nrm, grad, dv, du)
+
+
+def _polarity(pts: FloatArray, nrm: FloatArray, grad: FloatArray, dv: float, du: float) -> np.ndarray:
+    h, w = grad.shape[:2]
+    iv = np.rint(pts[:, 0] + dv)
+    iu = np.rint(pts[:, 1] + du)
+    inside = (iv >= 0) & (iv < h) & (iu >= 0) & (iu < w)
+    accept = np.zeros(pts.shape[0], dtype=bool)
+    jv = iv[inside].astype(np.int64)
+    ju = iu[inside].astype(np.int64)
+    g = grad[jv, ju]
+    dot = nrm[inside, 0] * g[:, 0] + nrm[inside, 1] * g[:, 1]
+    accept[inside] = dot > 0.0
+    return accept
+
+
+def tukey_biweight_weights(residuals: Any, *, c: float = DEFAULT_TUKEY_C) -> FloatArray:
+    """Holland-Welsch biweight of (already scaled) residuals."""
+    c = tukey_c_value(c)
+    r = check._as_float_array(residuals, "residuals")
+    if r.ndim != 1:
+        raise ValueError(f"residuals must be 1-D, got {r.ndim}-D")
+    return _tukey(r, c)
+
+
+def _tukey(r: FloatArray, c: float) -> FloatArray:
+    s = r / c
+    return np.where(np.abs(s) <= 1.0, (1.0 - s * s) ** 2, 0.0)
+
+
+def information_matrix_to_covariance(
+    jacobian: Any, weights: Any, *, rcond: float = DEFAULT_PINVH_RCOND
+) -> FloatArray:
+    """Pseudoinverse of the M-estimator information matrix ``J^T W J``."""
+    jac, w, rcond = check_covariance_inputs(jacobian, weights, rcond)
+    if jac.shape[0] == 0 or not (w > 0).any():
+        return no_information_covariance(jac.shape[1])
+    a = np.sqrt(w)[:, None] * jac
+    info = a.T @ a
+    cov = scipy.linalg.pinvh(info, rtol=rcond)
+    return 0.5 * (cov + cov.T)
+
+
+# --------------------------------------------------------------------------
+# Levenberg-Marquardt with Tukey IRLS (SPEC 3)
+# --------------------------------------------------------------------------
+
+
+def lm_subpixel_refine(
+    *,
+    vertices_vu: Any,
+    normals_vu: Any,
+    sigma_normal_per_vertex_px: Any,
+    image_edge_dt: Any,
+    image_gradient_vu: Any = None,
+    initial_offset_vu: Any = (0.0, 0.0),
+    initial_rotation_rad: float = 0.0,
+    fit_rotation: bool = False,
+    pivot_vu: Any = None,
+    pivot_distance_px: float = 0.0,
+    use_polarity: bool = True,
+    max_iterations: int = DEFAULT_LM_MAX_ITERATIONS,
+    damping: float = DEFAULT_LM_DAMPING,
+    step_tolerance_px: float = DEFAULT_LM_STEP_TOLERANCE,
+    tukey_c: float = DEFAULT_TUKEY_C,
+    pinvh_rcond: float = DEFAULT_PINVH_RCOND,
+    trust_region_px: float | None = None,
+    tikhonov_alpha: float = 0.0,
+    final_gradient_ridge: bool = False,
+) -> LMRefineResult:
+    """Robust sub-pixel LM fit of the polyline to the DT (SPEC section 3)."""
+    a = check_lm_inputs(locals())
+    pts, nrm, sig, dt, grad = a.vertices, a.normals, a.sigmas, a.dt, a.gradient
+    dv0, du0 = a.offset
+    pivot = a.pivot
+
+    if a.use_polarity:
+        polarity = _polarity(pts, nrm, grad, dv0, du0)
+    else:
+        polarity = np.ones(pts.shape[0], dtype=bool)
+    inv_var = 1.0 / sig**2
+
+    def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        r, jac = _residuals_and_jacobian(dt, pts, p, pivot, a.fit_rotation)
+        r = np.where(polarity, r, POLARITY_PENALTY_RESIDUAL)
+        w = inv_var * _tukey(r / sig, a.tukey_c) * polarity
+        return r, w, jac
+
+    def tikhonov_cost(p: FloatArray, t: float) -> float:
+        return t * ((p[0] - dv0) ** 2 + (p[1] - du0) ** 2)
+
+    pose = np.array([dv0, du0, a.rotation])  # theta stays fixed unless fitted
+    n_params = 3 if a.fit_rotation else 2
+    lam = a.damping
+    iterations = 0
+    converged = False
+    state = None  # (r, w, J) at `pose`, None when stale
+    while iterations < a.max_iterations:
+        if state is None:
+            state = evaluate(pose)
+        r, w, jac = state
+        if not (w > 0).any():
+            break
+        cost = float(np.sum(w * r * r))
+        sw = np.sqrt(w)
+        amat = sw[:, None] * jac
+        hess = amat.T @ amat
+        grad_vec = amat.T @ (sw * r)
+        t = 0.0
+        if a.tikhonov_alpha > 0:
+            t = a.tikhonov_alpha * float(np.sum(w))
+            hess[0, 0] += t
+            hess[1, 1] += t
+            grad_vec[0] += t * (pose[0] - dv0)
+            grad_vec[1] += t * (pose[1] - du0)
+            cost += tikhonov_cost(pose, t)
+        damped = hess + lam * np.diag(np.diag(hess))
+        step = _solve_normal_equations(damped, grad_vec, a.pinvh_rcond)
+        trial = pose.copy()
+        trial[:n_params] += step
+        if a.trust_region_px is not None and np.hypot(trial[0] - dv0, trial[1] - du0) > a.trust_region_px:
+            lam = min(2 * lam, LM_DAMPING_MAX)
+            iterations += 1
+            if lam >= LM_DAMPING_MAX:
+                break
+            continue
+        r_trial = _sample(dt, _transform(pts, trial, pivot))
+        r_trial = np.where(polarity, r_trial, POLARITY_PENALTY_RESIDUAL)
+        trial_cost = float(np.sum(w * r_trial * r_trial))
+        if a.tikhonov_alpha > 0:
+            trial_cost += tikhonov_cost(trial, t)
+        if trial_cost < cost:
+            pose = trial
+            lam = max(lam / 2, LM_DAMPING_MIN)
+            iterations += 1
+            state = None
+            if _step_norm(step, a.pivot_distance) < a.step_tolerance:
+                converged = True
+                break
+        else:
+            lam = min(2 * lam, LM_DAMPING_MAX)
+            iterations += 1
+            if lam >= LM_DAMPING_MAX:
+                break
+    if state is None:
+        state = evaluate(pose)
+    r, w, jac = state
+
+    if a.final_gradient_ridge and (w > 0).any():
+        magnitude = np.hypot(grad[:, :, 0], grad[:, :, 1])
+        ridge = _ridge(
+            pts, nrm, sig, magnitude, pose, a.fit_rotation, pivot, a.pivot_distance,
+            polarity.astype(np.float64),
+            a.tukey_c, DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
+            DEFAULT_RIDGE_HALF_WIDTH_PX, DEFAULT_RIDGE_SAMPLE_STEP_PX,
+            DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
+        )
+        if ridge.applied:
+            pose = np.array([*ridge.offset_vu, ridge.rotation_rad])
+            r, w, jac = evaluate(pose)
+
+    inlier_count = int(np.count_nonzero(w > 0))
+    total_weight = float(np.sum(w))
+    degenerate = inlier_count == 0 or total_weight == 0.0
+    if degenerate:
+        rms = float("inf")
+        cov = no_information_covariance(n_params)
+    else:
+        rms = float(np.sqrt(np.sum(w * r * r) / total_weight))
+        cov = information_matrix_to_covariance(jac, w, rcond=a.pinvh_rcond)
+    raw_rms = float(np.sqrt(np.mean(r * r))) if r.size else float("inf")
+    return LMRefineResult(
+        offset_vu=(float(pose[0]), float(pose[1])),
+        rotation_rad=float(pose[2]),
+        covariance=cov,
+        residuals_px=r,
+        weights=w,
+        rms_px=rms,
+        raw_rms_px=raw_rms,
+        iterations=iterations,
+        converged=converged,
+        inlier_count=inlier_count,
+        degenerate=degenerate,
+    )
+
+
+# --------------------------------------------------------------------------
+# Gradient-ridge polish (SPEC 4)
+# --------------------------------------------------------------------------
+
+
+def gradient_ridge_refine(
+    *,
+    vertices_vu: Any,
+    normals_vu: Any,
+    sigma_normal_per_vertex_px: Any,
+    gradient_magnitude: Any,
+    initial_offset_vu: Any,
+    weight_mask: Any = None,
+    initial_rotation_rad: float = 0.0,
+    fit_rotation: bool = False,
+    pivot_vu: Any = None,
+    pivot_distance_px: float = 0.0,
+    max_iterations: int = DEFAULT_RIDGE_MAX_ITERATIONS,
+    step_tolerance_px: float = DEFAULT_LM_STEP_TOLERANCE,
+    tukey_c: float = DEFAULT_TUKEY_C,
+    half_width_px: float = DEFAULT_RIDGE_HALF_WIDTH_PX,
+    sample_step_px: float = DEFAULT_RIDGE_SAMPLE_STEP_PX,
+    max_total_displacement_px: float = DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
+) -> RidgeRefineResult:
+    """Gauss-Newton polish onto the gradient-magnitude ridge (SPEC section 4)."""
+    a = check_ridge_inputs(locals())
+    dv0, du0 = a.offset
+    pose = np.array([dv0, du0, a.rotation])
+    return _ridge(
+        a.vertices, a.normals, a.sigmas, a.magnitude, pose, a.fit_rotation, a.pivot,
+        a.pivot_distance,
+        a.weight_mask, a.tukey_c, a.max_iterations, a.step_tolerance, a.half_width,
+        a.sample_step, a.max_total_displacement,
+    )
+
+
+def _ridge_offsets(
+    magnitude: FloatArray, pts: FloatArray, nrm: FloatArray, pose: FloatArray,
+    pivot: tuple[float, float], t: FloatArray, step: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Sub-pixel peak offset ``t*`` along each normal, validity, and normals."""
+    n_rot = _rotate_normals(nrm, pose[2])
+    pos = _transform(pts, pose, pivot)
+    k_count = t.shape[0]
+    samples = pos[:, None, :] + t[None, :, None] * n_rot[:, None, :]
+    prof = _sample(magnitude, samples.reshape(-1, 2)).reshape(pts.shape[0], k_count)
+    k_star = np.argmax(prof, axis=1)
+    valid = (k_star > 0) & (k_star < k_count - 1)
+    kc = np.clip(k_star, 1, k_count - 2)
+    rows = np.arange(pts.shape[0])
+    y_minus = prof[rows, kc - 1]
+    y0 = prof[rows, kc]
+    y_plus = prof[rows, kc + 1]
+    d = y_minus - 2 * y0 + y_plus
+    peak = d < -RIDGE_CURVATURE_EPS
+    delta = np.where(peak, 0.5 * (y_minus - y_plus) / np.where(peak, d, 1.0), 0.0)
+    delta = np.clip(delta, -0.5, 0.5)
+    return t[kc] + delta * step, valid, n_rot
+
+
+def _ridge(
+    pts: FloatArray, nrm: FloatArray, sig: FloatArray, magnitude: FloatArray, pose: FloatArray,
+    fit_rotation: bool, pivot: tuple[float, float], pivot_distance: float, weight_mask: FloatArray, tukey_c: float,
+    max_iterations: int, step_tolerance: float, half_width: float, sample_step: float,
+    max_total_displacement: float,
+) -> RidgeRefineResult:
+    start = pose.copy()
+    n = round(half_width / sample_step)
+    t = np.arange(-n, n + 1) * sample_step
+    iterations = 0
+    converged = False
+    for _ in range(max_iterations):
+        r, valid, n_rot = _ridge_offsets(magnitude, pts, nrm, pose, pivot, t, sample_step)
+        w = (1.0 / sig**2) * _tukey(r / sig, tukey_c) * valid * weight_mask
+        if not (w > 0).any():
+            break
+        cols = [-n_rot[:, 0], -n_rot[:, 1]]
+        if fit_rotation:
+            h = JACOBIAN_ROTATION_EPS_RAD
+            plus = _ridge_offsets(magnitude, pts, nrm, _with_rotation(pose, pose[2] + h), pivot, t, sample_step)[0]
+            minus = _ridge_offsets(magnitude, pts, nrm, _with_rotation(pose, pose[2] - h), pivot, t, sample_step)[0]
+            cols.append((plus - minus) / (2 * h))
+        jac = np.stack(cols, axis=1)
+        sw = np.sqrt(w)
+        amat = sw[:, None] * jac
+        step = _solve_normal_equations(amat.T @ amat, amat.T @ (sw * r), DEFAULT_PINVH_RCOND)
+        pose = pose.copy()
+        pose[: step.shape[0]] += step
+        iterations += 1
+        if _step_norm(step, pivot_distance) < step_tolerance:
+            converged = True
+            break
+    moved = np.hypot(pose[0] - start[0], pose[1] - start[1])
+    applied = iterations > 0 and not moved > max_total_displacement
+    final = pose if applied else start
+    return RidgeRefineResult(
+        offset_vu=(float(final[0]), float(final[1])),
+        rotation_rad=float(final[2]),
+        iterations=iterations,
+        converged=converged,
+        applied=applied,
+    )
