@@ -63,6 +63,21 @@ def check_covariance_inputs(jacobian: Any, weights: Any, rcond: Any) -> tuple[Fl
     return jac, w, _rcond(rcond, "rcond")
 
 
+def check_coarse_inputs(edge_mask: Any, polyline_mask: Any, search_window_vu: Any) -> tuple[Any, Any, int, int]:
+    """Shared checks of the coarse search; the window is clipped to the image."""
+    edge = check.mask2d(edge_mask, "edge_mask")
+    poly = check.mask2d(polyline_mask, "polyline_mask")
+    if edge.shape != poly.shape:
+        raise ValueError(
+            f"edge_mask and polyline_mask shape mismatch: {edge.shape} vs {poly.shape}"
+        )
+    mv, mu = check.search_window(search_window_vu)
+    # A shift of H or more rows moves every polyline pixel off the image.
+    mv = min(mv, max(edge.shape[0] - 1, 0))
+    mu = min(mu, max(edge.shape[1] - 1, 0))
+    return edge, poly, mv, mu
+
+
 @dataclass(frozen=True)
 class LMArgs:
     """Validated, converted arguments of ``lm_subpixel_refine``."""

@@ -72,29 +72,56 @@ def sigmas(value: Any, n_vertices: int) -> FloatArray:
             "sigma_normal_per_vertex_px must be a 1-D vector of length "
             f"{n_vertices}, got shape {arr.shape}"
         )
-    if not (np.isfinite(arr).all() and (arr > 0.0).all()):
-        raise ValueError("sigma_normal_per_vertex_px values must be finite and > 0")
+    # 1/sigma^2 must be finite too: a sigma of 1e-200 would give inf weights.
+    with np.errstate(over="ignore", divide="ignore"):
+        ok = np.isfinite(arr).all() and (arr > 0.0).all() and np.isfinite(1.0 / (arr * arr)).all()
+    if not ok:
+        raise ValueError(
+            "sigma_normal_per_vertex_px values must be finite and > 0 "
+            "(and 1/sigma^2 representable)"
+        )
     return arr
 
 
-def image2d(value: Any, name: str, *, finite: bool = True) -> FloatArray:
-    """A non-empty 2-D float64 array (DT, gradient magnitude)."""
+#: Image-sized arrays up to this many values are scanned for NaN/inf on
+#: every call (tens of microseconds). Larger ones are checked where the
+#: kernels read them: scanning a 1024 x 1024 DT and gradient costs ~1.3 ms,
+#: several times a whole LM fit, and a value never read cannot change a
+#: result. Any non-finite value a kernel does read raises ValueError.
+FULL_SCAN_MAX_SIZE = 1 << 16
+
+
+def require_finite_if_small(arr: FloatArray, name: str) -> None:
+    """Scan small image-sized arrays up front (see ``FULL_SCAN_MAX_SIZE``)."""
+    if arr.size <= FULL_SCAN_MAX_SIZE:
+        require_finite(arr, name)
+
+
+def nonfinite_read(name: str) -> ValueError:
+    """The error for a NaN or inf that a kernel read from ``name``."""
+    return ValueError(f"{name} must be finite: the fit read a NaN or inf value from it")
+
+
+def image2d(value: Any, name: str) -> FloatArray:
+    """A non-empty 2-D float64 array (DT, gradient magnitude).
+
+    Finiteness: see :data:`FULL_SCAN_MAX_SIZE`.
+    """
     arr = _as_float_array(value, name)
     if arr.ndim != 2:
         raise ValueError(f"{name} must be 2-D, got {arr.ndim}-D")
     if arr.size == 0:
         raise ValueError(f"{name} must not be empty, got shape {arr.shape}")
-    if finite:
-        require_finite(arr, name)
+    require_finite_if_small(arr, name)
     return arr
 
 
 def gradient(value: Any, name: str = "image_gradient_vu") -> FloatArray:
-    """A finite ``(H, W, 2)`` gradient-vector image."""
+    """An ``(H, W, 2)`` gradient-vector image (finiteness as :func:`image2d`)."""
     arr = _as_float_array(value, name)
     if arr.ndim != 3 or arr.shape[2] != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
         raise ValueError(f"{name} must have shape (H, W, 2), got {arr.shape}")
-    require_finite(arr, name)
+    require_finite_if_small(arr, name)
     return arr
 
 
@@ -186,6 +213,8 @@ def mask2d(value: Any, name: str) -> NDArray[np.bool_]:
         raise ValueError(f"{name} must be 2-D, got {arr.ndim}-D")
     if arr.dtype.kind not in "biuf":
         raise TypeError(f"{name} must be a numeric or boolean array, got dtype {arr.dtype}")
+    if arr.dtype == np.bool_:
+        return np.ascontiguousarray(arr)  # no copy in the common case
     if arr.dtype.kind == "f" and arr.size and not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite (found NaN or inf)")
     return np.ascontiguousarray(arr != 0)

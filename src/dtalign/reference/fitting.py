@@ -36,6 +36,7 @@ from .._constants import (
 from .._results import LMRefineResult, RidgeRefineResult
 from .._validation import FloatArray
 from .._args import (
+    check_coarse_inputs,
     check_covariance_inputs,
     check_lm_inputs,
     check_ridge_inputs,
@@ -168,7 +169,7 @@ def build_polyline_mask(vertices_vu: Any, shape_vu: Any) -> np.ndarray:
 
 def coarse_ncc_search(edge_mask: Any, polyline_mask: Any, search_window_vu: Any) -> tuple[int, int]:
     """Integer shift maximising the per-vertex edge match fraction."""
-    edge, poly, mv, mu = _coarse_inputs(edge_mask, polyline_mask, search_window_vu)
+    edge, poly, mv, mu = check_coarse_inputs(edge_mask, polyline_mask, search_window_vu)
     pv, pu = np.nonzero(poly)
     if pv.size == 0:
         return 0, 0
@@ -190,21 +191,6 @@ def coarse_ncc_search(edge_mask: Any, polyline_mask: Any, search_window_vu: Any)
     if best_key is None:
         return 0, 0
     return int(best_key[3]), int(best_key[4])
-
-
-def _coarse_inputs(edge_mask: Any, polyline_mask: Any, search_window_vu: Any) -> tuple[Any, Any, int, int]:
-    """Shared checks of the coarse search; the window is clipped to the image."""
-    edge = check.mask2d(edge_mask, "edge_mask")
-    poly = check.mask2d(polyline_mask, "polyline_mask")
-    if edge.shape != poly.shape:
-        raise ValueError(
-            f"edge_mask and polyline_mask shape mismatch: {edge.shape} vs {poly.shape}"
-        )
-    mv, mu = check.search_window(search_window_vu)
-    # A shift of H or more rows moves every polyline pixel off the image.
-    mv = min(mv, max(edge.shape[0] - 1, 0))
-    mu = min(mu, max(edge.shape[1] - 1, 0))
-    return edge, poly, mv, mu
 
 
 # --------------------------------------------------------------------------

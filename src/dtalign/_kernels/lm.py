@@ -1,0 +1,187 @@
+"""The Levenberg-Marquardt / Tukey IRLS loop of SPEC section 3, compiled whole.
+
+A pure-NumPy iteration spends most of its time in interpreter overhead on
+arrays of a few hundred vertices; compiling the whole loop removes that.
+Each iteration makes one pass over the vertices for residuals, Jacobian and
+weights (no N x 5 temporaries), one for the trial cost, and solves a 2x2 or
+3x3 system. The state arrays are allocated once per fit and overwritten.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jit import kernel
+from .robust import irls_weight, normal_equations, solve_step
+from .sampling import bilinear, transform
+
+#: Mirrors of the constants in dtalign._constants, as compile-time literals.
+PENALTY = 1.0e6
+EPS_T = 0.25
+EPS_R = 1.0e-3
+LAMBDA_MIN = 1.0e-12
+LAMBDA_MAX = 1.0e6
+
+
+@kernel
+def evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac):  # pragma: no cover
+    """Residuals, IRLS weights and Jacobian at ``pose``, written into ``r, w, jac``.
+
+    Rejected-polarity vertices get the penalty residual; their Jacobian row
+    is still the DT's (it carries zero weight). Returns 1 if any weight is
+    positive, 0 if none is, and -1 if a sample read a NaN or inf from
+    ``dt`` (the caller refuses the DT then: the image is too large to scan
+    on every call, but no non-finite value can reach a result unnoticed).
+    """
+    dv, du, theta = pose[0], pose[1], pose[2]
+    pv, pu = pivot[0], pivot[1]
+    c0, s0 = math.cos(theta), math.sin(theta)
+    tp, tm = theta + EPS_R, theta - EPS_R
+    cp, sp = math.cos(tp), math.sin(tp)
+    cm, sm = math.cos(tm), math.sin(tm)
+    two_eps_t = 2 * EPS_T
+    two_eps_r = 2 * EPS_R
+    status = 0
+    for i in range(pts.shape[0]):
+        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pv, pu)
+        sample = bilinear(dt, v, u)
+        j0 = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / two_eps_t
+        j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / two_eps_t
+        # inf - inf and nan propagate, so one test covers all five samples
+        if not math.isfinite(sample + j0 + j1):
+            return -1
+        jac[i, 0] = j0
+        jac[i, 1] = j1
+        if fit_rotation:
+            vp, up = transform(pts[i, 0], pts[i, 1], dv, du, tp, cp, sp, pv, pu)
+            vm, um = transform(pts[i, 0], pts[i, 1], dv, du, tm, cm, sm, pv, pu)
+            j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / two_eps_r
+            if not math.isfinite(j2):
+                return -1
+            jac[i, 2] = j2
+        ri = sample if pol[i] != 0.0 else PENALTY
+        r[i] = ri
+        wi = irls_weight(ri, sig[i], tukey_c, pol[i])
+        w[i] = wi
+        if wi > 0.0 and status == 0:
+            status = 1
+    return status
+
+
+@kernel
+def weighted_cost(dt, pts, pol, w, pose, pivot):  # pragma: no cover - compiled
+    """``sum(w * r * r)`` with residuals at ``pose`` and fixed weights ``w``.
+
+    Non-finite when a sample read a NaN or inf (``0 * inf`` is NaN too).
+    """
+    dv, du, theta = pose[0], pose[1], pose[2]
+    c0, s0 = math.cos(theta), math.sin(theta)
+    total = 0.0
+    for i in range(pts.shape[0]):
+        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pivot[0], pivot[1])
+        ri = bilinear(dt, v, u) if pol[i] != 0.0 else PENALTY
+        total += w[i] * ri * ri
+    return total
+
+
+@kernel
+def step_norm(step, pivot_distance):  # pragma: no cover - compiled
+    if step.shape[0] == 2:
+        return math.hypot(step[0], step[1])
+    return math.sqrt(step[0] ** 2 + step[1] ** 2 + (step[2] * pivot_distance) ** 2)
+
+
+@kernel
+def lm_loop(
+    dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
+    damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
+):  # pragma: no cover - compiled
+    """The fit of SPEC section 3 steps 2-3.
+
+    ``trust_region < 0`` means no trust region. Returns the final pose
+    ``(dv, du, theta)``, the iteration count, the converged flag, the
+    state ``r, w, J`` at the final pose, and ``bad``: True if the DT was
+    found non-finite where the fit sampled it (the rest is then invalid).
+
+    After a rejected step the state, and so ``H``, ``g`` and the cost, are
+    unchanged: they are kept rather than recomputed (same values exactly).
+    """
+    n = pts.shape[0]
+    n_params = 3 if fit_rotation else 2
+    r = np.empty(n)
+    w = np.empty(n)
+    jac = np.zeros((n, n_params))
+    pose = pose0.copy()
+    trial = pose0.copy()
+    dv0, du0 = pose0[0], pose0[1]
+    lam = damping
+    iterations = 0
+    converged = False
+    fresh = False  # r, w, jac (and hess, grad, cost, t) describe `pose`
+    status = 0
+    cost = 0.0
+    t = 0.0
+    hess = np.zeros((n_params, n_params))
+    grad = np.zeros(n_params)
+    damped = np.zeros((n_params, n_params))
+    while iterations < max_iterations:
+        if not fresh:
+            status = evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac)
+            if status < 0:
+                return pose, iterations, converged, r, w, jac, True
+            fresh = True
+            if status == 0:
+                break
+            cost = 0.0
+            for i in range(n):
+                cost += w[i] * r[i] * r[i]
+            hess, grad = normal_equations(jac, w, r, n_params)
+            t = 0.0
+            if tikhonov_alpha > 0:
+                total_w = 0.0
+                for i in range(n):
+                    total_w += w[i]
+                t = tikhonov_alpha * total_w
+                hess[0, 0] += t
+                hess[1, 1] += t
+                grad[0] += t * (pose[0] - dv0)
+                grad[1] += t * (pose[1] - du0)
+                cost += t * ((pose[0] - dv0) ** 2 + (pose[1] - du0) ** 2)
+        damped[:, :] = hess
+        for a in range(n_params):
+            damped[a, a] = hess[a, a] + lam * hess[a, a]
+        step = solve_step(damped, grad, rcond)
+        for a in range(3):
+            trial[a] = pose[a]
+        for a in range(n_params):
+            trial[a] = pose[a] + step[a]
+        if trust_region >= 0.0 and math.hypot(trial[0] - dv0, trial[1] - du0) > trust_region:
+            lam = min(2 * lam, LAMBDA_MAX)
+            iterations += 1
+            if lam >= LAMBDA_MAX:
+                break
+            continue
+        trial_cost = weighted_cost(dt, pts, pol, w, trial, pivot)
+        if not math.isfinite(trial_cost):
+            return pose, iterations, converged, r, w, jac, True
+        if tikhonov_alpha > 0:
+            trial_cost += t * ((trial[0] - dv0) ** 2 + (trial[1] - du0) ** 2)
+        if trial_cost < cost:
+            for a in range(3):
+                pose[a] = trial[a]
+            lam = max(lam / 2, LAMBDA_MIN)
+            iterations += 1
+            fresh = False
+            if step_norm(step, pivot_distance) < step_tolerance:
+                converged = True
+                break
+        else:
+            lam = min(2 * lam, LAMBDA_MAX)
+            iterations += 1
+            if lam >= LAMBDA_MAX:
+                break
+    if not fresh:
+        status = evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac)
+    return pose, iterations, converged, r, w, jac, status < 0
