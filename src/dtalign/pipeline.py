@@ -1,0 +1,1024 @@
+"""One-call fitting: image in, pose and its uncertainty out.
+
+Every navigation technique that uses the DT fitter repeats the same steps:
+image derivatives, a polyline mask, the coarse integer search, the rotation
+pivot, the robust LM refinement, then an "is the seed on the window edge?"
+test. This module does those steps once, in one place:
+
+* :func:`prepare_image` computes an image's products (gradient, truncated
+  edge DT, edge mask, noise sigma) once;
+* :func:`fit_polyline_products` fits one polyline against those products,
+  so several polylines (a limb, a terminator, a ring edge) share them;
+* :func:`fit_polyline` is the two together for the single-polyline case.
+
+The result, :class:`PolylineFit`, carries the coarse seed, the full
+:class:`~dtalign.LMRefineResult`, the pose, one-sigma uncertainties read
+from the covariance and the window-edge flag.
+
+A rank-deficient fit (a straight edge: the along-edge shift is not
+measured) reports *zero* variance along its null direction, because the
+covariance is the pseudoinverse of the information matrix (SPEC section 6).
+:func:`covariance_with_unobservable_inf` gives the other reading, ``+inf``
+along the null direction, without changing that default.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.ndimage
+from numpy.typing import NDArray
+
+from . import _validation as check
+from ._constants import (
+    DEFAULT_LM_DAMPING,
+    DEFAULT_LM_MAX_ITERATIONS,
+    DEFAULT_LM_STEP_TOLERANCE,
+    DEFAULT_PINVH_RCOND,
+    DEFAULT_TUKEY_C,
+    POLARITY_PENALTY_RESIDUAL,
+)
+from ._image_args import ImageDerivativesConfig, check_image, check_noise_sigma, resolve_config
+from ._results import LMRefineResult
+
+__all__ = [
+    "ImageProducts",
+    "PolylineFit",
+    "covariance_with_unobservable_inf",
+    "estimate_noise_sigma",
+    "fit_polyline",
+    "fit_polyline_products",
+    "normal_information_covariance",
+    "null_directions",
+    "observable_rank",
+    "prepare_image",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: 1.4826 * MAD is the standard deviation of a Gaussian.
+_MAD_TO_SIGMA = 1.4826
+
+#: Immerkaer's noise-estimation kernel: the product of two second
+#: differences. It is zero on any locally planar (or bilinear) patch, so a
+#: smooth bright body does not raise the estimate; its L2 norm is 6.
+_NOISE_KERNEL = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
+_NOISE_KERNEL_NORM = 6.0
+
+_FITTER_NAMES = (
+    "build_polyline_mask",
+    "coarse_ncc_search",
+    "compute_all_image_derivatives",
+    "compute_image_gradient_vu",
+    "information_matrix_to_covariance",
+    "lm_subpixel_refine",
+)
+
+
+class _Fitter:
+    """The compiled implementation, looked up on the top-level package.
+
+    Looked up lazily: ``dtalign/__init__`` re-exports this module, so a
+    module-level ``from dtalign import ...`` here would be circular.
+    """
+
+    def __getattr__(self, name: str) -> Any:
+        if name not in _FITTER_NAMES:
+            raise AttributeError(name)
+        return getattr(importlib.import_module("dtalign"), name)
+
+
+_FITTER = _Fitter()
+
+
+def _api() -> Any:
+    """The fitting and image functions of the compiled implementation."""
+    return _FITTER
+
+
+def _readonly(arr: np.ndarray) -> np.ndarray:
+    view = arr.view()
+    view.flags.writeable = False
+    return view
+
+
+# ---------------------------------------------------------------------------
+# Noise and covariance helpers
+# ---------------------------------------------------------------------------
+
+
+def estimate_noise_sigma(image: Any) -> float:
+    """Robust estimate of the per-pixel Gaussian noise sigma of an image.
+
+    The image is convolved with Immerkaer's 3 x 3 kernel
+    ``[[1, -2, 1], [-2, 4, -2], [1, -2, 1]]`` (the product of two second
+    differences), which cancels any locally planar intensity: the flat
+    inside and outside of a bright disc, and smooth shading, give zero.
+    Only noise and the few pixels on an edge remain. For white Gaussian
+    noise of sigma ``s`` the output has standard deviation ``6 s`` (the
+    kernel's L2 norm), so the estimate is ``1.4826 * MAD / 6`` over the
+    interior pixels, where MAD is the median absolute deviation from the
+    median. The median ignores the edge pixels as long as they are a
+    minority of the image.
+
+    When more than half of the filtered pixels are equal (a quantised image
+    with almost no noise, where the MAD is 0), the mean absolute value is
+    used instead: ``sqrt(pi / 2) * mean(|x|) / 6``, Immerkaer's original
+    estimator.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        A finite 2-D image.
+
+    Returns
+    -------
+    float
+        The noise sigma in the image's units (0.0 for a constant or
+        noiseless planar image, or an image smaller than 3 x 3).
+
+    Raises
+    ------
+    TypeError
+        If ``image`` is not 2-D or not numeric.
+    ValueError
+        If ``image`` is empty or has NaN or inf pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> image = 100.0 + rng.normal(0.0, 2.0, (256, 256))
+    >>> round(estimate_noise_sigma(image), 1)
+    2.0
+    """
+    arr = check_image(image)
+    if arr.shape[0] < 3 or arr.shape[1] < 3:
+        return 0.0
+    filtered = scipy.ndimage.convolve(arr, _NOISE_KERNEL, mode="reflect")[1:-1, 1:-1].ravel()
+    centre = float(np.median(filtered))
+    mad = float(np.median(np.abs(filtered - centre)))
+    if mad > 0.0:
+        return _MAD_TO_SIGMA * mad / _NOISE_KERNEL_NORM
+    return math.sqrt(math.pi / 2.0) * float(np.mean(np.abs(filtered))) / _NOISE_KERNEL_NORM
+
+
+def _null_space(cov: FloatArray, rcond: float) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Eigen-decomposition of a covariance and which eigen-directions are null.
+
+    ``pinvh`` keeps information eigenvalues down to ``rcond`` times the
+    largest, so a kept covariance eigenvalue is at least ``rcond`` times the
+    largest covariance eigenvalue; a discarded one is zero up to rounding.
+    Half of ``rcond`` (but never less than a rounding margin) separates them.
+    """
+    values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+    top = float(values.max()) if values.size else 0.0
+    if top <= 0.0:
+        return values, vectors, np.ones(values.shape, dtype=bool)
+    eps_margin = 16.0 * cov.shape[0] * np.finfo(np.float64).eps
+    cut = top * max(0.5 * rcond, eps_margin)
+    return values, vectors, values <= cut
+
+
+def _check_covariance(cov: Any) -> FloatArray:
+    arr = np.asarray(cov, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[0] != arr.shape[1] or arr.shape[0] == 0:
+        raise ValueError(f"cov must be a square (P, P) matrix with P > 0, got shape {arr.shape}")
+    if np.isnan(arr).any():
+        raise ValueError("cov must not contain NaN")
+    return arr
+
+
+def observable_rank(cov: Any, rcond: float = DEFAULT_PINVH_RCOND) -> int:
+    """Number of parameter directions a fit's covariance actually constrains.
+
+    Parameters
+    ----------
+    cov : array_like, shape (P, P)
+        A covariance as returned by :func:`dtalign.lm_subpixel_refine`
+        (the pseudoinverse of the information matrix).
+    rcond : float, optional
+        The relative cutoff the covariance was computed with.
+
+    Returns
+    -------
+    int
+        ``P`` for a fully constrained fit, fewer for a rank-deficient one
+        (1 for a straight edge fitted in translation), 0 for a degenerate
+        fit (an all-``inf`` covariance).
+    """
+    arr = _check_covariance(cov)
+    rcond = check.nonnegative_real(rcond, "rcond")
+    if not np.isfinite(arr).all():
+        return 0
+    _, _, null = _null_space(arr, rcond)
+    return int((~null).sum())
+
+
+def covariance_with_unobservable_inf(
+    cov: Any, rcond: float = DEFAULT_PINVH_RCOND, *, null_directions: Any = None
+) -> FloatArray:
+    """Map the null directions of a pseudoinverse covariance to ``+inf``.
+
+    :func:`dtalign.lm_subpixel_refine` returns ``pinvh(J^T W J)``: along a
+    direction the data does not constrain (the along-edge shift of a
+    straight edge), the information is zero and so is the pseudoinverse's
+    variance. That zero means "no information", not "perfectly known". This
+    helper returns the reading where such a direction has infinite
+    variance: the limit of ``V diag(lambda) V^T`` as the null eigenvalues
+    go to ``+inf``. An entry ``(i, j)`` touched by a null direction ``e``
+    (``e[i] * e[j]`` not negligible) becomes ``+inf`` or ``-inf`` by the
+    sign of ``e[i] * e[j]``; every other entry keeps the finite value of the
+    covariance restricted to the observable directions. The diagonal
+    therefore gives the per-parameter variance: ``+inf`` for each parameter
+    a null direction involves.
+
+    The returned matrix is a reading the caller asks for, not the default
+    (SPEC section 6): a fit's own ``covariance`` is unchanged.
+
+    Parameters
+    ----------
+    cov : array_like, shape (P, P)
+        A symmetric covariance (the pseudoinverse of an information matrix).
+        An all-``inf`` (degenerate) covariance gives all ``+inf``.
+    rcond : float, optional
+        The relative cutoff the pseudoinverse used
+        (default :data:`dtalign.DEFAULT_PINVH_RCOND`): eigen-directions of
+        ``cov`` with a variance below ``rcond / 2`` times the largest are
+        its null directions.
+    null_directions : array_like, shape (K, P), optional
+        Further directions to treat as unobservable (for example those of
+        :attr:`PolylineFit.normal_covariance`); they need not be unit
+        vectors. ``cov`` is first restricted to their orthogonal complement.
+
+    Returns
+    -------
+    ndarray, shape (P, P)
+        A new array; finite where the fit constrains the parameters.
+
+    Raises
+    ------
+    ValueError
+        If ``cov`` is not square, contains NaN, ``rcond`` is negative, or
+        ``null_directions`` has the wrong shape.
+
+    Examples
+    --------
+    A straight vertical edge constrains ``u`` only:
+
+    >>> import numpy as np
+    >>> covariance_with_unobservable_inf(np.array([[0.0, 0.0], [0.0, 0.01]]))
+    array([[ inf,  0.  ],
+           [ 0.  , 0.01]])
+    """
+    arr = _check_covariance(cov)
+    rcond = check.nonnegative_real(rcond, "rcond")
+    p = arr.shape[0]
+    if not np.isfinite(arr).all():
+        return np.full(arr.shape, np.inf)
+    extra = np.zeros((0, p))
+    if null_directions is not None:
+        extra = np.asarray(null_directions, dtype=np.float64).reshape(-1, p) if np.size(
+            null_directions
+        ) else np.zeros((0, p))
+        if extra.ndim != 2 or extra.shape[1] != p or not np.isfinite(extra).all():
+            raise ValueError(f"null_directions must be finite with shape (K, {p})")
+        norms = np.linalg.norm(extra, axis=1)
+        extra = extra[norms > 0] / norms[norms > 0, None]
+    if extra.shape[0]:
+        # Orthonormal basis of the given directions, then project them out.
+        basis = np.linalg.svd(extra, full_matrices=False)[2][: np.linalg.matrix_rank(extra)]
+        proj = np.eye(p) - basis.T @ basis
+        arr = proj @ arr @ proj
+    values, vectors, null = _null_space(arr, rcond)
+    if null.all():
+        return np.full(arr.shape, np.inf)
+    kept = vectors[:, ~null]
+    out = (kept * values[~null]) @ kept.T
+    out = 0.5 * (out + out.T)
+    # Components of a null eigenvector below this are rounding, not geometry.
+    tiny = 1e-6
+    for e in vectors[:, null].T:
+        outer = np.outer(e, e)
+        touched = np.abs(outer) > tiny * tiny
+        out[touched] = np.copysign(np.inf, outer[touched])
+    return out
+
+
+def null_directions(cov: Any, rcond: float = DEFAULT_PINVH_RCOND) -> FloatArray:
+    """Unit vectors spanning the unobservable directions of a covariance.
+
+    Parameters
+    ----------
+    cov : array_like, shape (P, P)
+        A pseudoinverse covariance; all-``inf`` means nothing is observed.
+    rcond : float, optional
+        The pseudoinverse cutoff (see :func:`covariance_with_unobservable_inf`).
+
+    Returns
+    -------
+    ndarray, shape (K, P)
+        ``K = P - observable_rank(cov, rcond)`` orthonormal rows.
+    """
+    arr = _check_covariance(cov)
+    rcond = check.nonnegative_real(rcond, "rcond")
+    if not np.isfinite(arr).all():
+        return np.eye(arr.shape[0])
+    _, vectors, null = _null_space(arr, rcond)
+    return np.ascontiguousarray(vectors[:, null].T)
+
+
+def normal_information_covariance(
+    vertices_vu: Any,
+    normals_vu: Any,
+    weights: Any,
+    *,
+    offset_vu: Any = (0.0, 0.0),
+    rotation_rad: float = 0.0,
+    fit_rotation: bool = False,
+    pivot_vu: Any = None,
+    rcond: float = DEFAULT_PINVH_RCOND,
+) -> FloatArray:
+    """Covariance of the pose when each vertex measures only its normal shift.
+
+    A vertex on an edge sees a displacement across the edge, never along it
+    (the aperture problem). With the residual Jacobian rows ``-n_i`` (and,
+    with rotation, ``-n_i . d(pos_i)/d(theta)``) the information is
+    ``A^T W A`` and the covariance its pseudoinverse, as
+    :func:`dtalign.information_matrix_to_covariance` computes it. This is
+    the idealised, continuous-edge version of the DT-Jacobian covariance of
+    :func:`dtalign.lm_subpixel_refine`: on a perfect edge the DT gradient is
+    the normal. On real pixels the finite-difference DT Jacobian also picks
+    up the staircase of a digitised diagonal edge and nearby clutter edges,
+    which add along-edge information that no straight edge carries; this
+    covariance does not, so parallel straight edges give exactly rank 1.
+
+    Parameters
+    ----------
+    vertices_vu, normals_vu : array_like, shape (N, 2)
+        The model polyline (before the pose).
+    weights : array_like, shape (N,)
+        Per-vertex weights (the LM's final IRLS weights).
+    offset_vu, rotation_rad, fit_rotation, pivot_vu
+        The pose; the normals are rotated by ``rotation_rad``. With
+        ``fit_rotation`` the result is 3 x 3 (``dv, du, theta``).
+    rcond : float, optional
+        Pseudoinverse cutoff.
+
+    Returns
+    -------
+    ndarray, shape (P, P)
+        All ``+inf`` when no vertex has a positive weight.
+    """
+    verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
+    norms = check.normals(normals_vu, verts.shape[0])
+    w = np.asarray(weights, dtype=np.float64)
+    if w.shape != (verts.shape[0],) or not np.isfinite(w).all() or (w < 0).any():
+        raise ValueError(
+            f"weights must be a finite, non-negative 1-D vector of length {verts.shape[0]}"
+        )
+    check.pair(offset_vu, "offset_vu")
+    theta = check.finite_real(rotation_rad, "rotation_rad")
+    pivot = check.resolve_pivot(verts, pivot_vu)
+    n_params = 3 if fit_rotation else 2
+    if not (w > 0).any():
+        return np.full((n_params, n_params), np.inf)
+    c, s_ = math.cos(theta), math.sin(theta)
+    rel = verts - pivot
+    rot_rel = np.column_stack([c * rel[:, 0] - s_ * rel[:, 1], s_ * rel[:, 0] + c * rel[:, 1]])
+    rot_n = np.column_stack(
+        [c * norms[:, 0] - s_ * norms[:, 1], s_ * norms[:, 0] + c * norms[:, 1]]
+    )
+    cols = [-rot_n[:, 0], -rot_n[:, 1]]
+    if fit_rotation:
+        # d(pos)/d(theta) = (-(u - pu), v - pv) of the rotated vertex.
+        cols.append(-(rot_n[:, 0] * -rot_rel[:, 1] + rot_n[:, 1] * rot_rel[:, 0]))
+    jac = np.column_stack(cols)
+    return _api().information_matrix_to_covariance(jac, w, rcond=rcond)
+
+
+def _sigmas_from_cov(cov: FloatArray) -> FloatArray:
+    diag = np.diag(cov).astype(np.float64, copy=True)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isnan(diag), np.inf, np.sqrt(np.maximum(diag, 0.0)))
+
+
+# ---------------------------------------------------------------------------
+# Image products
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ImageProducts:
+    """Everything the fitter needs from one image, computed once.
+
+    Build it with :func:`prepare_image`; pass it to
+    :func:`fit_polyline_products` as many times as there are polylines.
+    The arrays are read-only.
+
+    Attributes
+    ----------
+    shape : tuple of int
+        The image shape ``(H, W)``.
+    noise_sigma : float
+        The noise sigma the edge threshold used (given, or estimated by
+        :func:`estimate_noise_sigma`).
+    gradient_magnitude : ndarray, shape (H, W)
+        ``hypot(g_v, g_u)`` of the Sobel-of-Gaussian gradient.
+    edge_dt : ndarray, shape (H, W)
+        Truncated Euclidean distance to the nearest thinned edge pixel.
+    gradient_vu : ndarray, shape (H, W, 2)
+        The gradient vectors ``(g_v, g_u)`` (polarity and ridge polish).
+    edge_mask : ndarray of bool, shape (H, W)
+        ``edge_dt <= 0.5``: what the coarse search matches against.
+    config : ImageDerivativesConfig
+        The tunables the products were computed with.
+    noise_sigma_estimated : bool
+        True when ``noise_sigma`` was estimated from the image.
+    timings_s : dict
+        Wall time of each step (``noise``, ``derivatives``), seconds.
+        Ignored by ``==``.
+    """
+
+    shape: tuple[int, int]
+    noise_sigma: float
+    gradient_magnitude: FloatArray
+    edge_dt: FloatArray
+    gradient_vu: FloatArray
+    edge_mask: NDArray[np.bool_]
+    config: ImageDerivativesConfig = field(default_factory=ImageDerivativesConfig)
+    noise_sigma_estimated: bool = False
+    timings_s: dict[str, float] = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        for name in ("gradient_magnitude", "edge_dt", "gradient_vu", "edge_mask"):
+            value = getattr(self, name)
+            if not isinstance(value, np.ndarray):
+                raise TypeError(f"{name} must be a numpy.ndarray, got {type(value).__name__}")
+            object.__setattr__(self, name, _readonly(value))
+        shape = tuple(int(s) for s in self.shape)
+        if len(shape) != 2:
+            raise ValueError(f"shape must be (H, W), got {self.shape!r}")
+        object.__setattr__(self, "shape", shape)
+        for name in ("gradient_magnitude", "edge_dt", "edge_mask"):
+            if getattr(self, name).shape != shape:
+                raise ValueError(
+                    f"{name} shape {getattr(self, name).shape} does not match shape {shape}"
+                )
+        if self.gradient_vu.shape != (*shape, 2):
+            raise ValueError(
+                f"gradient_vu must have shape {(*shape, 2)}, got {self.gradient_vu.shape}"
+            )
+
+
+def prepare_image(
+    image: Any, noise_sigma: float | None = None, *, config: ImageDerivativesConfig | None = None
+) -> ImageProducts:
+    """Compute an image's fitting products once.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        A finite, non-empty 2-D image.
+    noise_sigma : float, optional
+        The image noise sigma, in the image's units. Estimated with
+        :func:`estimate_noise_sigma` when None.
+    config : ImageDerivativesConfig, optional
+        Gradient smoothing, edge threshold and DT truncation; defaults when
+        None.
+
+    Returns
+    -------
+    ImageProducts
+
+    Raises
+    ------
+    TypeError
+        If ``image`` is not a 2-D numeric array, or ``config`` is not an
+        :class:`~dtalign.ImageDerivativesConfig`.
+    ValueError
+        If ``image`` is empty or not finite, or ``noise_sigma`` is negative
+        or not finite.
+    """
+    try:
+        arr = check_image(image)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(str(exc).replace("image_ext", "image")) from None
+    cfg = resolve_config(config)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    estimated = noise_sigma is None
+    if estimated:
+        sigma = estimate_noise_sigma(arr)
+    else:
+        try:
+            sigma = check_noise_sigma(noise_sigma)
+        except ValueError as exc:
+            raise ValueError(str(exc).replace("image_noise_sigma", "noise_sigma")) from None
+    t1 = time.perf_counter()
+    timings["noise"] = t1 - t0
+    magnitude, edge_dt, gradient_vu = _api().compute_all_image_derivatives(arr, sigma, config=cfg)
+    edge_mask = np.asarray(edge_dt) <= 0.5
+    timings["derivatives"] = time.perf_counter() - t1
+    return ImageProducts(
+        shape=(arr.shape[0], arr.shape[1]),
+        noise_sigma=float(sigma),
+        gradient_magnitude=np.asarray(magnitude),
+        edge_dt=np.asarray(edge_dt),
+        gradient_vu=np.asarray(gradient_vu),
+        edge_mask=edge_mask,
+        config=cfg,
+        noise_sigma_estimated=estimated,
+        timings_s=timings,
+    )
+
+
+# ---------------------------------------------------------------------------
+# Fit result
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PolylineFit:
+    """Outcome of :func:`fit_polyline` / :func:`fit_polyline_products`.
+
+    Attributes
+    ----------
+    offset_vu : tuple of float
+        Fitted translation ``(dv, du)`` in pixels: add it to the model
+        vertices (after the rotation) to land them on the image edges.
+    rotation_rad : float
+        Fitted rotation about ``pivot_vu`` (0.0 when not fitted).
+    sigma_vu : tuple of float
+        One-sigma uncertainty of ``dv`` and ``du``: the square root of the
+        covariance diagonal. ``inf`` for a degenerate fit; **0.0 along a
+        direction the fit cannot observe** (see
+        :attr:`sigma_vu_unobservable_inf`).
+    sigma_rotation_rad : float or None
+        One-sigma of the rotation, None when rotation is not fitted.
+    coarse_offset_vu : tuple of int
+        The integer seed of the coarse search.
+    at_window_edge : bool
+        True when the coarse seed lies on the boundary of the search window
+        along an axis with a non-zero margin: the true offset may be
+        outside the window and the fit should not be trusted.
+    lm : LMRefineResult
+        The full refinement result (covariance, residuals, weights, ...).
+    search_window_vu : tuple of int
+        The coarse-search margin used.
+    fit_rotation : bool
+        Whether the rotation was fitted.
+    pivot_vu : tuple of float
+        The rotation pivot (the vertex centroid unless given).
+    pivot_distance_px : float
+        The pivot-to-image-centre distance used to scale the rotation step.
+    noise_sigma : float
+        The image noise sigma the edge threshold used.
+    normal_covariance : ndarray, shape (P, P)
+        The pose covariance when each vertex measures only its shift along
+        its normal (see :func:`normal_information_covariance`), with the
+        LM's final weights. It decides :attr:`observable_rank`.
+    pinvh_rcond : float
+        The pseudoinverse cutoff of the covariance.
+    tukey_c : float
+        The Tukey cutoff used, in units of each vertex's sigma.
+    timings_s : dict
+        Wall time of each stage in seconds (``noise``, ``derivatives`` when
+        the products were computed here, ``mask``, ``coarse``, ``lm``).
+        Ignored by ``==``.
+    """
+
+    offset_vu: tuple[float, float]
+    rotation_rad: float
+    sigma_vu: tuple[float, float]
+    sigma_rotation_rad: float | None
+    coarse_offset_vu: tuple[int, int]
+    at_window_edge: bool
+    lm: LMRefineResult
+    search_window_vu: tuple[int, int]
+    fit_rotation: bool
+    pivot_vu: tuple[float, float]
+    pivot_distance_px: float
+    noise_sigma: float
+    normal_covariance: FloatArray = field(default_factory=lambda: np.full((2, 2), np.inf))
+    pinvh_rcond: float = DEFAULT_PINVH_RCOND
+    tukey_c: float = DEFAULT_TUKEY_C
+    timings_s: dict[str, float] = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "normal_covariance", _readonly(np.asarray(self.normal_covariance)))
+
+    @property
+    def covariance(self) -> FloatArray:
+        """The LM covariance (pseudoinverse; 2 x 2, or 3 x 3 with rotation)."""
+        return self.lm.covariance
+
+    @property
+    def converged(self) -> bool:
+        """Whether the LM step fell below the step tolerance."""
+        return self.lm.converged
+
+    @property
+    def degenerate(self) -> bool:
+        """True when no vertex kept any weight (covariance all ``inf``)."""
+        return self.lm.degenerate
+
+    @property
+    def rms_px(self) -> float:
+        """Weighted RMS DT residual of the inliers, pixels."""
+        return self.lm.rms_px
+
+    @property
+    def inlier_count(self) -> int:
+        """Vertices with a positive final weight."""
+        return self.lm.inlier_count
+
+    @property
+    def polarity_rejected(self) -> NDArray[np.bool_]:
+        """Vertices whose normal disagreed with the image gradient (residual 1e6)."""
+        return np.asarray(self.lm.residuals_px) == POLARITY_PENALTY_RESIDUAL
+
+    @property
+    def tukey_rejected(self) -> NDArray[np.bool_]:
+        """Polarity-accepted vertices the Tukey biweight gave zero weight."""
+        return (np.asarray(self.lm.weights) == 0.0) & ~self.polarity_rejected
+
+    @property
+    def observable_rank(self) -> int:
+        """Number of pose directions the polyline's geometry constrains.
+
+        The rank of :attr:`normal_covariance` (each vertex measures only its
+        shift along its normal): 2 (or 3 with rotation) for a limb, 1 for
+        parallel straight edges fitted in translation, 0 when degenerate.
+        The DT covariance :attr:`covariance` can look full rank on a
+        digitised diagonal edge; see :func:`normal_information_covariance`.
+        """
+        return observable_rank(self.normal_covariance, self.pinvh_rcond)
+
+    @property
+    def unobservable_directions(self) -> FloatArray:
+        """Unit pose directions the geometry does not constrain, shape (K, P)."""
+        return null_directions(self.normal_covariance, self.pinvh_rcond)
+
+    @property
+    def covariance_unobservable_inf(self) -> FloatArray:
+        """The covariance with the unobservable directions mapped to ``+inf``.
+
+        The LM covariance restricted to the directions the geometry
+        constrains, ``+inf`` along :attr:`unobservable_directions` and along
+        the covariance's own null directions; see
+        :func:`covariance_with_unobservable_inf`.
+        """
+        return covariance_with_unobservable_inf(
+            self.lm.covariance, self.pinvh_rcond, null_directions=self.unobservable_directions
+        )
+
+    @property
+    def sigma_vu_unobservable_inf(self) -> tuple[float, float]:
+        """Like :attr:`sigma_vu`, but ``inf`` for an axis an unobservable direction involves."""
+        sig = _sigmas_from_cov(self.covariance_unobservable_inf)
+        return float(sig[0]), float(sig[1])
+
+    def transform(self, vertices_vu: Any) -> FloatArray:
+        """Apply the fitted pose (rotation about the pivot, then offset) to vertices."""
+        verts = check.vertices(vertices_vu, "vertices_vu")
+        theta = self.rotation_rad
+        rel = verts - self.pivot_vu
+        if theta != 0.0:
+            c, s_ = math.cos(theta), math.sin(theta)
+            rel = np.column_stack([c * rel[:, 0] - s_ * rel[:, 1], s_ * rel[:, 0] + c * rel[:, 1]])
+        return rel + self.pivot_vu + self.offset_vu
+
+    def sigma_along(self, direction_vu: Any) -> float:
+        """One-sigma of the translation projected on a direction ``(v, u)``.
+
+        ``sqrt(d^T C d)`` with ``d`` the unit direction and ``C`` the
+        translation block of :attr:`covariance`: for a straight edge, pass
+        its normal to get the across-edge uncertainty.
+        """
+        d = np.asarray(check.pair(direction_vu, "direction_vu"))
+        norm = float(np.hypot(d[0], d[1]))
+        if norm == 0.0:
+            raise ValueError("direction_vu must not be zero")
+        d = d / norm
+        cov = np.asarray(self.lm.covariance)[:2, :2]
+        if not np.isfinite(cov).all():
+            return math.inf
+        return float(math.sqrt(max(float(d @ cov @ d), 0.0)))
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (no per-vertex arrays)."""
+
+        def num(x: float) -> float | str:
+            return x if math.isfinite(x) else ("inf" if x > 0 else "-inf")
+
+        cov = np.asarray(self.lm.covariance)
+        return {
+            "offset_vu": [num(x) for x in self.offset_vu],
+            "rotation_rad": num(self.rotation_rad),
+            "sigma_vu": [num(x) for x in self.sigma_vu],
+            "sigma_vu_unobservable_inf": [num(x) for x in self.sigma_vu_unobservable_inf],
+            "sigma_rotation_rad": (
+                None if self.sigma_rotation_rad is None else num(self.sigma_rotation_rad)
+            ),
+            "covariance": [[num(float(x)) for x in row] for row in cov],
+            "normal_covariance": [
+                [num(float(x)) for x in row] for row in np.asarray(self.normal_covariance)
+            ],
+            "observable_rank": self.observable_rank,
+            "coarse_offset_vu": list(self.coarse_offset_vu),
+            "at_window_edge": self.at_window_edge,
+            "search_window_vu": list(self.search_window_vu),
+            "fit_rotation": self.fit_rotation,
+            "pivot_vu": list(self.pivot_vu),
+            "pivot_distance_px": self.pivot_distance_px,
+            "noise_sigma": self.noise_sigma,
+            "rms_px": num(self.lm.rms_px),
+            "raw_rms_px": num(self.lm.raw_rms_px),
+            "iterations": self.lm.iterations,
+            "converged": self.lm.converged,
+            "degenerate": self.lm.degenerate,
+            "inlier_count": self.lm.inlier_count,
+            "n_vertices": int(np.asarray(self.lm.residuals_px).shape[0]),
+            "polarity_rejected": int(self.polarity_rejected.sum()),
+            "tukey_rejected": int(self.tukey_rejected.sum()),
+            "timings_s": dict(self.timings_s),
+        }
+
+
+# ---------------------------------------------------------------------------
+# Fitting
+# ---------------------------------------------------------------------------
+
+
+def _check_sigmas(value: Any, n_vertices: int) -> FloatArray:
+    """Per-vertex prior sigmas: 1-D, length N, finite and > 0."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"sigmas must be a numeric array: {exc}") from None
+    if arr.ndim != 1 or arr.shape[0] != n_vertices:
+        raise ValueError(
+            f"sigmas must be a 1-D vector of length {n_vertices} (one per vertex), "
+            f"got shape {arr.shape}"
+        )
+    if not (np.isfinite(arr).all() and (arr > 0.0).all()):
+        raise ValueError("sigmas must be finite and > 0")
+    return np.ascontiguousarray(arr)
+
+
+def _at_window_edge(coarse: tuple[int, int], window: tuple[int, int]) -> bool:
+    return any(m > 0 and abs(c) >= m for c, m in zip(coarse, window, strict=False))
+
+
+def fit_polyline_products(
+    products: ImageProducts,
+    vertices_vu: Any,
+    normals_vu: Any,
+    sigmas: Any,
+    *,
+    search_window_vu: Any,
+    fit_rotation: bool = False,
+    pivot_vu: Any = None,
+    pivot_distance_px: float | None = None,
+    use_polarity: bool = True,
+    trust_region_px: float | None = None,
+    tikhonov_alpha: float = 0.0,
+    final_gradient_ridge: bool = False,
+    initial_rotation_rad: float = 0.0,
+    max_iterations: int = DEFAULT_LM_MAX_ITERATIONS,
+    damping: float = DEFAULT_LM_DAMPING,
+    step_tolerance_px: float = DEFAULT_LM_STEP_TOLERANCE,
+    tukey_c: float = DEFAULT_TUKEY_C,
+    pinvh_rcond: float = DEFAULT_PINVH_RCOND,
+) -> PolylineFit:
+    """Fit one polyline against precomputed image products.
+
+    Steps: rasterise the polyline (:func:`dtalign.build_polyline_mask`),
+    find the integer seed (:func:`dtalign.coarse_ncc_search` against
+    ``products.edge_mask``), then refine from the seed with
+    :func:`dtalign.lm_subpixel_refine`.
+
+    Parameters
+    ----------
+    products : ImageProducts
+        From :func:`prepare_image`.
+    vertices_vu : array_like, shape (N, 2)
+        Model vertices ``(v, u)`` in pixels, N > 0.
+    normals_vu : array_like, shape (N, 2)
+        Unit normals pointing to the bright side of each edge (the polarity
+        test accepts a vertex when its normal points up the gradient).
+    sigmas : array_like, shape (N,)
+        Prior one-sigma of each vertex along its normal, pixels, > 0.
+    search_window_vu : tuple of int
+        Coarse-search margin ``(mv, mu)``: every integer shift in
+        ``[-mv, mv] x [-mu, mu]`` is scored.
+    fit_rotation : bool, optional
+        Also fit an in-plane rotation about ``pivot_vu``.
+    pivot_vu : tuple of float, optional
+        Rotation pivot; the vertex centroid when None.
+    pivot_distance_px : float, optional
+        Scales the rotation step into pixels for the convergence test.
+        When None and ``fit_rotation`` is True: the distance from the
+        pivot to the image centre ``((H-1)/2, (W-1)/2)``, floored at 1.
+    use_polarity : bool, optional
+        Reject vertices whose normal points down the gradient.
+    trust_region_px : float, optional
+        Refuse LM steps farther than this from the coarse seed (1.0 is the
+        production setting); no limit when None.
+    tikhonov_alpha : float, optional
+        Pull toward the coarse seed (0 disables it).
+    final_gradient_ridge : bool, optional
+        Run the gradient-ridge polish after the LM.
+    initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
+        Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
+
+    Returns
+    -------
+    PolylineFit
+
+    Raises
+    ------
+    TypeError
+        If ``products`` is not an :class:`ImageProducts`, or a window entry
+        is not an int.
+    ValueError
+        On malformed vertices, normals, sigmas, window, pivot or LM
+        parameters; the message names the argument.
+    """
+    if not isinstance(products, ImageProducts):
+        raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
+    verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
+    norms = check.normals(normals_vu, verts.shape[0])
+    sig = _check_sigmas(sigmas, verts.shape[0])
+    window = check.search_window(search_window_vu)
+    fit_rotation = bool(fit_rotation)
+    pivot = check.resolve_pivot(verts, pivot_vu)
+    if pivot_distance_px is None:
+        if fit_rotation:
+            h, w = products.shape
+            distance = max(math.hypot(pivot[0] - (h - 1) / 2.0, pivot[1] - (w - 1) / 2.0), 1.0)
+        else:
+            distance = 0.0
+    else:
+        distance = check.finite_real(pivot_distance_px, "pivot_distance_px")
+        if fit_rotation and distance <= 0.0:
+            raise ValueError(
+                f"fit_rotation=True requires a finite pivot_distance_px > 0, got {distance!r}"
+            )
+
+    api = _api()
+    timings: dict[str, float] = dict(products.timings_s)
+    t0 = time.perf_counter()
+    mask = api.build_polyline_mask(verts, products.shape)
+    t1 = time.perf_counter()
+    coarse = api.coarse_ncc_search(products.edge_mask, mask, window)
+    coarse = (int(coarse[0]), int(coarse[1]))
+    t2 = time.perf_counter()
+    lm = api.lm_subpixel_refine(
+        vertices_vu=verts,
+        normals_vu=norms,
+        sigma_normal_per_vertex_px=sig,
+        image_edge_dt=products.edge_dt,
+        image_gradient_vu=products.gradient_vu,
+        initial_offset_vu=(float(coarse[0]), float(coarse[1])),
+        initial_rotation_rad=initial_rotation_rad,
+        fit_rotation=fit_rotation,
+        pivot_vu=pivot,
+        pivot_distance_px=distance,
+        use_polarity=use_polarity,
+        max_iterations=max_iterations,
+        damping=damping,
+        step_tolerance_px=step_tolerance_px,
+        tukey_c=tukey_c,
+        pinvh_rcond=pinvh_rcond,
+        trust_region_px=trust_region_px,
+        tikhonov_alpha=tikhonov_alpha,
+        final_gradient_ridge=final_gradient_ridge,
+    )
+    t3 = time.perf_counter()
+    timings.update(mask=t1 - t0, coarse=t2 - t1, lm=t3 - t2)
+
+    sig_all = _sigmas_from_cov(np.asarray(lm.covariance))
+    normal_cov = normal_information_covariance(
+        verts,
+        norms,
+        np.asarray(lm.weights),
+        offset_vu=lm.offset_vu,
+        rotation_rad=lm.rotation_rad,
+        fit_rotation=fit_rotation,
+        pivot_vu=pivot,
+        rcond=pinvh_rcond,
+    )
+    return PolylineFit(
+        offset_vu=(float(lm.offset_vu[0]), float(lm.offset_vu[1])),
+        rotation_rad=float(lm.rotation_rad),
+        sigma_vu=(float(sig_all[0]), float(sig_all[1])),
+        sigma_rotation_rad=float(sig_all[2]) if fit_rotation else None,
+        coarse_offset_vu=coarse,
+        at_window_edge=_at_window_edge(coarse, window),
+        lm=lm,
+        search_window_vu=window,
+        fit_rotation=fit_rotation,
+        pivot_vu=pivot,
+        pivot_distance_px=float(distance),
+        noise_sigma=products.noise_sigma,
+        normal_covariance=normal_cov,
+        pinvh_rcond=float(pinvh_rcond),
+        tukey_c=float(tukey_c),
+        timings_s=timings,
+    )
+
+
+def fit_polyline(
+    image: Any,
+    vertices_vu: Any,
+    normals_vu: Any,
+    sigmas: Any,
+    *,
+    search_window_vu: Any,
+    noise_sigma: float | None = None,
+    fit_rotation: bool = False,
+    pivot_vu: Any = None,
+    pivot_distance_px: float | None = None,
+    config: ImageDerivativesConfig | None = None,
+    use_polarity: bool = True,
+    trust_region_px: float | None = None,
+    tikhonov_alpha: float = 0.0,
+    final_gradient_ridge: bool = False,
+    initial_rotation_rad: float = 0.0,
+    max_iterations: int = DEFAULT_LM_MAX_ITERATIONS,
+    damping: float = DEFAULT_LM_DAMPING,
+    step_tolerance_px: float = DEFAULT_LM_STEP_TOLERANCE,
+    tukey_c: float = DEFAULT_TUKEY_C,
+    pinvh_rcond: float = DEFAULT_PINVH_RCOND,
+) -> PolylineFit:
+    """Fit a model polyline to an image in one call.
+
+    Equivalent to ``fit_polyline_products(prepare_image(image, noise_sigma,
+    config=config), vertices_vu, normals_vu, sigmas, ...)``. To fit several
+    polylines to one image, call :func:`prepare_image` once and
+    :func:`fit_polyline_products` per polyline instead.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        The image (any real dtype; converted to float64).
+    vertices_vu, normals_vu, sigmas
+        The model polyline: see :func:`fit_polyline_products`.
+    search_window_vu : tuple of int
+        Coarse-search margin ``(mv, mu)``.
+    noise_sigma : float, optional
+        Image noise sigma; estimated by :func:`estimate_noise_sigma` when
+        None.
+    fit_rotation, pivot_vu, pivot_distance_px
+        Rotation options: see :func:`fit_polyline_products` (the pivot
+        defaults to the vertex centroid, the distance to the pivot-to-centre
+        distance floored at 1).
+    config : ImageDerivativesConfig, optional
+        Image-side tunables.
+    use_polarity, trust_region_px, tikhonov_alpha, final_gradient_ridge
+        LM options: see :func:`fit_polyline_products`.
+    initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
+        Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
+
+    Returns
+    -------
+    PolylineFit
+
+    Examples
+    --------
+    >>> from dtalign import fit_polyline, scenes
+    >>> scene = scenes.disc_scene()
+    >>> p = scene.polyline
+    >>> fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas,
+    ...                    search_window_vu=(30, 30))
+    >>> [round(x, 1) for x in fit.offset_vu]
+    [7.3, -4.6]
+    """
+    products = prepare_image(image, noise_sigma, config=config)
+    return fit_polyline_products(
+        products,
+        vertices_vu,
+        normals_vu,
+        sigmas,
+        search_window_vu=search_window_vu,
+        fit_rotation=fit_rotation,
+        pivot_vu=pivot_vu,
+        pivot_distance_px=pivot_distance_px,
+        use_polarity=use_polarity,
+        trust_region_px=trust_region_px,
+        tikhonov_alpha=tikhonov_alpha,
+        final_gradient_ridge=final_gradient_ridge,
+        initial_rotation_rad=initial_rotation_rad,
+        max_iterations=max_iterations,
+        damping=damping,
+        step_tolerance_px=step_tolerance_px,
+        tukey_c=tukey_c,
+        pinvh_rcond=pinvh_rcond,
+    )

@@ -1,0 +1,305 @@
+"""Pictures of a fit: the model on the image, and the residuals.
+
+matplotlib is an optional dependency (``pip install dtalign[plot]``). It is
+imported only when a plotting function is called, and figures are built
+with the object-oriented API on an Agg canvas, so plotting works on a
+headless machine and never changes the caller's pyplot backend or state.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import _validation as check
+from ._constants import POLARITY_PENALTY_RESIDUAL
+
+__all__ = ["plot_fit", "plot_residual_histogram"]
+
+_INSTALL_HINT = "plotting needs matplotlib: pip install dtalign[plot]"
+
+
+def _figure(figsize: tuple[float, float]) -> Any:
+    """A new Figure on an Agg canvas (no pyplot, no global state)."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise ImportError(_INSTALL_HINT) from None
+    fig = Figure(figsize=figsize, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Any, path: str | Path | None, dpi: int) -> None:
+    if path is not None:
+        fig.savefig(Path(path), dpi=dpi)
+
+
+def _nice_scale(target: float) -> float:
+    """The largest 1-2-5 number not above ``target`` (at least 1)."""
+    if not math.isfinite(target) or target <= 1.0:
+        return 1.0
+    exp = math.floor(math.log10(target))
+    best = 10.0**exp
+    for m in (2.0, 5.0):
+        if m * 10**exp <= target:
+            best = m * 10**exp
+    return best
+
+
+def _ellipse_points(cov: np.ndarray, scale: float, n: int = 200) -> np.ndarray:
+    """Points ``(v, u)`` of the scaled one-sigma ellipse of a 2 x 2 covariance."""
+    values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+    radii = scale * np.sqrt(np.maximum(values, 0.0))
+    t = np.linspace(0.0, 2.0 * np.pi, n)
+    circle = np.stack([radii[0] * np.cos(t), radii[1] * np.sin(t)])
+    return (vectors @ circle).T
+
+
+def plot_fit(
+    image: Any,
+    vertices_vu: Any,
+    fit: Any,
+    path: str | Path | None = None,
+    *,
+    title: str | None = None,
+    margin_px: float = 20.0,
+    ellipse_scale: float | None = None,
+    figsize: tuple[float, float] = (8.0, 7.0),
+    dpi: int = 110,
+) -> Any:
+    """Draw a fit: image crop, model at the initial and fitted pose, residuals.
+
+    The image is cropped to the model at both poses plus a margin and
+    shown with a 1-99.5 percentile stretch. The model at its initial pose
+    (the vertices as given) is drawn as small cyan dots; at the fitted pose
+    each vertex is coloured by its DT residual. Vertices the Tukey biweight
+    rejected (weight 0 but polarity accepted) are circled in orange, those
+    the polarity test rejected (residual ``1e6``) are marked with red
+    crosses. The one-sigma covariance ellipse of the offset is drawn at the
+    fitted centroid, magnified (the factor is in the legend) because a
+    sub-pixel ellipse would be invisible; when the geometry leaves a
+    direction unobservable, that direction is drawn as a dotted line.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        The image the polyline was fitted to.
+    vertices_vu : array_like, shape (N, 2)
+        The model vertices as passed to the fit.
+    fit : PolylineFit
+        The result of :func:`dtalign.fit_polyline`.
+    path : str or path-like, optional
+        Write the figure there (format from the suffix, e.g. ``.png``).
+    title : str, optional
+        Figure title; a summary of the fit when None.
+    margin_px : float, optional
+        Margin around the model in the crop.
+    ellipse_scale : float, optional
+        Magnification of the covariance ellipse; chosen automatically
+        (a 1-2-5 number making it about a tenth of the crop) when None.
+    figsize, dpi
+        Figure size in inches and resolution when saving.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Raises
+    ------
+    ImportError
+        If matplotlib is not installed (the message says what to install).
+    """
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim != 2 or img.size == 0:
+        raise ValueError(f"image must be a non-empty 2-D array, got shape {img.shape}")
+    verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
+    residuals = np.asarray(fit.lm.residuals_px)
+    if residuals.shape[0] != verts.shape[0]:
+        raise ValueError(
+            f"vertices_vu has {verts.shape[0]} vertices but the fit has {residuals.shape[0]}"
+        )
+    fig = _figure(figsize)
+    ax = fig.add_subplot(1, 1, 1)
+    fitted = fit.transform(verts)
+    both = np.vstack([verts, fitted])
+    h, w = img.shape
+    v0 = int(max(math.floor(both[:, 0].min() - margin_px), 0))
+    v1 = int(min(math.ceil(both[:, 0].max() + margin_px) + 1, h))
+    u0 = int(max(math.floor(both[:, 1].min() - margin_px), 0))
+    u1 = int(min(math.ceil(both[:, 1].max() + margin_px) + 1, w))
+    if v1 <= v0 or u1 <= u0:  # the model is entirely outside the image
+        v0, v1, u0, u1 = 0, h, 0, w
+    crop = img[v0:v1, u0:u1]
+    lo, hi = np.percentile(crop, [1.0, 99.5])
+    ax.imshow(
+        crop,
+        cmap="gray",
+        vmin=lo,
+        vmax=hi if hi > lo else lo + 1.0,
+        extent=(u0 - 0.5, u1 - 0.5, v1 - 0.5, v0 - 0.5),
+        interpolation="nearest",
+    )
+    n = verts.shape[0]
+    size = float(np.clip(3000.0 / max(n, 1), 2.0, 16.0))
+    ax.scatter(verts[:, 1], verts[:, 0], s=size * 0.5, c="cyan", lw=0, label="model, initial pose")
+    polarity = fit.polarity_rejected
+    tukey = fit.tukey_rejected
+    ok = ~polarity
+    finite_res = residuals[ok]
+    weighted = residuals[np.asarray(fit.lm.weights) > 0.0]
+    vmax = float(np.percentile(weighted, 99.0)) if weighted.size else 1.0
+    sc = ax.scatter(
+        fitted[ok, 1],
+        fitted[ok, 0],
+        s=size,
+        c=finite_res,
+        cmap="plasma",
+        vmin=0.0,
+        vmax=max(vmax, 1e-3),
+        lw=0,
+        label="model, fitted pose",
+    )
+    fig.colorbar(
+        sc, ax=ax, shrink=0.8, extend="max", label="DT residual at the fitted pose (px)"
+    )
+    if tukey.any():
+        ax.scatter(
+            fitted[tukey, 1],
+            fitted[tukey, 0],
+            s=size * 4,
+            facecolors="none",
+            edgecolors="orange",
+            lw=0.8,
+            label=f"Tukey-rejected ({int(tukey.sum())})",
+        )
+    if polarity.any():
+        ax.scatter(
+            fitted[polarity, 1],
+            fitted[polarity, 0],
+            s=size * 3,
+            c="red",
+            marker="x",
+            lw=0.8,
+            label=f"polarity-rejected ({int(polarity.sum())})",
+        )
+    _draw_covariance(ax, fit, fitted.mean(axis=0), (v1 - v0, u1 - u0), ellipse_scale)
+    ax.set_xlim(u0 - 0.5, u1 - 0.5)
+    ax.set_ylim(v1 - 0.5, v0 - 0.5)
+    ax.set_xlabel("u (column, px)")
+    ax.set_ylabel("v (row, px)")
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
+    ax.set_title(title if title is not None else _summary(fit), fontsize=9)
+    _save(fig, path, dpi)
+    return fig
+
+
+def _summary(fit: Any) -> str:
+    dv, du = fit.offset_vu
+    sv, su = fit.sigma_vu
+    text = f"offset (dv, du) = ({dv:.3f} ± {sv:.3f}, {du:.3f} ± {su:.3f}) px"
+    if fit.fit_rotation:
+        text += f", rotation {fit.rotation_rad:.5f} rad"
+    text += f"\ncoarse seed {fit.coarse_offset_vu}, rms {fit.rms_px:.3f} px, "
+    text += f"inliers {fit.inlier_count}/{len(fit.lm.residuals_px)}"
+    rank = fit.observable_rank
+    if rank < (3 if fit.fit_rotation else 2):
+        text += f", observable rank {rank}"
+    if fit.at_window_edge:
+        text += ", AT SEARCH-WINDOW EDGE"
+    return text
+
+
+def _draw_covariance(
+    ax: Any, fit: Any, centre: np.ndarray, crop_shape: tuple[int, int], scale: float | None
+) -> None:
+    cov = np.asarray(fit.covariance)[:2, :2]
+    if not np.isfinite(cov).all():
+        return
+    values = np.linalg.eigvalsh(cov)
+    major = math.sqrt(max(float(values.max()), 0.0))
+    target = 0.1 * min(crop_shape)
+    if scale is None:
+        scale = _nice_scale(target / major) if major > 0 else 1.0
+    pts = _ellipse_points(cov, scale) + centre
+    ax.plot(pts[:, 1], pts[:, 0], color="lime", lw=1.2, label=f"1σ covariance ellipse × {scale:g}")
+    for e in fit.unobservable_directions:
+        if e.shape[0] < 2 or np.hypot(e[0], e[1]) < 1e-6:
+            continue
+        d = e[:2] / np.hypot(e[0], e[1]) * 0.25 * max(crop_shape)
+        ax.plot(
+            [centre[1] - d[1], centre[1] + d[1]],
+            [centre[0] - d[0], centre[0] + d[0]],
+            color="lime",
+            ls=":",
+            lw=1.2,
+            label="unobservable direction",
+        )
+
+
+def plot_residual_histogram(
+    fit: Any,
+    path: str | Path | None = None,
+    *,
+    bins: int = 40,
+    sigma_px: float | None = None,
+    figsize: tuple[float, float] = (6.0, 4.0),
+    dpi: int = 110,
+) -> Any:
+    """Histogram of the DT residuals at the fitted pose.
+
+    Polarity-rejected vertices (residual ``1e6``) are counted in the title
+    but not binned. Weighted inliers and Tukey-rejected vertices are
+    stacked in two colours. With ``sigma_px`` (the vertices' common prior
+    sigma) the Tukey cutoff ``tukey_c * sigma_px`` is drawn.
+
+    Parameters
+    ----------
+    fit : PolylineFit
+        The result of :func:`dtalign.fit_polyline`.
+    path : str or path-like, optional
+        Write the figure there.
+    bins : int, optional
+        Number of histogram bins.
+    sigma_px : float, optional
+        The prior sigma, to draw the cutoff.
+    figsize, dpi
+        Figure size in inches and resolution when saving.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    residuals = np.asarray(fit.lm.residuals_px)
+    polarity = residuals == POLARITY_PENALTY_RESIDUAL
+    tukey = fit.tukey_rejected
+    inlier = ~polarity & ~tukey
+    fig = _figure(figsize)
+    ax = fig.add_subplot(1, 1, 1)
+    data = [residuals[inlier], residuals[tukey]]
+    finite = np.concatenate(data)
+    hi = float(finite.max()) if finite.size else 1.0
+    ax.hist(
+        data,
+        bins=bins,
+        range=(0.0, max(hi, 1e-3)),
+        stacked=True,
+        color=["tab:blue", "orange"],
+        label=[f"weighted ({int(inlier.sum())})", f"Tukey-rejected ({int(tukey.sum())})"],
+    )
+    if sigma_px is not None:
+        cut = fit.tukey_c * float(sigma_px)
+        ax.axvline(cut, color="k", ls="--", lw=1, label=f"Tukey cutoff {cut:.2f} px")
+    ax.set_xlabel("DT residual at the fitted pose (px)")
+    ax.set_ylabel("vertices")
+    ax.set_title(
+        f"rms {fit.rms_px:.3f} px (weighted), {int(polarity.sum())} polarity-rejected not shown",
+        fontsize=9,
+    )
+    ax.legend(fontsize=8)
+    _save(fig, path, dpi)
+    return fig
