@@ -435,6 +435,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["bench"]:
+        # Everything after "bench" belongs to the benchmark module, options too.
+        return _cmd_bench(argparse.Namespace(args=argv[1:]))
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse printed its one-line usage error

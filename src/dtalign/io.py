@@ -411,6 +411,29 @@ def _circle_fit(pts: FloatArray) -> tuple[float, float, float]:
     return float(cv), float(cu), float(math.sqrt(max(cv * cv + cu * cu - f, 0.0)))
 
 
+def _ransac_circle(
+    pts: FloatArray, band: float, rng: np.random.Generator, trials: int = 300
+) -> tuple[float, float, float]:
+    """The circle with the most points within ``band``, refitted on them."""
+    best, best_count = None, -1
+    for _ in range(trials):
+        sample = pts[rng.choice(len(pts), size=3, replace=False)]
+        try:
+            cv, cu, r = _circle_fit(sample)
+        except np.linalg.LinAlgError:
+            continue
+        if not (math.isfinite(r) and r > 0):
+            continue
+        count = int((np.abs(np.hypot(pts[:, 0] - cv, pts[:, 1] - cu) - r) <= band).sum())
+        if count > best_count:
+            best, best_count = (cv, cu, r), count
+    if best is None:
+        raise ValueError("overlay has no circular limb to trace")
+    cv, cu, r = best
+    inliers = np.abs(np.hypot(pts[:, 0] - cv, pts[:, 1] - cu) - r) <= band
+    return _circle_fit(pts[inliers])
+
+
 def _fourier_design(theta: FloatArray, order: int) -> FloatArray:
     cols = [np.ones_like(theta)]
     for k in range(1, order + 1):
@@ -423,22 +446,24 @@ def _limb_polyline(
 ) -> tuple[FloatArray, FloatArray]:
     """Vertices along a closed limb and their (un-oriented) radial normals.
 
-    A circle gives the centre; the radius is then modelled as a low-order
-    Fourier series of the angle (an ellipse or an oblate body is order 2),
-    fitted twice with the pixels farther than ``tolerance`` from the first
-    fit (label text, arrows) dropped. The kept pixels are binned by angle,
+    A RANSAC circle gives the centre; the radius is then modelled as a
+    low-order Fourier series of the angle (an ellipse or an oblate body is
+    order 2), refitted in shrinking bands so that pixels farther than
+    ``tolerance`` from the curve (label text, arrows) are dropped. The kept pixels are binned by angle,
     one bin per ``spacing`` pixels of arc, and each bin gives the
     strength-weighted mean position: the overlay's sub-pixel centre line.
     """
-    cv, cu, radius = _circle_fit(pts)
+    cv, cu, radius = _ransac_circle(pts, band=8.0, rng=np.random.default_rng(0))
     rel = pts - (cv, cu)
     theta = np.arctan2(rel[:, 0], rel[:, 1])
     rad = np.hypot(rel[:, 0], rel[:, 1])
-    keep = np.abs(rad - radius) < 4.0 * tolerance + 0.05 * radius
-    for _ in range(3):
-        design = _fourier_design(theta[keep], 4)
+    keep = np.abs(rad - radius) <= 8.0
+    # Shrinking bands: an ellipse (order 2) first, then order 4, so label
+    # text near the limb cannot pull the curve toward itself.
+    for order, band in ((2, 3.0), (4, 2.0 * tolerance), (4, tolerance)):
+        design = _fourier_design(theta[keep], order)
         coef = np.linalg.lstsq(design, rad[keep], rcond=None)[0]
-        keep = np.abs(rad - _fourier_design(theta, 4) @ coef) <= tolerance
+        keep = np.abs(rad - _fourier_design(theta, order) @ coef) <= band
     n_bins = max(int(round(2.0 * math.pi * radius / spacing)), 8)
     idx = np.floor((theta[keep] + math.pi) / (2.0 * math.pi) * n_bins).astype(np.int64) % n_bins
     verts = _binned_means(idx, pts[keep], weight[keep], n_bins)

@@ -69,6 +69,8 @@ def plot_fit(
     title: str | None = None,
     margin_px: float = 20.0,
     ellipse_scale: float | None = None,
+    zoom_vu: Any = None,
+    zoom_half_px: float = 20.0,
     figsize: tuple[float, float] = (8.0, 7.0),
     dpi: int = 110,
 ) -> Any:
@@ -102,6 +104,12 @@ def plot_fit(
     ellipse_scale : float, optional
         Magnification of the covariance ellipse; chosen automatically
         (a 1-2-5 number making it about a tenth of the crop) when None.
+    zoom_vu : sequence of (v, u), optional
+        Add a zoomed panel (``2 * zoom_half_px`` wide) around each point,
+        framed in yellow on the main view: on a full frame the pixel-level
+        agreement is otherwise invisible.
+    zoom_half_px : float, optional
+        Half-size of each zoom panel, pixels.
     figsize, dpi
         Figure size in inches and resolution when saving.
 
@@ -123,8 +131,6 @@ def plot_fit(
         raise ValueError(
             f"vertices_vu has {verts.shape[0]} vertices but the fit has {residuals.shape[0]}"
         )
-    fig = _figure(figsize)
-    ax = fig.add_subplot(1, 1, 1)
     fitted = fit.transform(verts)
     both = np.vstack([verts, fitted])
     h, w = img.shape
@@ -134,59 +140,56 @@ def plot_fit(
     u1 = int(min(math.ceil(both[:, 1].max() + margin_px) + 1, w))
     if v1 <= v0 or u1 <= u0:  # the model is entirely outside the image
         v0, v1, u0, u1 = 0, h, 0, w
+    zooms = [check.pair(z, "zoom_vu") for z in (zoom_vu or ())]
+    fig = _figure(figsize if not zooms else (figsize[0] * 1.45, figsize[1]))
+    if zooms:
+        grid = fig.add_gridspec(len(zooms), 2, width_ratios=(2.2, 1.0))
+        ax = fig.add_subplot(grid[:, 0])
+        zoom_axes = [fig.add_subplot(grid[i, 1]) for i in range(len(zooms))]
+    else:
+        ax = fig.add_subplot(1, 1, 1)
+        zoom_axes = []
     crop = img[v0:v1, u0:u1]
-    lo, hi = np.percentile(crop, [1.0, 99.5])
-    ax.imshow(
-        crop,
-        cmap="gray",
-        vmin=lo,
-        vmax=hi if hi > lo else lo + 1.0,
-        extent=(u0 - 0.5, u1 - 0.5, v1 - 0.5, v0 - 0.5),
-        interpolation="nearest",
-    )
+    lo, hi = (float(x) for x in np.percentile(crop, [1.0, 99.5]))
+    hi = hi if hi > lo else lo + 1.0
     n = verts.shape[0]
     size = float(np.clip(3000.0 / max(n, 1), 2.0, 16.0))
-    ax.scatter(verts[:, 1], verts[:, 0], s=size * 0.5, c="cyan", lw=0, label="model, initial pose")
     polarity = fit.polarity_rejected
     tukey = fit.tukey_rejected
     ok = ~polarity
-    finite_res = residuals[ok]
     weighted = residuals[np.asarray(fit.lm.weights) > 0.0]
-    vmax = float(np.percentile(weighted, 99.0)) if weighted.size else 1.0
-    sc = ax.scatter(
-        fitted[ok, 1],
-        fitted[ok, 0],
-        s=size,
-        c=finite_res,
-        cmap="plasma",
-        vmin=0.0,
-        vmax=max(vmax, 1e-3),
-        lw=0,
-        label="model, fitted pose",
-    )
+    vmax = max(float(np.percentile(weighted, 99.0)) if weighted.size else 1.0, 1e-3)
+
+    def draw(axis: Any, scale: float) -> Any:
+        axis.imshow(
+            img, cmap="gray", vmin=lo, vmax=hi, interpolation="nearest",
+            extent=(-0.5, w - 0.5, h - 0.5, -0.5),
+        )
+        axis.scatter(
+            verts[:, 1], verts[:, 0], s=size * 0.5 * scale, c="cyan", lw=0,
+            label="model, initial pose",
+        )
+        sc = axis.scatter(
+            fitted[ok, 1], fitted[ok, 0], s=size * scale, c=residuals[ok], cmap="plasma",
+            vmin=0.0, vmax=vmax, lw=0, label="model, fitted pose",
+        )
+        if tukey.any():
+            axis.scatter(
+                fitted[tukey, 1], fitted[tukey, 0], s=size * 4 * scale, facecolors="none",
+                edgecolors="orange", lw=0.8, label=f"Tukey-rejected ({int(tukey.sum())})",
+            )
+        if polarity.any():
+            axis.scatter(
+                fitted[polarity, 1], fitted[polarity, 0], s=size * 3 * scale, c="red",
+                marker="x", lw=0.8, label=f"polarity-rejected ({int(polarity.sum())})",
+            )
+        return sc
+
+    sc = draw(ax, 1.0)
     fig.colorbar(
-        sc, ax=ax, shrink=0.8, extend="max", label="DT residual at the fitted pose (px)"
+        sc, ax=[ax, *zoom_axes], shrink=0.8, extend="max",
+        label="DT residual at the fitted pose (px)",
     )
-    if tukey.any():
-        ax.scatter(
-            fitted[tukey, 1],
-            fitted[tukey, 0],
-            s=size * 4,
-            facecolors="none",
-            edgecolors="orange",
-            lw=0.8,
-            label=f"Tukey-rejected ({int(tukey.sum())})",
-        )
-    if polarity.any():
-        ax.scatter(
-            fitted[polarity, 1],
-            fitted[polarity, 0],
-            s=size * 3,
-            c="red",
-            marker="x",
-            lw=0.8,
-            label=f"polarity-rejected ({int(polarity.sum())})",
-        )
     _draw_covariance(ax, fit, fitted.mean(axis=0), (v1 - v0, u1 - u0), ellipse_scale)
     ax.set_xlim(u0 - 0.5, u1 - 0.5)
     ax.set_ylim(v1 - 0.5, v0 - 0.5)
@@ -194,8 +197,21 @@ def plot_fit(
     ax.set_ylabel("v (row, px)")
     ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
     ax.set_title(title if title is not None else _summary(fit), fontsize=9)
+    for zax, (zv, zu) in zip(zoom_axes, zooms, strict=True):
+        draw(zax, 6.0)
+        zax.set_xlim(zu - zoom_half_px, zu + zoom_half_px)
+        zax.set_ylim(zv + zoom_half_px, zv - zoom_half_px)
+        zax.set_title(f"zoom at (v, u) = ({zv:.0f}, {zu:.0f})", fontsize=8)
+        zax.tick_params(labelsize=7)
+        ax.add_patch(_rectangle(zu - zoom_half_px, zv - zoom_half_px, 2 * zoom_half_px))
     _save(fig, path, dpi)
     return fig
+
+
+def _rectangle(u: float, v: float, size: float) -> Any:
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((u, v), size, size, fill=False, edgecolor="yellow", lw=1.0)
 
 
 def _summary(fit: Any) -> str:

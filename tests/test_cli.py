@@ -1,0 +1,269 @@
+"""The dtalign command line: demo, fit (single, batch, glob), bench, and every error path."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import dtalign
+from dtalign import scenes
+from dtalign.cli import main
+from dtalign.io import save_polyline_csv
+
+TRUE = (3.4, -2.2)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A small disc scene as .npy and .png, and its polyline CSV."""
+    d = tmp_path_factory.mktemp("cli")
+    scene = scenes.disc_scene(shape=(200, 200), radius=50.0, n_vertices=100, offset_vu=TRUE)
+    np.save(d / "disc.npy", scene.image)
+    save_polyline_csv(d / "disc.csv", scene.polyline)
+    pil = pytest.importorskip("PIL.Image")
+    grey = np.clip(np.rint(scene.image + 50.0), 0, 255).astype(np.uint8)
+    pil.fromarray(np.dstack([grey] * 3)).save(d / "disc.png")  # RGB with R = G = B
+    return d
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(code, err, fragment):
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("dtalign: error: ")
+    assert fragment in lines[0]
+    assert "Traceback" not in err
+
+
+# --------------------------------------------------------------------------- demo
+
+
+def test_demo_prints_every_field(capsys):
+    code, out, _ = run(capsys, "demo", "--n-vertices", "80")
+    assert code == 0
+    for field in ("true", "coarse", "fitted", "±", "wall time", "derivatives", "lm"):
+        assert field in out
+    assert "(7.300, -4.600)" in out
+
+
+def test_demo_json_rotation_and_plot(capsys, tmp_path):
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "demo.png"
+    code, out, _ = run(capsys, "demo", "--n-vertices", "60", "--rotation", "0.01", "--json", "--plot", str(png))
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["true_rotation_rad"] == 0.01 and doc["fit"]["fit_rotation"] is True
+    assert np.allclose(doc["fit"]["offset_vu"], doc["true_offset_vu"], atol=0.5)
+    assert png.stat().st_size > 1000
+
+
+def test_demo_bad_option(capsys):
+    code, _, err = run(capsys, "demo", "--n-vertices", "1")
+    assert_one_line_error(code, err, "--n-vertices")
+
+
+# --------------------------------------------------------------------------- fit
+
+
+@pytest.mark.parametrize("image", ["disc.npy", "disc.png"])
+def test_fit_table(capsys, files, image):
+    code, out, _ = run(capsys, "fit", str(files / image), str(files / "disc.csv"), "--window", "8")
+    assert code == 0
+    assert "offset" in out and "rank 2 of 2" in out and "100 vertices" in out
+
+
+def test_fit_json_recovers_offset(capsys, files):
+    code, out, _ = run(
+        capsys, "fit", str(files / "disc.npy"), str(files / "disc.csv"),
+        "--window", "8", "6", "--noise-sigma", "2", "--trust-region", "5", "--json",
+    )
+    assert code == 0
+    doc = json.loads(out)
+    assert np.allclose(doc["offset_vu"], TRUE, atol=0.1)
+    assert doc["search_window_vu"] == [8, 6] and doc["noise_sigma"] == 2.0
+
+
+def test_fit_options_rotation_ridge_plot(capsys, files, tmp_path):
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "fit.png"
+    code, out, err = run(
+        capsys, "fit", str(files / "disc.npy"), str(files / "disc.csv"), "--window", "8",
+        "--rotation", "--ridge", "--tikhonov", "0.001", "--no-polarity", "--plot", str(png),
+    )
+    assert code == 0, err
+    assert "rotation" in out and png.stat().st_size > 1000
+
+
+def test_batch_continues_past_a_bad_image(capsys, files, tmp_path):
+    (tmp_path / "bad.npy").write_bytes(b"not a numpy file")
+    (tmp_path / "bad.csv").write_text((files / "disc.csv").read_text())
+    listing = tmp_path / "list.txt"
+    listing.write_text(
+        f"# images to fit\n{files / 'disc.npy'}\nbad.npy\n{files / 'disc.png'} {files / 'disc.csv'}\n"
+    )
+    code, out, err = run(capsys, "fit", "--batch", str(listing), "--window", "8")
+    assert code == 1
+    assert "FAILED" in err and "bad.npy" in err and "1 of 3 image(s) failed" in err
+    assert out.count(" ok") == 2 and "FAILED" in out
+    code, out, _ = run(capsys, "fit", "--batch", str(listing), "--window", "8", "--json")
+    assert code == 1
+    doc = json.loads(out)
+    assert [("error" in r) for r in doc] == [False, True, False]
+
+
+def test_glob_mode_uses_same_stem_csv(capsys, files):
+    code, out, err = run(capsys, "fit", "--glob", str(files / "disc.*"), "--window", "8", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert len(doc) == 2 and all(np.allclose(r["offset_vu"], TRUE, atol=0.3) for r in doc)
+
+
+def test_several_pairs_and_plain_progress(capsys, files, monkeypatch):
+    monkeypatch.setitem(sys.modules, "tqdm", None)  # tqdm is optional
+    code, out, err = run(
+        capsys, "fit", str(files / "disc.npy"), str(files / "disc.csv"),
+        str(files / "disc.png"), str(files / "disc.csv"), "--window", "8",
+    )
+    assert code == 0
+    assert "[1/2]" in err and "[2/2]" in err and out.count(" ok") == 2
+
+
+# --------------------------------------------------------------------------- errors
+
+
+def test_missing_image(capsys, files, tmp_path):
+    code, _, err = run(capsys, "fit", str(tmp_path / "nope.npy"), str(files / "disc.csv"))
+    assert_one_line_error(code, err, "image file not found")
+
+
+def test_missing_polyline(capsys, files, tmp_path):
+    code, _, err = run(capsys, "fit", str(files / "disc.npy"), str(tmp_path / "nope.csv"))
+    assert_one_line_error(code, err, "polyline file not found")
+
+
+def test_bad_csv_columns(capsys, files, tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("v,u,nv,nu\n1,2,0,1\n")
+    code, _, err = run(capsys, "fit", str(files / "disc.npy"), str(bad))
+    assert_one_line_error(code, err, "missing column(s) sigma")
+
+
+@pytest.mark.parametrize(
+    ("text", "fragment"),
+    [
+        ("v,u,nv,nu,sigma\n1,2,0,1\n", "line 2: 4 cell(s)"),
+        ("v,u,nv,nu,sigma\n1,2,0,x,1\n", "column nu is not a number"),
+        ("v,u,nv,nu,sigma\n1,2,0,1,0\n", "column sigma must be > 0"),
+        ("v,u,nv,nu,sigma\n", "no vertex rows"),
+        ("", "is empty"),
+    ],
+)
+def test_bad_csv_values(capsys, files, tmp_path, text, fragment):
+    bad = tmp_path / "bad.csv"
+    bad.write_text(text)
+    code, _, err = run(capsys, "fit", str(files / "disc.npy"), str(bad))
+    assert_one_line_error(code, err, fragment)
+
+
+def test_image_shape_mismatch(capsys, files, tmp_path):
+    cube = tmp_path / "cube.npy"
+    np.save(cube, np.zeros((4, 5, 6)))
+    code, _, err = run(capsys, "fit", str(cube), str(files / "disc.csv"))
+    assert_one_line_error(code, err, "must be 2-D")
+
+
+def test_corrupt_image(capsys, files, tmp_path):
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"\x89PNG not really")
+    code, _, err = run(capsys, "fit", str(bad), str(files / "disc.csv"))
+    assert_one_line_error(code, err, "cannot read image")
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [
+        (["fit"], "fit needs IMAGE POLYLINE"),
+        (["fit", "a.npy"], "odd number of files"),
+        (["fit", "a.npy", "a.csv", "--window", "1", "2", "3"], "--window takes one or two"),
+        (["fit", "a.npy", "a.csv", "--window", "-1"], "non-negative"),
+        (["fit", "--glob", "/nonexistent-dir/*.npy"], "no image matches"),
+        (["fit", "--batch", "/nonexistent-list.txt"], "batch list not found"),
+    ],
+)
+def test_usage_errors(capsys, argv, fragment):
+    code, _, err = run(capsys, *argv)
+    assert_one_line_error(code, err, fragment)
+
+
+def test_argparse_error_exit_status(capsys):
+    code, _, err = run(capsys, "fit", "a", "b", "--window", "x")
+    assert code == 2 and "invalid int value" in err
+
+
+def test_no_command_prints_help(capsys):
+    code, out, _ = run(capsys)
+    assert code == 2 and "demo" in out and "fit" in out and "bench" in out
+
+
+def test_version(capsys):
+    code, out, _ = run(capsys, "--version")
+    assert code == 0 and dtalign.__version__ in out
+
+
+# --------------------------------------------------------------------------- bench
+
+
+def test_bench_passes_arguments_through(capsys, monkeypatch):
+    seen = {}
+    fake = types.ModuleType("dtalign.benchmarking")
+
+    def fake_main(argv):
+        seen["argv"] = argv
+        print("| table |")
+        return 0
+
+    fake.main = fake_main
+    monkeypatch.setitem(sys.modules, "dtalign.benchmarking", fake)
+    code, out, _ = run(capsys, "bench", "--quick", "-n", "3")
+    assert code == 0 and seen["argv"] == ["--quick", "-n", "3"] and "| table |" in out
+
+
+def test_bench_without_module(capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "dtalign.benchmarking", None)
+    code, _, err = run(capsys, "bench")
+    assert_one_line_error(code, err, "benchmarks are not available")
+
+
+# --------------------------------------------------------------------------- subprocess
+
+
+def _python_m(*argv, cwd):
+    env = dict(os.environ)
+    src = str(Path(dtalign.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run(
+        [sys.executable, "-m", "dtalign", *argv],
+        capture_output=True, text=True, cwd=cwd, env=env, timeout=300,
+    )
+
+
+def test_python_m_dtalign_fit_and_error(files, tmp_path):
+    proc = _python_m("fit", "disc.npy", "disc.csv", "--window", "8", "--json", cwd=files)
+    assert proc.returncode == 0, proc.stderr
+    assert np.allclose(json.loads(proc.stdout)["offset_vu"], TRUE, atol=0.1)
+    proc = _python_m("fit", "missing.npy", "disc.csv", cwd=files)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == ["dtalign: error: image file not found: missing.npy"]
