@@ -267,3 +267,33 @@ def test_python_m_dtalign_fit_and_error(files, tmp_path):
     proc = _python_m("fit", "missing.npy", "disc.csv", cwd=files)
     assert proc.returncode == 1
     assert proc.stderr.strip().splitlines() == ["dtalign: error: image file not found: missing.npy"]
+
+
+# --------------------------------------------------------------------------- overlay
+
+
+def test_overlay_then_fit_a_cassini_frame(capsys, tmp_path):
+    repo = Path(__file__).resolve().parents[1]
+    data = Path(os.environ.get("DTALIGN_CASSINI_DIR", repo.parent / "shared" / "data" / "cassini"))
+    png = data / "N1634226853_1_CALIB.png"
+    if not png.is_file():
+        pytest.skip("Cassini frames not present")
+    img, csv = tmp_path / "t.npy", tmp_path / "t.csv"
+    code, out, err = run(
+        capsys, "overlay", str(png), "--shape", "limb", "--displace", "6", "-4",
+        "--image", str(img), "--polyline", str(csv),
+    )
+    assert code == 0, err
+    assert "vertices on 1 curve(s)" in out
+    code, out, err = run(capsys, "fit", str(img), str(csv), "--window", "15", "--json")
+    assert code == 0, err
+    # The overlay sits within the operator's 1 px of the limb.
+    assert np.allclose(json.loads(out)["offset_vu"], (6.0, -4.0), atol=1.0)
+
+
+def test_overlay_missing_png(capsys, tmp_path):
+    code, _, err = run(
+        capsys, "overlay", str(tmp_path / "x.png"), "--shape", "limb",
+        "--image", str(tmp_path / "i.npy"), "--polyline", str(tmp_path / "p.csv"),
+    )
+    assert_one_line_error(code, err, "Cassini frame not found")

@@ -6,6 +6,8 @@ Subcommands:
 * ``fit IMAGE POLYLINE [IMAGE POLYLINE ...]``: fit model polylines to
   images (``--batch LIST`` or ``--glob PATTERN`` for many images, each with
   the polyline CSV of the same stem);
+* ``overlay PNG``: split a Cassini summary PNG into an image (.npy) and
+  its traced model overlay (polyline CSV), ready for ``fit``;
 * ``bench``: the quick benchmark table.
 
 Errors are printed as one line, ``dtalign: error: ...``, with exit status
@@ -118,6 +120,26 @@ def build_parser() -> argparse.ArgumentParser:
         help="write a picture of the fit (with several images: OUT_<image stem>.png)",
     )
     fit.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    overlay = sub.add_parser(
+        "overlay",
+        help="split a Cassini summary PNG into an image and a model polyline CSV",
+        description="Read a summary PNG (grey image + red model overlay), write the clean "
+        "grey image (.npy) and the traced overlay as a polyline CSV, optionally displaced.",
+    )
+    overlay.add_argument("png", metavar="PNG", help="the summary PNG")
+    overlay.add_argument("--shape", choices=("limb", "lines"), required=True, help="what the overlay is")
+    overlay.add_argument("--n-lines", type=int, default=2, help="straight lines to trace (default 2)")
+    overlay.add_argument("--image", required=True, metavar="OUT.npy", help="write the grey image here")
+    overlay.add_argument("--polyline", required=True, metavar="OUT.csv", help="write the polyline here")
+    overlay.add_argument(
+        "--displace",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("DV", "DU"),
+        help="move the model by -(DV, DU): a correct fit then returns about (DV, DU)",
+    )
 
     bench = sub.add_parser(
         "bench",
@@ -413,6 +435,30 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
 # ---------------------------------------------------------------------------
 
 
+def _cmd_overlay(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from . import io
+    from .scenes import Polyline
+
+    if args.n_lines < 1:
+        raise CLIError(f"--n-lines must be >= 1, got {args.n_lines}")
+    frame = io.load_cassini_overlay_frame(args.png)
+    lines = io.overlay_polylines(frame, shape=args.shape, n_lines=args.n_lines)
+    model = io.concatenate_polylines(lines, name=Path(args.png).stem)
+    moved = Polyline(
+        model.name, model.vertices_vu - np.asarray(args.displace), model.normals_vu, model.sigmas
+    )
+    np.save(args.image, frame.image)
+    io.save_polyline_csv(args.polyline, moved)
+    print(
+        f"{args.png}: {frame.image.shape[0]} x {frame.image.shape[1]} image "
+        f"({frame.header_rows} header rows cropped) -> {args.image}; "
+        f"{len(moved)} vertices on {len(lines)} curve(s) -> {args.polyline}"
+    )
+    return 0
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     try:
         module = importlib.import_module("dtalign.benchmarking")
@@ -450,7 +496,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    handlers = {"demo": _cmd_demo, "fit": _cmd_fit, "bench": _cmd_bench}
+    handlers = {"demo": _cmd_demo, "fit": _cmd_fit, "overlay": _cmd_overlay, "bench": _cmd_bench}
     try:
         return handlers[args.command](args)
     except CLIError as exc:
