@@ -8,8 +8,7 @@ identical in both implementations, and converts every array exactly once.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
@@ -78,8 +77,7 @@ def check_coarse_inputs(edge_mask: Any, polyline_mask: Any, search_window_vu: An
     return edge, poly, mv, mu
 
 
-@dataclass(frozen=True)
-class LMArgs:
+class LMArgs(NamedTuple):
     """Validated, converted arguments of ``lm_subpixel_refine``."""
 
     vertices: FloatArray
@@ -105,7 +103,7 @@ class LMArgs:
 
 def check_lm_inputs(kw: Mapping[str, Any]) -> LMArgs:
     """Check ``lm_subpixel_refine``'s keywords in SPEC section 1's order."""
-    verts, norms, sig = check.polyline(
+    verts, norms, sig, centroid = check.polyline(
         kw["vertices_vu"], kw["normals_vu"], kw["sigma_normal_per_vertex_px"]
     )
     dt = check.image2d(kw["image_edge_dt"], "image_edge_dt")
@@ -117,6 +115,7 @@ def check_lm_inputs(kw: Mapping[str, Any]) -> LMArgs:
         pivot_distance_px=kw["pivot_distance_px"],
         initial_offset_vu=kw["initial_offset_vu"],
         initial_rotation_rad=kw["initial_rotation_rad"],
+        centroid=centroid,
     )
     has_gradient = kw["image_gradient_vu"] is not None
     if kw["final_gradient_ridge"] and not has_gradient:
@@ -148,8 +147,7 @@ def check_lm_inputs(kw: Mapping[str, Any]) -> LMArgs:
     )
 
 
-@dataclass(frozen=True)
-class RidgeArgs:
+class RidgeArgs(NamedTuple):
     """Validated, converted arguments of ``gradient_ridge_refine``."""
 
     vertices: FloatArray
@@ -172,7 +170,7 @@ class RidgeArgs:
 
 def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
     """Check ``gradient_ridge_refine``'s keywords (LM's order for the shared ones)."""
-    verts, norms, sig = check.polyline(
+    verts, norms, sig, centroid = check.polyline(
         kw["vertices_vu"], kw["normals_vu"], kw["sigma_normal_per_vertex_px"]
     )
     magnitude = check.image2d(kw["gradient_magnitude"], "gradient_magnitude")
@@ -184,6 +182,7 @@ def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
         pivot_distance_px=kw["pivot_distance_px"],
         initial_offset_vu=kw["initial_offset_vu"],
         initial_rotation_rad=kw["initial_rotation_rad"],
+        centroid=centroid,
     )
     half_width = check.positive_real(kw["half_width_px"], "half_width_px")
     sample_step = check.positive_real(kw["sample_step_px"], "sample_step_px")

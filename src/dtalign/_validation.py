@@ -19,22 +19,27 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
+_F8 = np.dtype(np.float64)
+
 
 def _as_float_array(value: Any, name: str) -> FloatArray:
-    """Convert to a C-contiguous native float64 array, refusing non-numbers."""
-    if isinstance(value, np.ndarray) and value.dtype == np.float64:
-        arr = value
+    """Convert to a C-contiguous native float64 array, refusing non-numbers.
+
+    The common case (already such an array) returns the input itself after
+    three attribute checks: this runs several times per fit.
+    """
+    if type(value) is np.ndarray and value.dtype == _F8 and value.flags.c_contiguous:
+        return value
+    if isinstance(value, np.ndarray):
+        probe = value
     else:
         try:
             probe = np.asarray(value)
         except Exception as exc:  # ragged sequences and the like
             raise TypeError(f"{name} must be a numeric array: {exc}") from exc
-        if probe.dtype.kind not in "biuf":
-            raise TypeError(
-                f"{name} must be a real numeric array, got dtype {probe.dtype}"
-            )
-        arr = probe
-    return np.ascontiguousarray(arr, dtype=np.float64)
+    if probe.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must be a real numeric array, got dtype {probe.dtype}")
+    return np.ascontiguousarray(probe, dtype=np.float64)
 
 
 def require_finite(arr: FloatArray, name: str) -> None:
@@ -43,43 +48,25 @@ def require_finite(arr: FloatArray, name: str) -> None:
         raise ValueError(f"{name} must be finite (found NaN or inf)")
 
 
-def vertices(value: Any, name: str = "vertices_vu", *, allow_empty: bool = True) -> FloatArray:
-    """``(N, 2)`` finite float64 vertices; ``N == 0`` only if ``allow_empty``."""
+def _vertex_shape(value: Any, name: str, allow_empty: bool) -> FloatArray:
     arr = _as_float_array(value, name)
     if arr.ndim != 2 or arr.shape[1] != 2 or (not allow_empty and arr.shape[0] == 0):
         what = "(N, 2) with N > 0" if not allow_empty else "(N, 2)"
         raise ValueError(f"{name} must have shape {what}, got {arr.shape}")
+    return arr
+
+
+def vertices(value: Any, name: str = "vertices_vu", *, allow_empty: bool = True) -> FloatArray:
+    """``(N, 2)`` finite float64 vertices; ``N == 0`` only if ``allow_empty``."""
+    arr = _vertex_shape(value, name, allow_empty)
     require_finite(arr, name)
     return arr
 
 
 def normals(value: Any, n_vertices: int) -> FloatArray:
     """Finite normals of the same ``(N, 2)`` shape as the vertices."""
-    arr = _as_float_array(value, "normals_vu")
-    if arr.shape != (n_vertices, 2):
-        raise ValueError(
-            f"normals_vu must match vertices_vu shape ({n_vertices}, 2), got {arr.shape}"
-        )
+    arr = _normals_shape(value, n_vertices)
     require_finite(arr, "normals_vu")
-    return arr
-
-
-def sigmas(value: Any, n_vertices: int) -> FloatArray:
-    """Per-vertex prior sigmas: 1-D, length N, finite and strictly positive."""
-    arr = _as_float_array(value, "sigma_normal_per_vertex_px")
-    if arr.ndim != 1 or arr.shape[0] != n_vertices:
-        raise ValueError(
-            "sigma_normal_per_vertex_px must be a 1-D vector of length "
-            f"{n_vertices}, got shape {arr.shape}"
-        )
-    # 1/sigma^2 must be finite too: a sigma of 1e-200 would give inf weights.
-    with np.errstate(over="ignore", divide="ignore"):
-        ok = np.isfinite(arr).all() and (arr > 0.0).all() and np.isfinite(1.0 / (arr * arr)).all()
-    if not ok:
-        raise ValueError(
-            "sigma_normal_per_vertex_px values must be finite and > 0 "
-            "(and 1/sigma^2 representable)"
-        )
     return arr
 
 
@@ -127,6 +114,13 @@ def gradient(value: Any, name: str = "image_gradient_vu") -> FloatArray:
 
 def pair(value: Any, name: str) -> tuple[float, float]:
     """A finite length-2 pair of real numbers (offsets, pivots)."""
+    if type(value) in (tuple, list) and len(value) == 2:
+        a, b = value
+        if type(a) in _PLAIN_REALS and type(b) in _PLAIN_REALS:  # fast path
+            fa, fb = float(a), float(b)
+            if not (math.isfinite(fa) and math.isfinite(fb)):
+                raise ValueError(f"{name} must be finite, got {(fa, fb)}")
+            return fa, fb
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -138,8 +132,14 @@ def pair(value: Any, name: str) -> tuple[float, float]:
     return float(arr[0]), float(arr[1])
 
 
+#: Exact types accepted without the (slow) numbers.Real ABC check.
+_PLAIN_REALS = (float, int, np.float64)
+
+
 def real(value: Any, name: str) -> float:
     """A real scalar (bool refused) as a Python float; finiteness not checked."""
+    if type(value) in _PLAIN_REALS:
+        return float(value)
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
     return float(value)
@@ -171,6 +171,8 @@ def positive_real(value: Any, name: str) -> float:
 
 def count(value: Any, name: str) -> int:
     """A non-negative integer (bool refused)."""
+    if type(value) is int and value >= 0:
+        return value
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} must be an int, got {type(value).__name__}")
     out = int(value)
@@ -236,14 +238,52 @@ def weight_mask(value: Any, n_vertices: int) -> FloatArray:
     return np.ascontiguousarray(arr != 0, dtype=np.float64)
 
 
+def _normals_shape(value: Any, n_vertices: int) -> FloatArray:
+    arr = _as_float_array(value, "normals_vu")
+    if arr.shape != (n_vertices, 2):
+        raise ValueError(
+            f"normals_vu must match vertices_vu shape ({n_vertices}, 2), got {arr.shape}"
+        )
+    return arr
+
+
+def _sigmas_shape(value: Any, n_vertices: int) -> FloatArray:
+    arr = _as_float_array(value, "sigma_normal_per_vertex_px")
+    if arr.ndim != 1 or arr.shape[0] != n_vertices:
+        raise ValueError(
+            "sigma_normal_per_vertex_px must be a 1-D vector of length "
+            f"{n_vertices}, got shape {arr.shape}"
+        )
+    return arr
+
+
+_SIGMA_MESSAGE = (
+    "sigma_normal_per_vertex_px values must be finite and > 0 (and 1/sigma^2 representable)"
+)
+
+
 def polyline(
     vertices_vu: Any, normals_vu: Any, sigma_normal_per_vertex_px: Any
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Vertices (N > 0), normals and sigmas: the first checks of LM and ridge."""
-    verts = vertices(vertices_vu, allow_empty=False)
-    norms = normals(normals_vu, verts.shape[0])
-    sig = sigmas(sigma_normal_per_vertex_px, verts.shape[0])
-    return verts, norms, sig
+) -> tuple[FloatArray, FloatArray, FloatArray, tuple[float, float]]:
+    """Vertices (N > 0), normals and sigmas: the first checks of LM and ridge.
+
+    Shapes are checked here in SPEC order; values in one compiled pass
+    (~1 us instead of ~15 us of NumPy calls), which also returns the vertex
+    centroid, the default rotation pivot.
+    """
+    from ._kernels.checks import BAD_NORMALS, BAD_VERTICES, polyline_status
+
+    verts = _vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
+    norms = _normals_shape(normals_vu, verts.shape[0])
+    sig = _sigmas_shape(sigma_normal_per_vertex_px, verts.shape[0])
+    status, c_v, c_u = polyline_status(verts, norms, sig)
+    if status == BAD_VERTICES:
+        raise ValueError("vertices_vu must be finite (found NaN or inf)")
+    if status == BAD_NORMALS:
+        raise ValueError("normals_vu must be finite (found NaN or inf)")
+    if status != 0:
+        raise ValueError(_SIGMA_MESSAGE)
+    return verts, norms, sig, (c_v, c_u)
 
 
 def pose(
@@ -254,11 +294,13 @@ def pose(
     pivot_distance_px: Any,
     initial_offset_vu: Any,
     initial_rotation_rad: Any,
+    centroid: tuple[float, float] | None = None,
 ) -> tuple[tuple[float, float], float, tuple[float, float], float]:
     """The pose arguments LM and ridge share, after the field check.
 
     Returns the initial offset, the initial rotation, the resolved pivot
-    (centroid unless given) and the pivot distance.
+    (``centroid`` -- or the vertex mean if not given -- unless the caller
+    gives a pivot) and the pivot distance.
     """
     distance = real(pivot_distance_px, "pivot_distance_px")
     if fit_rotation and not (math.isfinite(distance) and distance > 0.0):
@@ -269,15 +311,17 @@ def pose(
         raise ValueError(f"pivot_distance_px must be finite, got {distance!r}")
     offset = pair(initial_offset_vu, "initial_offset_vu")
     rotation = finite_real(initial_rotation_rad, "initial_rotation_rad")
-    pivot = resolve_pivot(verts, pivot_vu)
-    return offset, rotation, pivot, distance
+    if pivot_vu is None and centroid is not None:
+        return offset, rotation, centroid, distance
+    return offset, rotation, resolve_pivot(verts, pivot_vu), distance
 
 
 def resolve_pivot(verts: FloatArray, pivot_vu: Any) -> tuple[float, float]:
     """The rotation pivot: the vertex centroid unless the caller gives one.
 
-    Both the compiled path and the NumPy specification take the pivot from
-    here, so they rotate about bit-identical points.
+    The mean is NumPy's; :func:`polyline` computes the same value in its
+    compiled pass (a sequential sum over the rows, which is what
+    ``mean(axis=0)`` does for an ``(N, 2)`` C array: tested bit-for-bit).
     """
     if pivot_vu is None:
         centroid = verts.mean(axis=0)

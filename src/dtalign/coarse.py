@@ -66,8 +66,14 @@ def coarse_ncc_search(edge_mask: Any, polyline_mask: Any, search_window_vu: Any)
         ``search_window_vu[i] must be int`` for a bool, float or other entry.
     """
     edge, poly, mv, mu = check_coarse_inputs(edge_mask, polyline_mask, search_window_vu)
-    pv, pu = _k.support(poly.view(np.uint8))
-    if pv.size == 0:
+    h, w = edge.shape
+    if h == 0 or w == 0:
         return 0, 0
-    dv, du = _k.coarse_search(edge.view(np.uint8), pv, pu, mv, mu)
+    dv, du = _k.coarse_search(*_flat_words(edge), *_flat_words(poly), h, w, mv, mu)
     return int(dv), int(du)
+
+
+def _flat_words(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A C-contiguous bool mask as flat uint8 bytes and a uint64 view of its whole words."""
+    flat = mask.reshape(-1).view(np.uint8)
+    return flat, flat[: flat.size // 8 * 8].view(np.uint64)

@@ -1,32 +1,37 @@
 """Stage 2: robust sub-pixel Levenberg-Marquardt fit (SPEC section 3).
 
-The Python layer validates once, computes the fixed polarity mask, runs the
-compiled loop (:mod:`dtalign._kernels.lm`), optionally the compiled ridge
-polish, and turns the final state into an :class:`LMRefineResult` with the
-SciPy ``pinvh`` covariance.
+The Python layer validates once and wraps the result; one compiled call
+(:mod:`dtalign._kernels.fit`) computes the fixed polarity mask, runs the LM
+loop, the optional ridge polish, and the summary with the pseudoinverse
+covariance.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
-from ._args import LMArgs, check_lm_inputs, no_information_covariance
+from ._args import LMArgs, check_lm_inputs
 from ._constants import (
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,
     DEFAULT_LM_STEP_TOLERANCE,
     DEFAULT_PINVH_RCOND,
+    DEFAULT_RIDGE_HALF_WIDTH_PX,
+    DEFAULT_RIDGE_MAX_ITERATIONS,
+    DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
+    DEFAULT_RIDGE_SAMPLE_STEP_PX,
     DEFAULT_TUKEY_C,
 )
-from ._kernels import lm as _k
-from ._kernels import robust as _robust
+from ._kernels import fit as _k
 from ._results import LMRefineResult
 from ._validation import nonfinite_read
-from .ridge import run_ridge
-from .weights import pinvh_covariance
+
+#: The ridge polish inside LM runs with its defaults (SPEC section 3 step 4).
+_RIDGE_HALF = round(DEFAULT_RIDGE_HALF_WIDTH_PX / DEFAULT_RIDGE_SAMPLE_STEP_PX)
+#: Stand-in gradient when none is given (never read: polarity and ridge are off).
+_NO_GRADIENT = np.zeros((1, 1, 2))
 
 __all__ = ["LMRefineResult", "lm_subpixel_refine"]
 
@@ -109,66 +114,31 @@ def lm_subpixel_refine(
 
 
 def _fit(a: LMArgs) -> LMRefineResult:
-    pts, sig = a.vertices, a.sigmas
-    if a.use_polarity:
-        assert a.gradient is not None  # guaranteed by check_lm_inputs
-        pol, bad = _robust.polarity(pts, a.normals, a.gradient, a.offset[0], a.offset[1])
-        if bad:
-            raise nonfinite_read("image_gradient_vu")
-    else:
-        pol = np.ones(pts.shape[0])
-    pivot = np.array(a.pivot)
-    pose0 = np.array([a.offset[0], a.offset[1], a.rotation])
-    trust = -1.0 if a.trust_region_px is None else a.trust_region_px
-    pose, iterations, converged, r, w, jac, bad = _k.lm_loop(
-        a.dt, pts, sig, pol, pose0, pivot, a.fit_rotation, a.pivot_distance,
-        a.max_iterations, a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,
-        trust, a.tikhonov_alpha,
+    grad = a.gradient if a.gradient is not None else _NO_GRADIENT
+    (error, pose, iterations, converged, r, w, _jac, cov, rms, raw_rms, inliers,
+     degenerate) = _k.fit(
+        a.dt, grad, a.vertices, a.normals, a.sigmas, a.use_polarity,
+        np.array([a.offset[0], a.offset[1], a.rotation]), np.array(a.pivot),
+        a.fit_rotation, a.pivot_distance, a.max_iterations, a.damping, a.step_tolerance,
+        a.tukey_c, a.pinvh_rcond, -1.0 if a.trust_region_px is None else a.trust_region_px,
+        a.tikhonov_alpha, a.final_gradient_ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
+        DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
+        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
     )
-    if bad:
+    if error == _k.BAD_GRADIENT:
+        raise nonfinite_read("image_gradient_vu")
+    if error == _k.BAD_DT:
         raise nonfinite_read("image_edge_dt")
-    if a.final_gradient_ridge and (w > 0).any():
-        assert a.gradient is not None
-        ridge = run_ridge(
-            a.gradient, pts, a.normals, sig, pol, pose, pivot, a.fit_rotation,
-            a.pivot_distance, field_name="image_gradient_vu", tukey_c=a.tukey_c,
-        )
-        if ridge.applied:
-            pose = np.array([ridge.offset_vu[0], ridge.offset_vu[1], ridge.rotation_rad])
-            status = _k.evaluate_state(
-                a.dt, pts, sig, pol, pose, pivot, a.fit_rotation, a.tukey_c, r, w, jac
-            )
-            if status < 0:
-                raise nonfinite_read("image_edge_dt")
-    return _summarise(pose, int(iterations), bool(converged), r, w, jac, a.pinvh_rcond)
-
-
-def _summarise(
-    pose: np.ndarray, iterations: int, converged: bool, r: np.ndarray, w: np.ndarray,
-    jac: np.ndarray, rcond: float,
-) -> LMRefineResult:
-    """SPEC section 3 step 5: counts, RMS values and the covariance."""
-    inlier_count = int(np.count_nonzero(w > 0))
-    total_weight = float(w.sum())
-    degenerate = inlier_count == 0 or total_weight == 0.0
-    if degenerate:
-        rms = math.inf
-        cov = no_information_covariance(jac.shape[1])
-    else:
-        rms = math.sqrt(float(np.dot(w * r, r)) / total_weight)
-        info, _ = _robust.normal_equations(jac, w, r, jac.shape[1])
-        cov = pinvh_covariance(info, rcond)
-    raw_rms = math.sqrt(float(np.dot(r, r)) / r.shape[0])
     return LMRefineResult(
         offset_vu=(float(pose[0]), float(pose[1])),
         rotation_rad=float(pose[2]),
         covariance=cov,
         residuals_px=r,
         weights=w,
-        rms_px=rms,
-        raw_rms_px=raw_rms,
-        iterations=iterations,
-        converged=converged,
-        inlier_count=inlier_count,
-        degenerate=degenerate,
+        rms_px=float(rms),
+        raw_rms_px=float(raw_rms),
+        iterations=int(iterations),
+        converged=bool(converged),
+        inlier_count=int(inliers),
+        degenerate=bool(degenerate),
     )

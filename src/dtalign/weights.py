@@ -96,14 +96,5 @@ def information_matrix_to_covariance(
     jac, w, rcond = check_covariance_inputs(jacobian, weights, rcond)
     if jac.shape[0] == 0 or not (w > 0).any():
         return no_information_covariance(jac.shape[1])
-    hess, _ = _k.normal_equations(jac, w, np.zeros(jac.shape[0]), jac.shape[1])
-    return pinvh_covariance(hess, rcond)
-
-
-def pinvh_covariance(info: FloatArray, rcond: float) -> FloatArray:
-    """``0.5 * (C + C^T)`` with ``C = pinvh(info, rtol=rcond)`` (no checks)."""
-    import scipy.linalg  # deferred: keeps `import dtalign` fast
-
-    cov = scipy.linalg.pinvh(info, rtol=rcond, check_finite=False)
-    return 0.5 * (cov + cov.T)  # type: ignore[no-any-return]
-
+    info, _ = _k.normal_equations(jac, w, np.zeros(jac.shape[0]), jac.shape[1])
+    return _k.symmetric_pinvh(info, rcond)  # type: ignore[no-any-return]

@@ -1,12 +1,12 @@
 """Coarse integer search over the sparse polyline support (SPEC section 2).
 
 Instead of gathering edge pixels once per shift (what the reference does),
-each polyline pixel scatters its contribution into the whole score table:
-for a fixed row shift the pixel's overlap with every column shift is a
-contiguous slice of one edge-mask row, so the inner loop is a plain
-vectorisable add. The in-bounds counts are accumulated the same way with a
-difference array. Scores are the same integer ratios as the reference, and
-the argmax uses the same total order, so the result is identical.
+each polyline pixel scatters its contribution into the whole score table,
+visiting only the edge pixels that can meet it: the work is proportional
+to the pixel pairs within the window, not to the window area times the
+polyline length. Masks are scanned a word at a time. Scores are the same
+integer ratios as the reference, and the argmax uses the same total
+order, so the result is identical.
 """
 
 from __future__ import annotations
@@ -29,60 +29,130 @@ def rasterise(pts, h, w):  # pragma: no cover - compiled
 
 
 @kernel
-def support(mask):  # pragma: no cover - compiled
-    """Row and column indices of the nonzero pixels of a uint8 mask, row-major."""
-    h, w = mask.shape
-    n = 0
-    for a in range(h):
-        row = mask[a]
-        for b in range(w):
-            n += row[b] != 0
-    pv = np.empty(n, dtype=np.int64)
-    pu = np.empty(n, dtype=np.int64)
-    k = 0
-    for a in range(h):
-        row = mask[a]
-        for b in range(w):
-            if row[b] != 0:
-                pv[k] = a
-                pu[k] = b
-                k += 1
-    return pv, pu
+def _fill(flat, words, start, stop, out, k):  # pragma: no cover - compiled
+    """Write the indices of the nonzero bytes of ``flat[start:stop]`` from ``out[k]``.
+
+    The aligned middle is read as uint64 words (``words`` views the same
+    buffer), eight at a time: almost every word of a sparse mask is zero, so
+    the common step tests 64 bytes with one branch.
+    """
+    j0 = min((start + 7) // 8, stop // 8)
+    j1 = max(stop // 8, j0)
+    for i in range(start, min(j0 * 8, stop)):
+        if flat[i] != 0:
+            out[k] = i
+            k += 1
+    j = j0
+    while j < j1:
+        if j + 8 <= j1 and (
+            words[j] | words[j + 1] | words[j + 2] | words[j + 3]
+            | words[j + 4] | words[j + 5] | words[j + 6] | words[j + 7]
+        ) == 0:
+            j += 8
+            continue
+        if words[j] != 0:
+            for i in range(8 * j, 8 * j + 8):
+                if flat[i] != 0:
+                    out[k] = i
+                    k += 1
+        j += 1
+    for i in range(max(j1 * 8, start), stop):
+        if flat[i] != 0:
+            out[k] = i
+            k += 1
+    return k
 
 
 @kernel
-def overlap_and_counts(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
-    """Edge overlap and in-bounds counts of every shift in the window."""
-    h, w = edge.shape
+def nonzero_in_box(flat, words, width, r_lo, r_hi, c_lo, c_hi):  # pragma: no cover - compiled
+    """Row-major ``(rows, cols)`` of the nonzero bytes in rows ``r_lo..r_hi``
+    and columns ``c_lo..c_hi`` of a flattened uint8 mask (typically sparse).
+
+    One pass: the output buffer is allocated for the whole box (untouched
+    pages of a large allocation cost nothing) and trimmed. A box spanning
+    whole rows is scanned as one contiguous run.
+    """
+    whole_rows = c_lo == 0 and c_hi == width - 1
+    n_runs = 1 if whole_rows else r_hi - r_lo + 1
+    span = (r_hi - r_lo + 1) * width if whole_rows else c_hi - c_lo + 1
+    first = r_lo * width + (0 if whole_rows else c_lo)
+    step = 0 if whole_rows else width
+    index = np.empty(n_runs * span, dtype=np.int64)
+    rows = np.empty(n_runs * span, dtype=np.int64)
+    k = 0
+    for run in range(n_runs):
+        k0 = k
+        k = _fill(flat, words, first + run * step, first + run * step + span, index, k)
+        for j in range(k0, k):
+            # an integer division per pixel costs more than the scan itself
+            rows[j] = index[j] // width if whole_rows else r_lo + run
+    cols = np.empty(k, dtype=np.int64)
+    for j in range(k):
+        cols[j] = index[j] - rows[j] * width
+    return rows[:k].copy(), cols
+
+
+@kernel
+def _first_at_least(cols, lo, hi, value):  # pragma: no cover - compiled
+    """First index in ``cols[lo:hi]`` (sorted) with ``cols[j] >= value``."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cols[mid] < value:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@kernel
+def overlap_and_counts(pv, pu, e_rows, e_cols, h, w, mv, mu):  # pragma: no cover - compiled
+    """Edge overlap and in-bounds counts of every shift in the window.
+
+    Pixels come as row-major ``(rows, cols)``. Both sets are sparse, so the
+    overlap is a sparse correlation: for each polyline pixel and row shift,
+    only the edge pixels of that row within the column window are visited
+    (found by binary search in the row's sorted columns). In-bounds counts
+    are the polyline size when the window never pushes a pixel off the
+    image, else accumulated in a difference array.
+    """
     nv = 2 * mv + 1
     nu = 2 * mu + 1
-    overlap = np.zeros((nv, nu), dtype=np.int32)
-    # counts[a, b] - counts[a, b-1] accumulated as a difference array.
-    diff = np.zeros((nv, nu + 1), dtype=np.int32)
+    overlap = np.zeros((nv, nu), dtype=np.int64)
+    # CSR index of the edge pixels by row
+    row_start = np.zeros(h + 1, dtype=np.int64)
+    for j in range(e_rows.shape[0]):
+        row_start[e_rows[j] + 1] += 1
+    for r in range(h):
+        row_start[r + 1] += row_start[r]
+    inside = pv.min() >= mv and pv.max() + mv <= h - 1 and pu.min() >= mu and pu.max() + mu <= w - 1
+    diff = np.zeros((nv, nu + 1), dtype=np.int64)
     for i in range(pv.shape[0]):
         r = pv[i]
         c = pu[i]
-        dv_lo = max(-mv, -r)
-        dv_hi = min(mv, h - 1 - r)
         du_lo = max(-mu, -c)
         du_hi = min(mu, w - 1 - c)
-        if du_lo > du_hi:
-            continue
-        for dv in range(dv_lo, dv_hi + 1):
-            row = edge[r + dv]
-            acc = overlap[dv + mv]
-            base = c + du_lo
-            off = du_lo + mu
-            for k in range(du_hi - du_lo + 1):
-                acc[off + k] += row[base + k]
-            diff[dv + mv, du_lo + mu] += 1
-            diff[dv + mv, du_hi + mu + 1] -= 1
-    counts = np.zeros((nv, nu), dtype=np.int32)
-    for a in range(nv):
-        run = 0
-        for b in range(nu):
-            run += diff[a, b]
-            counts[a, b] = run
+        for dv in range(max(-mv, -r), min(mv, h - 1 - r) + 1):
+            a = dv + mv
+            if not inside:
+                diff[a, du_lo + mu] += 1
+                diff[a, du_hi + mu + 1] -= 1
+            lo = row_start[r + dv]
+            hi = row_start[r + dv + 1]
+            j = _first_at_least(e_cols, lo, hi, c + du_lo) if hi - lo > 8 else lo
+            while j < hi:
+                col = e_cols[j]
+                if col > c + du_hi:
+                    break
+                if col >= c + du_lo:
+                    overlap[a, col - c + mu] += 1
+                j += 1
+    counts = np.full((nv, nu), pv.shape[0], dtype=np.int64)
+    if not inside:
+        for a in range(nv):
+            run = 0
+            for b in range(nu):
+                run += diff[a, b]
+                counts[a, b] = run
     return overlap, counts
 
 
@@ -125,7 +195,19 @@ def best_shift(overlap, counts, mv, mu):  # pragma: no cover - compiled
 
 
 @kernel
-def coarse_search(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
-    """``(dv, du)`` of the best shift; ``(0, 0)`` when no shift keeps a pixel."""
-    overlap, counts = overlap_and_counts(edge, pv, pu, mv, mu)
+def coarse_search(edge_flat, edge_words, poly_flat, poly_words, h, w, mv, mu):  # pragma: no cover
+    """``(dv, du)`` of the best shift; ``(0, 0)`` when no pixel can stay inside.
+
+    Masks come flattened as uint8 plus a uint64 view of their whole words.
+    Only the edge pixels within the window around the polyline's bounding
+    box can score, so only that box of the edge mask is scanned.
+    """
+    pv, pu = nonzero_in_box(poly_flat, poly_words, w, 0, h - 1, 0, w - 1)
+    if pv.shape[0] == 0:
+        return 0, 0
+    e_rows, e_cols = nonzero_in_box(
+        edge_flat, edge_words, w, max(pv[0] - mv, 0), min(pv[-1] + mv, h - 1),
+        max(pu.min() - mu, 0), min(pu.max() + mu, w - 1),
+    )
+    overlap, counts = overlap_and_counts(pv, pu, e_rows, e_cols, h, w, mv, mu)
     return best_shift(overlap, counts, mv, mu)

@@ -14,19 +14,20 @@ import numpy as np
 from .._jit import kernel
 from .lm import EPS_R, step_norm
 from .robust import irls_weight, normal_equations, solve_step
-from .sampling import bilinear_magnitude, transform
+from .sampling import bilinear_magnitude, new_magnitude_cache, transform
 
 CURVATURE_EPS = 1.0e-12
 PINVH_RCOND = 1.0e-9
 
 
 @kernel
-def peak_offsets(field, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot):  # pragma: no cover
+def peak_offsets(field, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot, cache):  # pragma: no cover
     """Sub-pixel signed distance ``t*`` to the magnitude peak along each normal.
 
     Writes ``t*`` into ``out``, 1.0/0.0 validity into ``valid`` and the
     normals rotated by ``theta`` into ``n_rot``; ``prof`` is scratch of
-    length ``K``. Returns False if a sample read a NaN or inf.
+    length ``K``; ``cache`` is :func:`new_magnitude_cache`'s pair. Returns
+    False if a sample read a NaN or inf.
     """
     k_count = t.shape[0]
     c0, s0 = math.cos(theta), math.sin(theta)
@@ -41,7 +42,7 @@ def peak_offsets(field, pts, nrm, dv, du, theta, pivot, t, step, prof, out, vali
         v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pivot[0], pivot[1])
         k_star = 0
         for k in range(k_count):
-            prof[k] = bilinear_magnitude(field, v + t[k] * nv, u + t[k] * nu)
+            prof[k] = bilinear_magnitude(field, v + t[k] * nv, u + t[k] * nu, cache[0], cache[1])
             if not math.isfinite(prof[k]):
                 return False
             if prof[k] > prof[k_star]:
@@ -85,13 +86,14 @@ def ridge_loop(
     r_m = np.empty(n)
     scratch_valid = np.empty(n)
     scratch_n = np.empty((n, 2))
+    cache = new_magnitude_cache()
     pose = pose0.copy()
     iterations = 0
     converged = False
     for _ in range(max_iterations):
         theta = pose[2]
         if not peak_offsets(field, pts, nrm, pose[0], pose[1], theta, pivot, t, sample_step,
-                            prof, r, valid, n_rot):
+                            prof, r, valid, n_rot, cache):
             return pose, iterations, converged, True
         any_positive = False
         for i in range(n):
@@ -104,9 +106,9 @@ def ridge_loop(
             break
         if fit_rotation:
             ok_p = peak_offsets(field, pts, nrm, pose[0], pose[1], theta + EPS_R, pivot, t,
-                                sample_step, prof, r_p, scratch_valid, scratch_n)
+                                sample_step, prof, r_p, scratch_valid, scratch_n, cache)
             ok_m = peak_offsets(field, pts, nrm, pose[0], pose[1], theta - EPS_R, pivot, t,
-                                sample_step, prof, r_m, scratch_valid, scratch_n)
+                                sample_step, prof, r_m, scratch_valid, scratch_n, cache)
             if not (ok_p and ok_m):
                 return pose, iterations, converged, True
             for i in range(n):

@@ -303,10 +303,12 @@ def lm_subpixel_refine(
     lam = a.damping
     iterations = 0
     converged = False
-    state = None  # (r, w, J) at `pose`, None when stale
+    state = None  # (r, w, J): the last state computed
     while iterations < a.max_iterations:
-        if state is None:
-            state = evaluate(pose)
+        # Step 1 samples the state at the current pose on every iteration,
+        # as the design's loop does (after an accepted step it was also
+        # computed in step 7: the same values, computed again).
+        state = evaluate(pose)
         r, w, jac = state
         if not (w > 0).any():
             break
@@ -342,7 +344,7 @@ def lm_subpixel_refine(
             pose = trial
             lam = max(lam / 2, LM_DAMPING_MIN)
             iterations += 1
-            state = None
+            state = evaluate(pose)  # step 7: the state at the accepted pose
             if _step_norm(step, a.pivot_distance) < a.step_tolerance:
                 converged = True
                 break

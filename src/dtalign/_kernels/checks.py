@@ -1,0 +1,39 @@
+"""Value checks of the per-vertex arrays in one pass (the wrappers raise)."""
+
+from __future__ import annotations
+
+import math
+
+from .._jit import kernel
+
+#: Status codes of :func:`polyline_status`, in SPEC section 1's check order.
+OK = 0
+BAD_VERTICES = 1
+BAD_NORMALS = 2
+BAD_SIGMAS = 3
+
+
+@kernel
+def polyline_status(pts, nrm, sig):  # pragma: no cover - compiled
+    """First failing check and the vertex centroid.
+
+    Vertices and normals must be finite; sigmas finite, > 0 and with a
+    finite ``1 / sigma^2``. The centroid is the sequential sum divided by
+    N, bit-identical to ``pts.mean(axis=0)`` for an ``(N, 2)`` C array.
+    """
+    n = pts.shape[0]
+    s0 = 0.0
+    s1 = 0.0
+    for i in range(n):
+        if not (math.isfinite(pts[i, 0]) and math.isfinite(pts[i, 1])):
+            return BAD_VERTICES, 0.0, 0.0
+        s0 += pts[i, 0]
+        s1 += pts[i, 1]
+    for i in range(n):
+        if not (math.isfinite(nrm[i, 0]) and math.isfinite(nrm[i, 1])):
+            return BAD_NORMALS, 0.0, 0.0
+    for i in range(n):
+        s = sig[i]
+        if not (math.isfinite(s) and s > 0.0 and math.isfinite(1.0 / (s * s))):
+            return BAD_SIGMAS, 0.0, 0.0
+    return OK, s0 / n, s1 / n
