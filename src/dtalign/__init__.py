@@ -51,6 +51,14 @@ _LAZY: dict[str, str] = {
     "compute_image_gradient_vu": ".image",
     "build_image_edge_dt": ".image",
     "compute_all_image_derivatives": ".image",
+    # beyond the drop-in surface: the one-call pipeline
+    "ImageProducts": ".pipeline",
+    "PolylineFit": ".pipeline",
+    "covariance_with_unobservable_inf": ".pipeline",
+    "estimate_noise_sigma": ".pipeline",
+    "fit_polyline": ".pipeline",
+    "fit_polyline_products": ".pipeline",
+    "prepare_image": ".pipeline",
 }
 
 __all__ = [
@@ -93,6 +101,15 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         compute_image_gradient_vu,
     )
     from .lm import lm_subpixel_refine
+    from .pipeline import (
+        ImageProducts,
+        PolylineFit,
+        covariance_with_unobservable_inf,
+        estimate_noise_sigma,
+        fit_polyline,
+        fit_polyline_products,
+        prepare_image,
+    )
     from .ridge import gradient_ridge_refine
     from .sampling import apply_translation, sample_dt_bilinear
     from .weights import (
