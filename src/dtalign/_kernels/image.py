@@ -168,8 +168,9 @@ def hypot_row(x, y, out, use_libm):
     """``out = hypot(x, y)`` bit-identical to glibc (and so to ``np.hypot``).
 
     glibc's non-FMA kernel (Borges, "An improved algorithm for hypot(a, b)")
-    on the common range, in a branch-free loop LLVM vectorises; a second
-    scalar loop hands the inputs glibc would rescale (or NaN/inf) to libm.
+    on the common range, in a branch-free loop LLVM vectorises; only if
+    that loop met an input glibc would rescale (or a NaN/inf), a second
+    pass hands those to libm itself.
     ``use_libm`` forces libm everywhere, for platforms whose ``np.hypot``
     is not this algorithm (the wrapper probes that once per process).
     """
@@ -210,6 +211,7 @@ def hypot_row(x, y, out, use_libm):
 
 @kernel
 def _new_buffers(w, r):
+    """Row scratch of the streaming sweep (``r``: Gaussian radius)."""
     acc = np.empty(w)
     pad = np.empty(w + 2 * r)
     s_ring = np.zeros((3, w + 2))
