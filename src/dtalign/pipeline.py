@@ -272,9 +272,8 @@ def covariance_with_unobservable_inf(
     A straight vertical edge constrains ``u`` only:
 
     >>> import numpy as np
-    >>> covariance_with_unobservable_inf(np.array([[0.0, 0.0], [0.0, 0.01]]))
-    array([[ inf,  0.  ],
-           [ 0.  , 0.01]])
+    >>> covariance_with_unobservable_inf(np.array([[0.0, 0.0], [0.0, 0.01]])).tolist()
+    [[inf, 0.0], [0.0, 0.01]]
     """
     arr = _check_covariance(cov)
     rcond = check.nonnegative_real(rcond, "rcond")
@@ -993,7 +992,8 @@ def fit_polyline(
 
     Examples
     --------
-    >>> from dtalign import fit_polyline, scenes
+    >>> from dtalign import scenes
+    >>> from dtalign.pipeline import fit_polyline
     >>> scene = scenes.disc_scene()
     >>> p = scene.polyline
     >>> fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas,
