@@ -297,3 +297,21 @@ def test_overlay_missing_png(capsys, tmp_path):
         "--image", str(tmp_path / "i.npy"), "--polyline", str(tmp_path / "p.csv"),
     )
     assert_one_line_error(code, err, "Cassini frame not found")
+
+
+def test_fits_image(capsys, files, tmp_path, monkeypatch):
+    image = np.load(files / "disc.npy")
+    path = tmp_path / "disc.fits"
+    try:
+        from astropy.io import fits
+    except ImportError:
+        path.write_bytes(b"SIMPLE  =                    T")
+        code, _, err = run(capsys, "fit", str(path), str(files / "disc.csv"))
+        assert_one_line_error(code, err, "pip install astropy")
+        return
+    fits.PrimaryHDU(image).writeto(path)
+    code, out, _ = run(capsys, "fit", str(path), str(files / "disc.csv"), "--window", "8", "--json")
+    assert code == 0 and np.allclose(json.loads(out)["offset_vu"], TRUE, atol=0.1)
+    monkeypatch.setitem(sys.modules, "astropy.io", None)
+    code, _, err = run(capsys, "fit", str(path), str(files / "disc.csv"))
+    assert_one_line_error(code, err, "pip install astropy")

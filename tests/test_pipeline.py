@@ -316,3 +316,8 @@ def test_image_and_products_validation(small):
 def test_public_names_listed():
     for name in pipeline.__all__:
         assert hasattr(pipeline, name)
+
+
+def test_results_compare_by_identity(disc_fit, small_products):
+    assert disc_fit == disc_fit and disc_fit != small_products
+    assert len({disc_fit, small_products}) == 2

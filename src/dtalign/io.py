@@ -613,7 +613,7 @@ def overlay_polylines(
         remaining &= dist > 3.0 * tolerance_px
     if parallel and found:
         ref = found[0][2]
-        common = sum((d if d @ ref >= 0 else -d) for _, _, d in found)
+        common = np.sum([d if d @ ref >= 0 else -d for _, _, d in found], axis=0)
         common = common / np.hypot(common[0], common[1])
         found = [(inl, origin, common) for inl, origin, _ in found]
     for k, (inl, origin, d) in enumerate(found):

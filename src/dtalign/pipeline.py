@@ -412,7 +412,7 @@ def _sigmas_from_cov(cov: FloatArray) -> FloatArray:
 # ---------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ImageProducts:
     """Everything the fitter needs from one image, computed once.
 
@@ -441,7 +441,8 @@ class ImageProducts:
         True when ``noise_sigma`` was estimated from the image.
     timings_s : dict
         Wall time of each step (``noise``, ``derivatives``), seconds.
-        Ignored by ``==``.
+
+    Instances compare by identity (the arrays have no single truth value).
     """
 
     shape: tuple[int, int]
@@ -452,7 +453,7 @@ class ImageProducts:
     edge_mask: NDArray[np.bool_]
     config: ImageDerivativesConfig = field(default_factory=ImageDerivativesConfig)
     noise_sigma_estimated: bool = False
-    timings_s: dict[str, float] = field(default_factory=dict, compare=False, repr=False)
+    timings_s: dict[str, float] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("gradient_magnitude", "edge_dt", "gradient_vu", "edge_mask"):
@@ -542,7 +543,7 @@ def prepare_image(
 # ---------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PolylineFit:
     """Outcome of :func:`fit_polyline` / :func:`fit_polyline_products`.
 
@@ -589,7 +590,8 @@ class PolylineFit:
     timings_s : dict
         Wall time of each stage in seconds (``noise``, ``derivatives`` when
         the products were computed here, ``mask``, ``coarse``, ``lm``).
-        Ignored by ``==``.
+
+    Instances compare by identity; compare fields to compare fits.
     """
 
     offset_vu: tuple[float, float]
@@ -607,7 +609,7 @@ class PolylineFit:
     normal_covariance: FloatArray = field(default_factory=lambda: np.full((2, 2), np.inf))
     pinvh_rcond: float = DEFAULT_PINVH_RCOND
     tukey_c: float = DEFAULT_TUKEY_C
-    timings_s: dict[str, float] = field(default_factory=dict, compare=False, repr=False)
+    timings_s: dict[str, float] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "normal_covariance", _readonly(np.asarray(self.normal_covariance)))
