@@ -8,7 +8,8 @@ identical in both implementations, and converts every array exactly once.
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import numpy as np
 

@@ -18,7 +18,8 @@ signatures, so compilation is lazy and ``import dtalign`` stays fast.
 
 from __future__ import annotations
 
-from typing import Any, Callable, TypeVar
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numba
 
@@ -35,3 +36,13 @@ JIT_OPTIONS: dict[str, Any] = {
 def kernel(fn: F) -> F:
     """Compile ``fn`` lazily with the project's Numba flags."""
     return numba.njit(**JIT_OPTIONS)(fn)  # type: ignore[no-any-return]
+
+
+def inline_kernel(fn: F) -> F:
+    """:func:`kernel`, inlined into its callers at Numba's IR level.
+
+    For the few per-sample helpers of the hot loops (bilinear sampling,
+    pose transform, magnitude lookup): LLVM's own inliner does not always
+    take them, and a call per sample costs more than the sample.
+    """
+    return numba.njit(inline="always", **JIT_OPTIONS)(fn)  # type: ignore[no-any-return]

@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 
 from . import _validation as check
-from ._kernels import coarse as _k
 from ._args import check_coarse_inputs
+from ._kernels import coarse as _k
 
 __all__ = ["build_polyline_mask", "coarse_ncc_search"]
 

@@ -27,6 +27,7 @@ from ._constants import (
 from ._kernels import fit as _k
 from ._results import LMRefineResult
 from ._validation import nonfinite_read
+from .image import _use_libm_hypot
 
 #: The ridge polish inside LM runs with its defaults (SPEC section 3 step 4).
 _RIDGE_HALF = round(DEFAULT_RIDGE_HALF_WIDTH_PX / DEFAULT_RIDGE_SAMPLE_STEP_PX)
@@ -123,7 +124,7 @@ def _fit(a: LMArgs) -> LMRefineResult:
         a.tukey_c, a.pinvh_rcond, -1.0 if a.trust_region_px is None else a.trust_region_px,
         a.tikhonov_alpha, a.final_gradient_ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
-        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
+        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(),
     )
     if error == _k.BAD_GRADIENT:
         raise nonfinite_read("image_gradient_vu")

@@ -18,52 +18,12 @@ from ._constants import (
 )
 from ._kernels import ridge as _k
 from ._results import RidgeRefineResult
-from ._validation import FloatArray, nonfinite_read
+from ._validation import nonfinite_read
 
 __all__ = ["RidgeRefineResult", "gradient_ridge_refine"]
 
-
-def run_ridge(
-    field: FloatArray,
-    pts: FloatArray,
-    nrm: FloatArray,
-    sig: FloatArray,
-    weight_mask: FloatArray,
-    pose0: FloatArray,
-    pivot: FloatArray,
-    fit_rotation: bool,
-    pivot_distance: float,
-    *,
-    field_name: str,
-    max_iterations: int = DEFAULT_RIDGE_MAX_ITERATIONS,
-    step_tolerance: float = DEFAULT_LM_STEP_TOLERANCE,
-    tukey_c: float = DEFAULT_TUKEY_C,
-    half_width: float = DEFAULT_RIDGE_HALF_WIDTH_PX,
-    sample_step: float = DEFAULT_RIDGE_SAMPLE_STEP_PX,
-    max_total_displacement: float = DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
-) -> RidgeRefineResult:
-    """Run the compiled polish on validated input (shared with the LM driver).
-
-    ``field`` is ``(H, W, 1)`` (a magnitude image) or ``(H, W, 2)`` (a
-    gradient-vector image); ``pose0`` is ``(dv, du, theta)``; ``field_name``
-    names the argument it came from, for the non-finite error.
-    """
-    pose, iterations, converged, bad = _k.ridge_loop(
-        field, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pivot_distance,
-        max_iterations, step_tolerance, tukey_c, round(half_width / sample_step), sample_step,
-    )
-    if bad:
-        raise nonfinite_read(field_name)
-    moved = math.hypot(pose[0] - pose0[0], pose[1] - pose0[1])
-    applied = iterations > 0 and not moved > max_total_displacement
-    final = pose if applied else pose0
-    return RidgeRefineResult(
-        offset_vu=(float(final[0]), float(final[1])),
-        rotation_rad=float(final[2]),
-        iterations=int(iterations),
-        converged=bool(converged),
-        applied=bool(applied),
-    )
+#: An empty gradient tells the kernel that its patch is the whole magnitude image.
+_NO_GRADIENT = np.zeros((0, 0, 2))
 
 
 def gradient_ridge_refine(
@@ -121,12 +81,21 @@ def gradient_ridge_refine(
         ``applied=False`` if no iteration ran or the cap was exceeded.
     """
     a = check_ridge_inputs(locals())
-    field = a.magnitude.reshape(a.magnitude.shape + (1,))
-    return run_ridge(
-        field, a.vertices, a.normals, a.sigmas, a.weight_mask,
-        np.array([a.offset[0], a.offset[1], a.rotation]), np.array(a.pivot),
-        a.fit_rotation, a.pivot_distance, field_name="gradient_magnitude",
-        max_iterations=a.max_iterations, step_tolerance=a.step_tolerance, tukey_c=a.tukey_c,
-        half_width=a.half_width, sample_step=a.sample_step,
-        max_total_displacement=a.max_total_displacement,
+    pose0 = np.array([a.offset[0], a.offset[1], a.rotation])
+    pose, iterations, converged, bad = _k.ridge_loop(
+        a.magnitude, _NO_GRADIENT, 0, 0, a.vertices, a.normals, a.sigmas, a.weight_mask, pose0,
+        np.array(a.pivot), a.fit_rotation, a.pivot_distance, a.max_iterations,
+        a.step_tolerance, a.tukey_c, round(a.half_width / a.sample_step), a.sample_step,
+    )
+    if bad:
+        raise nonfinite_read("gradient_magnitude")
+    moved = math.hypot(pose[0] - pose0[0], pose[1] - pose0[1])
+    applied = iterations > 0 and not moved > a.max_total_displacement
+    final = pose if applied else pose0
+    return RidgeRefineResult(
+        offset_vu=(float(final[0]), float(final[1])),
+        rotation_rad=float(final[2]),
+        iterations=int(iterations),
+        converged=bool(converged),
+        applied=bool(applied),
     )

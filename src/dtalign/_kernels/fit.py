@@ -13,7 +13,7 @@ import numpy as np
 
 from .._jit import kernel
 from .lm import evaluate_state, lm_loop
-from .ridge import ridge_loop
+from .ridge import PATCH_MARGIN, magnitude_patch, ridge_loop
 from .robust import normal_equations, polarity, symmetric_pinvh
 
 #: Error codes returned by :func:`fit` (the wrapper raises for them).
@@ -27,7 +27,7 @@ def fit(
     dt, grad, pts, nrm, sig, use_polarity, pose0, pivot, fit_rotation, pivot_distance,
     max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
     ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
-    ridge_max_displacement,
+    ridge_max_displacement, use_libm,
 ):  # pragma: no cover - compiled
     """SPEC section 3, steps 1-5.
 
@@ -64,8 +64,11 @@ def fit(
             inlier_count += 1
         total_weight += w[i]
     if error == OK and ridge and inlier_count > 0:
+        patch, r0, c0 = magnitude_patch(
+            grad, pts, pose[0], pose[1], ridge_half * ridge_sample_step + PATCH_MARGIN, use_libm
+        )
         new_pose, ridge_iterations, _, bad = ridge_loop(
-            grad, pts, nrm, sig, pol, pose, pivot, fit_rotation, pivot_distance,
+            patch, grad, r0, c0, pts, nrm, sig, pol, pose, pivot, fit_rotation, pivot_distance,
             ridge_max_iterations, ridge_step_tolerance, tukey_c, ridge_half, ridge_sample_step,
         )
         if bad:
@@ -74,7 +77,16 @@ def fit(
             math.hypot(new_pose[0] - pose[0], new_pose[1] - pose[1]) > ridge_max_displacement
         ):
             pose = new_pose
-            if evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac) < 0:
+            inv_var = np.empty(n)
+            for i in range(n):
+                inv_var[i] = 1.0 / (sig[i] * sig[i])
+            scratch_h = np.zeros((n_params, n_params))
+            scratch_g = np.zeros(n_params)
+            status = evaluate_state(
+                dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac,
+                scratch_h, scratch_g,
+            )[0]
+            if status < 0:
                 error = BAD_DT
             inlier_count = 0
             total_weight = 0.0

@@ -2,9 +2,10 @@
 
 A pure-NumPy iteration spends most of its time in interpreter overhead on
 arrays of a few hundred vertices; compiling the whole loop removes that.
-Each iteration makes one pass over the vertices for residuals, Jacobian and
-weights (no N x 5 temporaries), one for the trial cost, and solves a 2x2 or
-3x3 system. The state arrays are allocated once per fit and overwritten.
+A new pose costs one pass over the vertices for residuals, Jacobian,
+weights and the normal equations together (no N x 5 temporaries); a trial
+step costs one pass for its cost, and a 2x2 or 3x3 solve. The state arrays
+are allocated once per fit and overwritten.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import math
 import numpy as np
 
 from .._jit import kernel
-from .robust import irls_weight, normal_equations, solve_step
+from .robust import solve_step, tukey
 from .sampling import bilinear, transform
 
 #: Mirrors of the constants in dtalign._constants, as compile-time literals.
@@ -26,14 +27,18 @@ LAMBDA_MAX = 1.0e6
 
 
 @kernel
-def evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac):  # pragma: no cover
-    """Residuals, IRLS weights and Jacobian at ``pose``, written into ``r, w, jac``.
+def evaluate_state(dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad):  # pragma: no cover
+    """State at ``pose``: residuals, IRLS weights and Jacobian into ``r, w, jac``,
+    and in the same pass ``H = A^T A``, ``g = A^T (sqrt(w) r)`` (``A = sqrt(w) J``)
+    into ``hess, grad``.
 
     Rejected-polarity vertices get the penalty residual; their Jacobian row
-    is still the DT's (it carries zero weight). Returns 1 if any weight is
-    positive, 0 if none is, and -1 if a sample read a NaN or inf from
-    ``dt`` (the caller refuses the DT then: the image is too large to scan
-    on every call, but no non-finite value can reach a result unnoticed).
+    is still the DT's (it carries zero weight). ``inv_var`` is
+    ``1 / sigma^2``. Returns ``(status, cost, total_weight)``: status 1 if
+    any weight is positive, 0 if none is, -1 if a sample read a NaN or inf
+    from ``dt`` (the caller refuses the DT: the image is too large to scan
+    on every call, but no non-finite value reaches a result unnoticed).
+    Sums run over the vertices in order, as SPEC's formulas read.
     """
     dv, du, theta = pose[0], pose[1], pose[2]
     pv, pu = pivot[0], pivot[1]
@@ -44,6 +49,12 @@ def evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, 
     two_eps_t = 2 * EPS_T
     two_eps_r = 2 * EPS_R
     status = 0
+    cost = 0.0
+    total = 0.0
+    # scalar accumulators (kept in registers) for H and g, P = 2 or 3
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    g0 = g1 = g2 = 0.0
+    j2 = 0.0
     for i in range(pts.shape[0]):
         v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pv, pu)
         sample = bilinear(dt, v, u)
@@ -51,7 +62,7 @@ def evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, 
         j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / two_eps_t
         # inf - inf and nan propagate, so one test covers all five samples
         if not math.isfinite(sample + j0 + j1):
-            return -1
+            return -1, cost, total
         jac[i, 0] = j0
         jac[i, 1] = j1
         if fit_rotation:
@@ -59,15 +70,42 @@ def evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, 
             vm, um = transform(pts[i, 0], pts[i, 1], dv, du, tm, cm, sm, pv, pu)
             j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / two_eps_r
             if not math.isfinite(j2):
-                return -1
+                return -1, cost, total
             jac[i, 2] = j2
         ri = sample if pol[i] != 0.0 else PENALTY
         r[i] = ri
-        wi = irls_weight(ri, sig[i], tukey_c, pol[i])
+        wi = inv_var[i] * tukey(ri / sig[i], tukey_c) * pol[i]
         w[i] = wi
-        if wi > 0.0 and status == 0:
+        cost += wi * ri * ri
+        total += wi
+        if wi > 0.0:
             status = 1
-    return status
+            sw = np.sqrt(wi)
+            swr = sw * ri
+            a0 = sw * j0
+            a1 = sw * j1
+            g0 += a0 * swr
+            g1 += a1 * swr
+            h00 += a0 * a0
+            h01 += a0 * a1
+            h11 += a1 * a1
+            if fit_rotation:
+                a2 = sw * j2
+                g2 += a2 * swr
+                h02 += a0 * a2
+                h12 += a1 * a2
+                h22 += a2 * a2
+    hess[0, 0] = h00
+    hess[0, 1] = hess[1, 0] = h01
+    hess[1, 1] = h11
+    grad[0] = g0
+    grad[1] = g1
+    if fit_rotation:
+        hess[0, 2] = hess[2, 0] = h02
+        hess[1, 2] = hess[2, 1] = h12
+        hess[2, 2] = h22
+        grad[2] = g2
+    return status, cost, total
 
 
 @kernel
@@ -113,13 +151,16 @@ def lm_loop(
     r = np.empty(n)
     w = np.empty(n)
     jac = np.zeros((n, n_params))
+    inv_var = np.empty(n)
+    for i in range(n):
+        inv_var[i] = 1.0 / (sig[i] * sig[i])
     pose = pose0.copy()
     trial = pose0.copy()
     dv0, du0 = pose0[0], pose0[1]
     lam = damping
     iterations = 0
     converged = False
-    fresh = False  # r, w, jac (and hess, grad, cost, t) describe `pose`
+    fresh = False  # r, w, jac, hess, grad, cost describe `pose`
     status = 0
     cost = 0.0
     t = 0.0
@@ -128,21 +169,16 @@ def lm_loop(
     damped = np.zeros((n_params, n_params))
     while iterations < max_iterations:
         if not fresh:
-            status = evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac)
+            status, cost, total_w = evaluate_state(
+                dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad
+            )
             if status < 0:
                 return pose, iterations, converged, r, w, jac, True
             fresh = True
             if status == 0:
                 break
-            cost = 0.0
-            for i in range(n):
-                cost += w[i] * r[i] * r[i]
-            hess, grad = normal_equations(jac, w, r, n_params)
             t = 0.0
             if tikhonov_alpha > 0:
-                total_w = 0.0
-                for i in range(n):
-                    total_w += w[i]
                 t = tikhonov_alpha * total_w
                 hess[0, 0] += t
                 hess[1, 1] += t
@@ -183,5 +219,7 @@ def lm_loop(
             if lam >= LAMBDA_MAX:
                 break
     if not fresh:
-        status = evaluate_state(dt, pts, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac)
+        status = evaluate_state(
+            dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad
+        )[0]
     return pose, iterations, converged, r, w, jac, status < 0

@@ -1,8 +1,9 @@
 """Gradient-ridge polish of SPEC section 4, compiled whole.
 
-The magnitude field is ``(H, W, C)``: ``C == 1`` is a gradient-magnitude
-image, ``C == 2`` a gradient-vector image whose magnitude is formed only at
-the pixels the profiles touch (see :func:`bilinear_magnitude`).
+The magnitude comes either as a gradient-magnitude image or, from the LM
+driver, as the gradient-vector image, whose magnitude is formed only in a
+box around the polyline (see :func:`magnitude_patch` and
+:func:`sample_magnitude`).
 """
 
 from __future__ import annotations
@@ -12,37 +13,80 @@ import math
 import numpy as np
 
 from .._jit import kernel
+from .image import hypot_row
 from .lm import EPS_R, step_norm
 from .robust import irls_weight, normal_equations, solve_step
-from .sampling import bilinear_magnitude, new_magnitude_cache, transform
+from .sampling import sample_magnitude, transform
 
 CURVATURE_EPS = 1.0e-12
 PINVH_RCOND = 1.0e-9
+#: Largest magnitude patch (pixels) built for a gradient-vector image;
+#: beyond it the magnitude is formed at every sampled corner instead.
+MAX_PATCH = 1 << 20
+#: Margin of the patch beyond the profiles at the starting pose, px: room
+#: for the polish to move (it is discarded beyond 1.5 px anyway).
+PATCH_MARGIN = 8
 
 
 @kernel
-def peak_offsets(field, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot, cache):  # pragma: no cover
+def magnitude_patch(grad, pts, dv, du, reach, use_libm):  # pragma: no cover - compiled
+    """``hypot(g_v, g_u)`` over the box the vertices' profiles can reach, and its origin.
+
+    The LM driver polishes against the magnitude of its gradient-vector
+    image; forming it only in this box (with the vectorised, bit-identical
+    :func:`hypot_row`) costs a fraction of the whole image's. Samples
+    outside the box fall back to per-pixel hypot (see
+    :func:`sample_magnitude`). A box over ``MAX_PATCH`` pixels is not
+    built (empty patch: every sample falls back).
+    """
+    h = grad.shape[0]
+    w = grad.shape[1]
+    r_lo, r_hi, c_lo, c_hi = h, -1, w, -1
+    for i in range(pts.shape[0]):
+        v = pts[i, 0] + dv
+        u = pts[i, 1] + du
+        r_lo = min(r_lo, int(math.floor(max(min(v - reach, h - 1.0), 0.0))))
+        r_hi = max(r_hi, int(math.ceil(max(min(v + reach, h - 1.0), 0.0))))
+        c_lo = min(c_lo, int(math.floor(max(min(u - reach, w - 1.0), 0.0))))
+        c_hi = max(c_hi, int(math.ceil(max(min(u + reach, w - 1.0), 0.0))))
+    rows = r_hi - r_lo + 1
+    cols = c_hi - c_lo + 1
+    if rows * cols > MAX_PATCH:
+        return np.empty((0, 0)), 0, 0
+    patch = np.empty((rows, cols))
+    g_v = np.empty(cols)
+    g_u = np.empty(cols)
+    for r in range(rows):
+        for j in range(cols):  # de-interleave so the hypot loop vectorises
+            g_v[j] = grad[r_lo + r, c_lo + j, 0]
+            g_u[j] = grad[r_lo + r, c_lo + j, 1]
+        hypot_row(g_v, g_u, patch[r], use_libm)
+    return patch, r_lo, c_lo
+
+
+@kernel
+def peak_offsets(patch, grad, r0, c0, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot):  # pragma: no cover
     """Sub-pixel signed distance ``t*`` to the magnitude peak along each normal.
 
     Writes ``t*`` into ``out``, 1.0/0.0 validity into ``valid`` and the
     normals rotated by ``theta`` into ``n_rot``; ``prof`` is scratch of
-    length ``K``; ``cache`` is :func:`new_magnitude_cache`'s pair. Returns
-    False if a sample read a NaN or inf.
+    length ``K``. The field is sampled by :func:`sample_magnitude` from
+    ``patch, grad, r0, c0``. Returns False if a sample read a NaN or inf.
     """
     k_count = t.shape[0]
-    c0, s0 = math.cos(theta), math.sin(theta)
+    cos_t, sin_t = math.cos(theta), math.sin(theta)
     for i in range(pts.shape[0]):
         if theta == 0.0:
             nv, nu = nrm[i, 0], nrm[i, 1]
         else:
-            nv = c0 * nrm[i, 0] - s0 * nrm[i, 1]
-            nu = s0 * nrm[i, 0] + c0 * nrm[i, 1]
+            nv = cos_t * nrm[i, 0] - sin_t * nrm[i, 1]
+            nu = sin_t * nrm[i, 0] + cos_t * nrm[i, 1]
         n_rot[i, 0] = nv
         n_rot[i, 1] = nu
-        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pivot[0], pivot[1])
+        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, cos_t, sin_t, pivot[0], pivot[1])
         k_star = 0
         for k in range(k_count):
-            prof[k] = bilinear_magnitude(field, v + t[k] * nv, u + t[k] * nu, cache[0], cache[1])
+            prof[k] = sample_magnitude(patch, grad, r0, c0, v + t[k] * nv, u + t[k] * nu)
             if not math.isfinite(prof[k]):
                 return False
             if prof[k] > prof[k_star]:
@@ -61,7 +105,7 @@ def peak_offsets(field, pts, nrm, dv, du, theta, pivot, t, step, prof, out, vali
 
 @kernel
 def ridge_loop(
-    field, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pivot_distance,
+    patch, grad, r0, c0, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pivot_distance,
     max_iterations, step_tolerance, tukey_c, half, sample_step,
 ):  # pragma: no cover - compiled
     """Gauss-Newton on ``t*``; returns the final pose, iterations, converged
@@ -86,14 +130,13 @@ def ridge_loop(
     r_m = np.empty(n)
     scratch_valid = np.empty(n)
     scratch_n = np.empty((n, 2))
-    cache = new_magnitude_cache()
     pose = pose0.copy()
     iterations = 0
     converged = False
     for _ in range(max_iterations):
         theta = pose[2]
-        if not peak_offsets(field, pts, nrm, pose[0], pose[1], theta, pivot, t, sample_step,
-                            prof, r, valid, n_rot, cache):
+        if not peak_offsets(patch, grad, r0, c0, pts, nrm, pose[0],
+                            pose[1], theta, pivot, t, sample_step, prof, r, valid, n_rot):
             return pose, iterations, converged, True
         any_positive = False
         for i in range(n):
@@ -105,16 +148,18 @@ def ridge_loop(
         if not any_positive:
             break
         if fit_rotation:
-            ok_p = peak_offsets(field, pts, nrm, pose[0], pose[1], theta + EPS_R, pivot, t,
-                                sample_step, prof, r_p, scratch_valid, scratch_n, cache)
-            ok_m = peak_offsets(field, pts, nrm, pose[0], pose[1], theta - EPS_R, pivot, t,
-                                sample_step, prof, r_m, scratch_valid, scratch_n, cache)
+            ok_p = peak_offsets(patch, grad, r0, c0, pts, nrm, pose[0],
+                                pose[1], theta + EPS_R, pivot, t, sample_step, prof, r_p,
+                                scratch_valid, scratch_n)
+            ok_m = peak_offsets(patch, grad, r0, c0, pts, nrm, pose[0],
+                                pose[1], theta - EPS_R, pivot, t, sample_step, prof, r_m,
+                                scratch_valid, scratch_n)
             if not (ok_p and ok_m):
                 return pose, iterations, converged, True
             for i in range(n):
                 jac[i, 2] = (r_p[i] - r_m[i]) / (2 * EPS_R)
-        hess, grad = normal_equations(jac, w, r, n_params)
-        step = solve_step(hess, grad, PINVH_RCOND)
+        hess, g_vec = normal_equations(jac, w, r, n_params)
+        step = solve_step(hess, g_vec, PINVH_RCOND)
         for a in range(n_params):
             pose[a] = pose[a] + step[a]
         iterations += 1

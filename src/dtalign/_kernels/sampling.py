@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 
 
-@kernel
+@inline_kernel
 def bilinear(dt, v, u):  # pragma: no cover - compiled
     """``dt`` sampled at ``(v, u)``, clamped to the image."""
     h, w = dt.shape
@@ -34,48 +34,11 @@ def bilinear(dt, v, u):  # pragma: no cover - compiled
     )
 
 
-#: Slots of the direct-mapped magnitude cache of :func:`bilinear_magnitude`
-#: (a power of two): 16384 slots hold the few thousand pixels a ridge polish
-#: touches, in 256 kB that stay in L2.
-MAGNITUDE_CACHE_SLOTS = 1 << 14
-
-
 @kernel
-def new_magnitude_cache():  # pragma: no cover - compiled
-    """Empty ``(keys, values)`` cache for :func:`bilinear_magnitude`."""
-    return np.full(MAGNITUDE_CACHE_SLOTS, -1, dtype=np.int64), np.empty(MAGNITUDE_CACHE_SLOTS)
-
-
-@kernel
-def _magnitude_at(field, iv, iu, keys, values):  # pragma: no cover - compiled
-    if field.shape[2] == 1:
-        return field[iv, iu, 0]
-    # hypot is the expensive part of a ridge profile and neighbouring
-    # samples share corners: remember each pixel's magnitude. Entries never
-    # go stale (the field does not change during a call), so a collision
-    # only costs a recomputation.
-    index = iv * field.shape[1] + iu
-    slot = index & (MAGNITUDE_CACHE_SLOTS - 1)
-    if keys[slot] == index:
-        return values[slot]
-    m = math.hypot(field[iv, iu, 0], field[iv, iu, 1])
-    keys[slot] = index
-    values[slot] = m
-    return m
-
-
-@kernel
-def bilinear_magnitude(field, v, u, keys, values):  # pragma: no cover - compiled
-    """Bilinear sample of a magnitude image given as ``(H, W, C)``.
-
-    ``C == 1``: the magnitude itself. ``C == 2``: a gradient-vector image,
-    whose magnitude ``hypot(g_v, g_u)`` is formed (and cached in
-    ``keys``/``values``) only at the pixels sampled, so the ridge polish
-    never builds an image-sized magnitude array. The values are
-    bit-identical to ``np.hypot`` of the whole image.
-    """
-    h = field.shape[0]
-    w = field.shape[1]
+def _bilinear_hypot(grad, v, u):  # pragma: no cover - compiled
+    """:func:`bilinear` of ``hypot(g_v, g_u)`` straight from the gradient vectors."""
+    h = grad.shape[0]
+    w = grad.shape[1]
     v = min(max(v, 0.0), h - 1.0)
     u = min(max(u, 0.0), w - 1.0)
     v0 = int(math.floor(v))
@@ -84,14 +47,35 @@ def bilinear_magnitude(field, v, u, keys, values):  # pragma: no cover - compile
     u1 = min(u0 + 1, w - 1)
     fv = v - v0
     fu = u - u0
-    a = _magnitude_at(field, v0, u0, keys, values)
-    b = _magnitude_at(field, v0, u1, keys, values)
-    c = _magnitude_at(field, v1, u0, keys, values)
-    d = _magnitude_at(field, v1, u1, keys, values)
+    a = math.hypot(grad[v0, u0, 0], grad[v0, u0, 1])
+    b = math.hypot(grad[v0, u1, 0], grad[v0, u1, 1])
+    c = math.hypot(grad[v1, u0, 0], grad[v1, u0, 1])
+    d = math.hypot(grad[v1, u1, 0], grad[v1, u1, 1])
     return a * (1 - fv) * (1 - fu) + b * (1 - fv) * fu + c * fv * (1 - fu) + d * fv * fu
 
 
-@kernel
+@inline_kernel
+def sample_magnitude(patch, grad, r0, c0, v, u):  # pragma: no cover - compiled
+    """Bilinear gradient magnitude at ``(v, u)``, from a magnitude patch.
+
+    With an empty ``grad``, ``patch`` is the whole magnitude image. Else
+    ``patch`` holds ``hypot(g_v, g_u)`` of ``grad`` over the box at
+    ``(r0, c0)``, and a sample whose cell lies inside the box is
+    :func:`bilinear` of the patch at ``(v - r0, u - c0)``: bit-identical to
+    sampling the whole magnitude image (an integer shift of ``v`` is exact,
+    so the cell and its fractions are the same, and no clamping applies);
+    any other sample is formed from ``grad`` directly.
+    """
+    if grad.shape[0] == 0:
+        return bilinear(patch, v, u)
+    pv = v - r0
+    pu = u - c0
+    if 0.0 <= pv < patch.shape[0] - 1 and 0.0 <= pu < patch.shape[1] - 1:
+        return bilinear(patch, pv, pu)
+    return _bilinear_hypot(grad, v, u)
+
+
+@inline_kernel
 def transform(v, u, dv, du, theta, cos_t, sin_t, pv, pu):  # pragma: no cover - compiled
     """Rotate ``(v, u)`` about the pivot, then translate.
 

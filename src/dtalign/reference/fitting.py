@@ -16,6 +16,14 @@ import numpy as np
 import scipy.linalg
 
 from .. import _validation as check
+from .._args import (
+    check_coarse_inputs,
+    check_covariance_inputs,
+    check_lm_inputs,
+    check_ridge_inputs,
+    no_information_covariance,
+    tukey_c_value,
+)
 from .._constants import (
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,
@@ -35,14 +43,6 @@ from .._constants import (
 )
 from .._results import LMRefineResult, RidgeRefineResult
 from .._validation import FloatArray
-from .._args import (
-    check_coarse_inputs,
-    check_covariance_inputs,
-    check_lm_inputs,
-    check_ridge_inputs,
-    no_information_covariance,
-    tukey_c_value,
-)
 
 # --------------------------------------------------------------------------
 # Sampling and pose (SPEC 2: bilinear sampler, pose transform)
