@@ -6,9 +6,9 @@ variable ``DTALIGN_CASSINI_DIR`` points) as summary PNGs: a grey image with
 the navigation model drawn over it in pure red. For each frame this script
 
 1. splits the PNG into a clean grey image and the red overlay
-   (:func:`dtalign.io.load_cassini_overlay_frame`),
+   (:func:`dtalign.cassini.load_cassini_overlay_frame`),
 2. traces the overlay into a model polyline with normals
-   (:func:`dtalign.io.overlay_polylines`),
+   (:func:`dtalign.cassini.overlay_polylines`),
 3. fits the overlay as drawn (the *base* fit: where the image's edges are
    relative to the drawing), then the overlay displaced by a known offset,
    and checks that the fit returns base + displacement,
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dtalign import io, pipeline
+from dtalign import cassini, io, pipeline
 
 FRAMES = {
     "tethys": dict(
@@ -65,8 +65,8 @@ def find_data_dir(explicit: str | None = None) -> Path | None:
 def fit_frame(data_dir: Path, key: str) -> dict:
     """Base and displaced fits of one frame; returns everything worth printing."""
     spec = FRAMES[key]
-    frame = io.load_cassini_overlay_frame(data_dir / spec["file"])
-    lines = io.overlay_polylines(frame, shape=spec["shape"], n_lines=spec["n_lines"])
+    frame = cassini.load_cassini_overlay_frame(data_dir / spec["file"])
+    lines = cassini.overlay_polylines(frame, shape=spec["shape"], n_lines=spec["n_lines"])
     model = io.concatenate_polylines(lines, name=key)
     products = pipeline.prepare_image(frame.image)  # noise sigma estimated (MAD)
     d = np.asarray(spec["displacement"])

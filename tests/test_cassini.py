@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtalign import io, pipeline
+from dtalign import cassini, io, pipeline
 
 pytestmark = pytest.mark.cassini
 
@@ -52,8 +52,8 @@ if DATA is None:
 
 
 def _setup(name, shape, n_lines):
-    frame = io.load_cassini_overlay_frame(DATA / name)
-    lines = io.overlay_polylines(frame, shape=shape, n_lines=n_lines)
+    frame = cassini.load_cassini_overlay_frame(DATA / name)
+    lines = cassini.overlay_polylines(frame, shape=shape, n_lines=n_lines)
     model = io.concatenate_polylines(lines)
     products = pipeline.prepare_image(frame.image)
     return frame, lines, model, products

@@ -13,13 +13,9 @@ test. This module does those steps once, in one place:
 
 The result, :class:`PolylineFit`, carries the coarse seed, the full
 :class:`~dtalign.LMRefineResult`, the pose, one-sigma uncertainties read
-from the covariance and the window-edge flag.
-
-A rank-deficient fit (a straight edge: the along-edge shift is not
-measured) reports *zero* variance along its null direction, because the
-covariance is the pseudoinverse of the information matrix (SPEC section 6).
-:func:`covariance_with_unobservable_inf` gives the other reading, ``+inf``
-along the null direction, without changing that default.
+from the covariance and the window-edge flag. What a rank-deficient fit
+does not constrain is read with the helpers of :mod:`dtalign.observability`,
+re-exported here.
 """
 
 from __future__ import annotations
@@ -45,6 +41,13 @@ from ._constants import (
 )
 from ._image_args import ImageDerivativesConfig, check_image, check_noise_sigma, resolve_config
 from ._results import LMRefineResult
+from .observability import (
+    _sigmas_from_cov,
+    covariance_with_unobservable_inf,
+    normal_information_covariance,
+    null_directions,
+    observable_rank,
+)
 
 __all__ = [
     "ImageProducts",
@@ -108,7 +111,7 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------
-# Noise and covariance helpers
+# Noise
 # ---------------------------------------------------------------------------
 
 
@@ -166,245 +169,6 @@ def estimate_noise_sigma(image: Any) -> float:
     if mad > 0.0:
         return _MAD_TO_SIGMA * mad / _NOISE_KERNEL_NORM
     return math.sqrt(math.pi / 2.0) * float(np.mean(np.abs(filtered))) / _NOISE_KERNEL_NORM
-
-
-def _null_space(cov: FloatArray, rcond: float) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
-    """Eigen-decomposition of a covariance and which eigen-directions are null.
-
-    ``pinvh`` keeps information eigenvalues down to ``rcond`` times the
-    largest, so a kept covariance eigenvalue is at least ``rcond`` times the
-    largest covariance eigenvalue; a discarded one is zero up to rounding.
-    Half of ``rcond`` (but never less than a rounding margin) separates them.
-    """
-    values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
-    top = float(values.max()) if values.size else 0.0
-    if top <= 0.0:
-        return values, vectors, np.ones(values.shape, dtype=bool)
-    eps_margin = 16.0 * cov.shape[0] * np.finfo(np.float64).eps
-    cut = top * max(0.5 * rcond, eps_margin)
-    return values, vectors, values <= cut
-
-
-def _check_covariance(cov: Any) -> FloatArray:
-    arr = np.asarray(cov, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[0] != arr.shape[1] or arr.shape[0] == 0:
-        raise ValueError(f"cov must be a square (P, P) matrix with P > 0, got shape {arr.shape}")
-    if np.isnan(arr).any():
-        raise ValueError("cov must not contain NaN")
-    return arr
-
-
-def observable_rank(cov: Any, rcond: float = DEFAULT_PINVH_RCOND) -> int:
-    """Number of parameter directions a fit's covariance actually constrains.
-
-    Parameters
-    ----------
-    cov : array_like, shape (P, P)
-        A covariance as returned by :func:`dtalign.lm_subpixel_refine`
-        (the pseudoinverse of the information matrix).
-    rcond : float, optional
-        The relative cutoff the covariance was computed with.
-
-    Returns
-    -------
-    int
-        ``P`` for a fully constrained fit, fewer for a rank-deficient one
-        (1 for a straight edge fitted in translation), 0 for a degenerate
-        fit (an all-``inf`` covariance).
-    """
-    arr = _check_covariance(cov)
-    rcond = check.nonnegative_real(rcond, "rcond")
-    if not np.isfinite(arr).all():
-        return 0
-    _, _, null = _null_space(arr, rcond)
-    return int((~null).sum())
-
-
-def covariance_with_unobservable_inf(
-    cov: Any, rcond: float = DEFAULT_PINVH_RCOND, *, null_directions: Any = None
-) -> FloatArray:
-    """Map the null directions of a pseudoinverse covariance to ``+inf``.
-
-    :func:`dtalign.lm_subpixel_refine` returns ``pinvh(J^T W J)``: along a
-    direction the data does not constrain (the along-edge shift of a
-    straight edge), the information is zero and so is the pseudoinverse's
-    variance. That zero means "no information", not "perfectly known". This
-    helper returns the reading where such a direction has infinite
-    variance: the limit of ``V diag(lambda) V^T`` as the null eigenvalues
-    go to ``+inf``. An entry ``(i, j)`` touched by a null direction ``e``
-    (``e[i] * e[j]`` not negligible) becomes ``+inf`` or ``-inf`` by the
-    sign of ``e[i] * e[j]``; every other entry keeps the finite value of the
-    covariance restricted to the observable directions. The diagonal
-    therefore gives the per-parameter variance: ``+inf`` for each parameter
-    a null direction involves.
-
-    The returned matrix is a reading the caller asks for, not the default
-    (SPEC section 6): a fit's own ``covariance`` is unchanged.
-
-    Parameters
-    ----------
-    cov : array_like, shape (P, P)
-        A symmetric covariance (the pseudoinverse of an information matrix).
-        An all-``inf`` (degenerate) covariance gives all ``+inf``.
-    rcond : float, optional
-        The relative cutoff the pseudoinverse used
-        (default :data:`dtalign.DEFAULT_PINVH_RCOND`): eigen-directions of
-        ``cov`` with a variance below ``rcond / 2`` times the largest are
-        its null directions.
-    null_directions : array_like, shape (K, P), optional
-        Further directions to treat as unobservable (for example those of
-        :attr:`PolylineFit.normal_covariance`); they need not be unit
-        vectors. ``cov`` is first restricted to their orthogonal complement.
-
-    Returns
-    -------
-    ndarray, shape (P, P)
-        A new array; finite where the fit constrains the parameters.
-
-    Raises
-    ------
-    ValueError
-        If ``cov`` is not square, contains NaN, ``rcond`` is negative, or
-        ``null_directions`` has the wrong shape.
-
-    Examples
-    --------
-    A straight vertical edge constrains ``u`` only:
-
-    >>> import numpy as np
-    >>> covariance_with_unobservable_inf(np.array([[0.0, 0.0], [0.0, 0.01]])).tolist()
-    [[inf, 0.0], [0.0, 0.01]]
-    """
-    arr = _check_covariance(cov)
-    rcond = check.nonnegative_real(rcond, "rcond")
-    p = arr.shape[0]
-    if not np.isfinite(arr).all():
-        return np.full(arr.shape, np.inf)
-    extra = np.zeros((0, p))
-    if null_directions is not None:
-        extra = np.asarray(null_directions, dtype=np.float64).reshape(-1, p) if np.size(
-            null_directions
-        ) else np.zeros((0, p))
-        if extra.ndim != 2 or extra.shape[1] != p or not np.isfinite(extra).all():
-            raise ValueError(f"null_directions must be finite with shape (K, {p})")
-        norms = np.linalg.norm(extra, axis=1)
-        extra = extra[norms > 0] / norms[norms > 0, None]
-    if extra.shape[0]:
-        # Orthonormal basis of the given directions, then project them out.
-        basis = np.linalg.svd(extra, full_matrices=False)[2][: np.linalg.matrix_rank(extra)]
-        proj = np.eye(p) - basis.T @ basis
-        arr = proj @ arr @ proj
-    values, vectors, null = _null_space(arr, rcond)
-    if null.all():
-        return np.full(arr.shape, np.inf)
-    kept = vectors[:, ~null]
-    out = (kept * values[~null]) @ kept.T
-    out = 0.5 * (out + out.T)
-    # Components of a null eigenvector below this are rounding, not geometry.
-    tiny = 1e-6
-    for e in vectors[:, null].T:
-        outer = np.outer(e, e)
-        touched = np.abs(outer) > tiny * tiny
-        out[touched] = np.copysign(np.inf, outer[touched])
-    return out
-
-
-def null_directions(cov: Any, rcond: float = DEFAULT_PINVH_RCOND) -> FloatArray:
-    """Unit vectors spanning the unobservable directions of a covariance.
-
-    Parameters
-    ----------
-    cov : array_like, shape (P, P)
-        A pseudoinverse covariance; all-``inf`` means nothing is observed.
-    rcond : float, optional
-        The pseudoinverse cutoff (see :func:`covariance_with_unobservable_inf`).
-
-    Returns
-    -------
-    ndarray, shape (K, P)
-        ``K = P - observable_rank(cov, rcond)`` orthonormal rows.
-    """
-    arr = _check_covariance(cov)
-    rcond = check.nonnegative_real(rcond, "rcond")
-    if not np.isfinite(arr).all():
-        return np.eye(arr.shape[0])
-    _, vectors, null = _null_space(arr, rcond)
-    return np.ascontiguousarray(vectors[:, null].T)
-
-
-def normal_information_covariance(
-    vertices_vu: Any,
-    normals_vu: Any,
-    weights: Any,
-    *,
-    offset_vu: Any = (0.0, 0.0),
-    rotation_rad: float = 0.0,
-    fit_rotation: bool = False,
-    pivot_vu: Any = None,
-    rcond: float = DEFAULT_PINVH_RCOND,
-) -> FloatArray:
-    """Covariance of the pose when each vertex measures only its normal shift.
-
-    A vertex on an edge sees a displacement across the edge, never along it
-    (the aperture problem). With the residual Jacobian rows ``-n_i`` (and,
-    with rotation, ``-n_i . d(pos_i)/d(theta)``) the information is
-    ``A^T W A`` and the covariance its pseudoinverse, as
-    :func:`dtalign.information_matrix_to_covariance` computes it. This is
-    the idealised, continuous-edge version of the DT-Jacobian covariance of
-    :func:`dtalign.lm_subpixel_refine`: on a perfect edge the DT gradient is
-    the normal. On real pixels the finite-difference DT Jacobian also picks
-    up the staircase of a digitised diagonal edge and nearby clutter edges,
-    which add along-edge information that no straight edge carries; this
-    covariance does not, so parallel straight edges give exactly rank 1.
-
-    Parameters
-    ----------
-    vertices_vu, normals_vu : array_like, shape (N, 2)
-        The model polyline (before the pose).
-    weights : array_like, shape (N,)
-        Per-vertex weights (the LM's final IRLS weights).
-    offset_vu, rotation_rad, fit_rotation, pivot_vu
-        The pose; the normals are rotated by ``rotation_rad``. With
-        ``fit_rotation`` the result is 3 x 3 (``dv, du, theta``).
-    rcond : float, optional
-        Pseudoinverse cutoff.
-
-    Returns
-    -------
-    ndarray, shape (P, P)
-        All ``+inf`` when no vertex has a positive weight.
-    """
-    verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
-    norms = check.normals(normals_vu, verts.shape[0])
-    w = np.asarray(weights, dtype=np.float64)
-    if w.shape != (verts.shape[0],) or not np.isfinite(w).all() or (w < 0).any():
-        raise ValueError(
-            f"weights must be a finite, non-negative 1-D vector of length {verts.shape[0]}"
-        )
-    check.pair(offset_vu, "offset_vu")
-    theta = check.finite_real(rotation_rad, "rotation_rad")
-    pivot = check.resolve_pivot(verts, pivot_vu)
-    n_params = 3 if fit_rotation else 2
-    if not (w > 0).any():
-        return np.full((n_params, n_params), np.inf)
-    c, s_ = math.cos(theta), math.sin(theta)
-    rel = verts - pivot
-    rot_rel = np.column_stack([c * rel[:, 0] - s_ * rel[:, 1], s_ * rel[:, 0] + c * rel[:, 1]])
-    rot_n = np.column_stack(
-        [c * norms[:, 0] - s_ * norms[:, 1], s_ * norms[:, 0] + c * norms[:, 1]]
-    )
-    cols = [-rot_n[:, 0], -rot_n[:, 1]]
-    if fit_rotation:
-        # d(pos)/d(theta) = (-(u - pu), v - pv) of the rotated vertex.
-        cols.append(-(rot_n[:, 0] * -rot_rel[:, 1] + rot_n[:, 1] * rot_rel[:, 0]))
-    jac = np.column_stack(cols)
-    return _api().information_matrix_to_covariance(jac, w, rcond=rcond)
-
-
-def _sigmas_from_cov(cov: FloatArray) -> FloatArray:
-    diag = np.diag(cov).astype(np.float64, copy=True)
-    with np.errstate(invalid="ignore"):
-        return np.where(np.isnan(diag), np.inf, np.sqrt(np.maximum(diag, 0.0)))
 
 
 # ---------------------------------------------------------------------------
@@ -581,8 +345,9 @@ class PolylineFit:
         The image noise sigma the edge threshold used.
     normal_covariance : ndarray, shape (P, P)
         The pose covariance when each vertex measures only its shift along
-        its normal (see :func:`normal_information_covariance`), with the
-        LM's final weights. It decides :attr:`observable_rank`.
+        its normal (see
+        :func:`~dtalign.observability.normal_information_covariance`), with
+        the LM's final weights. It decides :attr:`observable_rank`.
     pinvh_rcond : float
         The pseudoinverse cutoff of the covariance.
     tukey_c : float
@@ -653,11 +418,10 @@ class PolylineFit:
     def observable_rank(self) -> int:
         """Number of pose directions the polyline's geometry constrains.
 
-        The rank of :attr:`normal_covariance` (each vertex measures only its
-        shift along its normal): 2 (or 3 with rotation) for a limb, 1 for
-        parallel straight edges fitted in translation, 0 when degenerate.
-        The DT covariance :attr:`covariance` can look full rank on a
-        digitised diagonal edge; see :func:`normal_information_covariance`.
+        The rank of :attr:`normal_covariance`, not of :attr:`covariance`
+        (which can look full rank on a digitised diagonal edge): 2 (or 3
+        with rotation) for a limb, 1 for parallel straight edges fitted in
+        translation, 0 when degenerate.
         """
         return observable_rank(self.normal_covariance, self.pinvh_rcond)
 
@@ -673,7 +437,7 @@ class PolylineFit:
         The LM covariance restricted to the directions the geometry
         constrains, ``+inf`` along :attr:`unobservable_directions` and along
         the covariance's own null directions; see
-        :func:`covariance_with_unobservable_inf`.
+        :func:`~dtalign.observability.covariance_with_unobservable_inf`.
         """
         return covariance_with_unobservable_inf(
             self.lm.covariance, self.pinvh_rcond, null_directions=self.unobservable_directions
