@@ -54,7 +54,10 @@ _LAZY: dict[str, str] = {
     # beyond the drop-in surface: the one-call pipeline
     "ImageProducts": ".pipeline",
     "PolylineFit": ".pipeline",
-    "covariance_with_unobservable_inf": ".pipeline",
+    "covariance_with_unobservable_inf": ".observability",
+    "normal_information_covariance": ".observability",
+    "null_directions": ".observability",
+    "observable_rank": ".observability",
     "estimate_noise_sigma": ".pipeline",
     "fit_polyline": ".pipeline",
     "fit_polyline_products": ".pipeline",
@@ -101,10 +104,15 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         compute_image_gradient_vu,
     )
     from .lm import lm_subpixel_refine
+    from .observability import (
+        covariance_with_unobservable_inf,
+        normal_information_covariance,
+        null_directions,
+        observable_rank,
+    )
     from .pipeline import (
         ImageProducts,
         PolylineFit,
-        covariance_with_unobservable_inf,
         estimate_noise_sigma,
         fit_polyline,
         fit_polyline_products,
