@@ -136,7 +136,9 @@ def make_image(spec: ImageSpec) -> np.ndarray:
                                 noise_sigma=spec.noise_sigma, seed=spec.seed).image
     h, w = spec.shape
     if spec.kind == "flat":
-        return np.full((h, w), 50.0)
+        # all zeros: no gradient anywhere, so no edge and DT = 64 everywhere. (A
+        # non-zero constant is not flat: Sobel's zero padding makes the frame an edge.)
+        return np.zeros((h, w))
     vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
     cv, cu = _centre(spec)
     dv, du = vv - cv, uu - cu
