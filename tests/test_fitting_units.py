@@ -355,6 +355,31 @@ def test_flat_dt_never_moves_and_exhausts_the_damping():
     assert fit(verts, normals, 10 * sig, flat, max_iterations=100).iterations == 30  # 1e-3 * 2**30
 
 
+def test_polarity_mask_is_fixed_at_the_initial_offset():
+    # g_v > 0 on rows <= 18 and < 0 below: the 10 vertices on row 18 pass at the
+    # seed and keep passing on row 20; the 5 on row 22 are rejected for good.
+    grad = np.zeros((40, 40, 2))
+    grad[:19, :, 0], grad[19:, :, 0] = 1.0, -1.0
+    good, bad = row_line(10, v=18.0), row_line(5, v=22.0, u0=20.0)
+    verts, normals, sig = (np.concatenate([a, b]) for a, b in zip(good, bad, strict=True))
+    res = fit(verts, normals, sig, V_DT, image_gradient_vu=grad, use_polarity=True)
+    assert abs(res.offset_vu[0] - 2.0) < 1e-3 and res.inlier_count == 10
+    assert np.all(res.weights[:10] > 0) and np.all(res.residuals_px[:10] < 1e-3)
+    np.testing.assert_array_equal(res.residuals_px[10:], np.full(5, 1.0e6))
+    np.testing.assert_array_equal(res.weights[10:], np.zeros(5))
+
+
+def test_translation_jacobian_uses_a_quarter_pixel_step():
+    # On row 19.9 of the V-shaped DT: (|20.15 - 20| - |19.65 - 20|) / 0.5 = -0.4
+    # (a half-pixel step would give -0.2); the u column is 0: rank 1.
+    verts, normals, sig = row_line(4, v=19.9)
+    res = fit(verts, normals, sig, V_DT, max_iterations=0)
+    w = res.weights
+    np.testing.assert_allclose(w, spec_weights(np.full(4, 0.1), sig), rtol=1e-12)
+    assert res.covariance[0, 0] == pytest.approx(1.0 / (np.sum(w) * 0.16), rel=1e-12)
+    assert res.covariance[1, 1] == 0.0
+
+
 def test_lm_moves_onto_the_edge():
     verts, normals, sig = row_line(30)
     res = fit(verts, normals, sig, V_DT)
