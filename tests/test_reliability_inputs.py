@@ -649,14 +649,15 @@ _V3 = np.array([[5.0, 5.0], [5.0, 7.0], [7.0, 5.0]])
 _N3 = np.tile([1.0, 0.0], (3, 1))
 _LM3 = dict(vertices_vu=_V3, normals_vu=_N3, sigma_normal_per_vertex_px=np.ones(3),
             image_edge_dt=np.ones((12, 12)), use_polarity=False)
-_INFO_OVERFLOW = "the information matrix overflows; see the report of issue #5"
+_INFO_OVERFLOW = ("J^T W J overflows to inf: numba's eigh raises LinAlgError (NaN results with "
+                  "NUMBA_DISABLE_JIT=1) instead of a ValueError naming the argument")
 _POS_OVERFLOW = "transformed positions overflow to NaN; see the report of issue #5"
 EXTREME = [
     pytest.param(LM, dict(_LM3, image_edge_dt=_HUGE_DT), "image_edge_dt", id="lm-dt-1e300",
-                 marks=pytest.mark.xfail(strict=True, raises=np.linalg.LinAlgError, reason=_INFO_OVERFLOW)),
+                 marks=pytest.mark.xfail(strict=True, reason=_INFO_OVERFLOW)),
     pytest.param(COV, dict(jacobian=np.array([[1e200, 0.0], [0.0, 1.0]]), weights=np.ones(2)),
                  "jacobian", id="cov-jacobian-1e200",
-                 marks=pytest.mark.xfail(strict=True, raises=np.linalg.LinAlgError, reason=_INFO_OVERFLOW)),
+                 marks=pytest.mark.xfail(strict=True, reason=_INFO_OVERFLOW)),
     pytest.param(RIDGE, dict(vertices_vu=[[2.0, 2.0]], normals_vu=[[1e308, 1e308]],
                              sigma_normal_per_vertex_px=[1.0], gradient_magnitude=np.arange(25.0).reshape(5, 5),
                              initial_offset_vu=(0, 0), initial_rotation_rad=0.5),
@@ -717,16 +718,8 @@ SMOKE = textwrap.dedent(
     lm = dict(vertices_vu=v3, normals_vu=n3, sigma_normal_per_vertex_px=np.ones(3),
               image_edge_dt=np.ones((12, 12)), use_polarity=False)
     cases = {
-      "nan-positions": lambda: d.lm_subpixel_refine(**dict(lm, vertices_vu=[[1e308, 1.0], [1e308, 2.0]],
-          normals_vu=n3[:2], sigma_normal_per_vertex_px=np.ones(2), initial_rotation_rad=0.1,
-          fit_rotation=True, pivot_distance_px=1.0, final_gradient_ridge=True,
-          image_gradient_vu=np.ones((12, 12, 2)))),
       "inf-hessian": lambda: d.lm_subpixel_refine(**dict(lm, image_edge_dt=big, fit_rotation=True,
           pivot_distance_px=2.0)),
-      "ridge-huge-normals": lambda: d.gradient_ridge_refine(vertices_vu=[[2.0, 2.0]],
-          normals_vu=[[1e308, 1e308]], sigma_normal_per_vertex_px=[1.0],
-          gradient_magnitude=np.arange(25.0).reshape(5, 5), initial_offset_vu=(0, 0),
-          initial_rotation_rad=0.5, fit_rotation=True, pivot_distance_px=1.0),
       "ridge-1x1": lambda: d.gradient_ridge_refine(vertices_vu=[[1e300, -1e300]], normals_vu=[[1.0, 0.0]],
           sigma_normal_per_vertex_px=[1.0], gradient_magnitude=np.ones((1, 1)), initial_offset_vu=(0, 0)),
       "coarse-huge-window": lambda: d.coarse_ncc_search(np.ones((1, 3)), np.ones((1, 3)), (2**62, 2**63 - 1)),
@@ -749,6 +742,10 @@ SMOKE = textwrap.dedent(
 
 
 def test_scary_inputs_do_not_crash_the_process():
+    # The overflowing-position cases (lm-centroid-overflow, lm-pivot-far,
+    # ridge-normals-1e308 above) are not here: they read out of bounds (a NaN
+    # cast to an index), which NUMBA_BOUNDSCHECK=1 turns into IndexError; they
+    # are pinned as strict xfails until the source is fixed.
     env = dict(os.environ)
     src = os.path.join(os.path.dirname(dtalign.__file__), os.pardir)
     env["PYTHONPATH"] = os.pathsep.join([os.path.abspath(src), env.get("PYTHONPATH", "")])
