@@ -539,10 +539,6 @@ def test_navigation_scene_rotation_recovered(derivatives):
     assert np.all(np.abs(err) < np.minimum(3 * sd[:2], 0.15))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "scenes.navigation_scene bug: the ring polyline is placed at ring_top - 0.5 but the "
-    "rasterised band (vv >= ring_top) has its edge at ceil(ring_top) - 0.5; ring_top = 788.375 "
-    "on the default scene, so the ring is 0.625 px off and biases the v offset"))
 def test_navigation_scene_all_three_polylines_recovered(derivatives):
     scene = navigation_scene(rotation_rad=0.01)
     _, res = _pipeline(scene, derivatives, polylines=3, fit_rotation=True, pivot_vu=scene.pivot_vu,

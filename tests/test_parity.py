@@ -426,11 +426,6 @@ def test_gradient_ridge_parity_summary(run: _Runner) -> None:
     assert devs.max() <= 1e-6
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "_kernels/robust.py solve_step eliminates with factor = a[i,k] / a[k,k]; LAPACK getrf "
-    "(numpy.linalg.solve) multiplies by the reciprocal pivot 1 / a[k,k]. On a rank-1 system "
-    "the second pivot rounds to exactly 0 in one and to noise (~1e-21) in the other, so one "
-    "takes the pinvh branch and the other divides by the noise: steps differ by pixels"))
 def test_lm_parity_single_vertex_without_damping() -> None:
     """One weighted vertex, damping 0: ``H = a a^T`` is singular up to rounding.
 

@@ -215,7 +215,8 @@ def navigation_scene(
     in_disc = dv**2 + du**2 <= radius**2
     in_ellipse = (dv / radius) ** 2 + (du / b) ** 2 <= 1.0
     lit = in_disc & ((du >= 0.0) | in_ellipse)
-    ring_top = min(cv + radius + 0.35 * (h - cv - radius), h - 20.0)
+    # An integer first row, so the band's upper edge is exactly ring_top - 0.5.
+    ring_top = float(math.floor(min(cv + radius + 0.35 * (h - cv - radius), h - 20.0)))
     ring = (vv >= ring_top) & (vv <= ring_top + 40.0)
     clean = np.where(lit, 100.0, 0.0) + np.where(ring, 60.0, 0.0)
     image = _noisy(clean, noise_sigma, seed)

@@ -118,9 +118,9 @@ def symmetric_pinvh(matrix, rcond):  # pragma: no cover - compiled
 def solve_step(matrix, rhs, rcond):  # pragma: no cover - compiled
     """``-solve(matrix, rhs)``; ``-pinvh(matrix) @ rhs`` when singular.
 
-    Gaussian elimination with partial pivoting (first largest pivot, as
-    LAPACK's ``getrf``) on the 2x2 or 3x3 system: calling LAPACK costs more
-    than the arithmetic here. "Singular" means an exactly zero pivot, which
+    Gaussian elimination with partial pivoting (first largest pivot and
+    reciprocal-pivot scaling, as LAPACK's ``getrf``) on the 2x2 or 3x3
+    system: calling LAPACK costs more than the arithmetic here. "Singular" means an exactly zero pivot, which
     is when ``numpy.linalg.solve`` raises.
     """
     n = matrix.shape[0]
@@ -144,8 +144,12 @@ def solve_step(matrix, rhs, rcond):  # pragma: no cover - compiled
             for j in range(n):
                 a[k, j], a[p, j] = a[p, j], a[k, j]
             b[k], b[p] = b[p], b[k]
+        # LAPACK's getrf scales the column by the reciprocal pivot rather
+        # than dividing: the same rounding decides, as in numpy.linalg.solve,
+        # whether a nearly rank-1 system is exactly singular.
+        inv_pivot = 1.0 / a[k, k]
         for i in range(k + 1, n):
-            factor = a[i, k] / a[k, k]
+            factor = a[i, k] * inv_pivot
             for j in range(k + 1, n):
                 a[i, j] -= factor * a[k, j]
             b[i] -= factor * b[k]
