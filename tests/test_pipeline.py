@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -327,6 +330,42 @@ def test_moved_names_still_importable_from_their_old_modules():
         assert name in pipeline.__all__ and getattr(pipeline, name) is getattr(observability, name)
     for name in cassini.__all__:
         assert name in io.__all__ and getattr(io, name) is getattr(cassini, name)
+
+
+def test_image_products_names_reexported_from_pipeline():
+    # estimate_noise_sigma, ImageProducts and prepare_image moved to
+    # dtalign.products; pipeline and the top-level package re-export the same objects.
+    import dtalign
+    from dtalign import products
+    from dtalign.pipeline import ImageProducts as ImageProductsFromPipeline
+    from dtalign.pipeline import estimate_noise_sigma as estimate_from_pipeline
+    from dtalign.pipeline import prepare_image as prepare_from_pipeline
+
+    assert sorted(products.__all__) == ["ImageProducts", "estimate_noise_sigma", "prepare_image"]
+    for name in products.__all__:
+        assert name in pipeline.__all__
+        assert getattr(pipeline, name) is getattr(products, name)
+        assert getattr(dtalign, name) is getattr(products, name)
+        assert getattr(products, name).__module__ == "dtalign.products"
+    assert prepare_from_pipeline is products.prepare_image
+    assert ImageProductsFromPipeline is products.ImageProducts
+    assert estimate_from_pipeline is products.estimate_noise_sigma
+    assert prepare_image is products.prepare_image and ImageProducts is products.ImageProducts
+    assert estimate_noise_sigma is products.estimate_noise_sigma
+
+
+def test_importing_pipeline_and_products_does_not_import_numba():
+    # The compiled functions are looked up on dtalign at call time.
+    script = (
+        "import sys, dtalign.pipeline, dtalign.products; "
+        "print(sorted(m for m in sys.modules if m == 'numba' or m.startswith('dtalign._kernels')))"
+    )
+    src = os.path.abspath(os.path.join(os.path.dirname(pipeline.__file__), os.pardir))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"
 
 
 def test_results_compare_by_identity(disc_fit, small_products):

@@ -1,0 +1,257 @@
+"""Image products: what the fitter needs from one image, computed once.
+
+* :func:`estimate_noise_sigma` estimates an image's Gaussian noise sigma
+  (Immerkaer's kernel, robust to edges and smooth shading);
+* :func:`prepare_image` computes an image's products (gradient, truncated
+  edge DT, edge mask, noise sigma) once, as an :class:`ImageProducts`;
+* :func:`~dtalign.pipeline.fit_polyline_products` then fits one polyline
+  against them, so several polylines (a limb, a terminator, a ring edge)
+  share them.
+
+These names are re-exported by :mod:`dtalign.pipeline` and the top-level
+``dtalign`` package.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.ndimage
+from numpy.typing import NDArray
+
+from ._image_args import ImageDerivativesConfig, check_image, check_noise_sigma, resolve_config
+
+__all__ = [
+    "ImageProducts",
+    "estimate_noise_sigma",
+    "prepare_image",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: 1.4826 * MAD is the standard deviation of a Gaussian.
+_MAD_TO_SIGMA = 1.4826
+
+#: Immerkaer's noise-estimation kernel: the product of two second
+#: differences. It is zero on any locally planar (or bilinear) patch, so a
+#: smooth bright body does not raise the estimate; its L2 norm is 6.
+_NOISE_KERNEL = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
+_NOISE_KERNEL_NORM = 6.0
+
+
+def _compute_all_image_derivatives(
+    image: FloatArray, noise_sigma: float, *, config: ImageDerivativesConfig
+) -> Any:
+    """:func:`dtalign.compute_all_image_derivatives`, looked up at call time.
+
+    Looked up on the top-level package, as :mod:`dtalign.pipeline` looks up
+    its fitter: ``dtalign/__init__`` re-exports this module, so a
+    module-level ``from dtalign import ...`` here would be circular, and
+    importing this module does not import the compiled kernels.
+    """
+    return importlib.import_module("dtalign").compute_all_image_derivatives(
+        image, noise_sigma, config=config
+    )
+
+
+def _readonly(arr: np.ndarray) -> np.ndarray:
+    view = arr.view()
+    view.flags.writeable = False
+    return view
+
+
+# ---------------------------------------------------------------------------
+# Noise
+# ---------------------------------------------------------------------------
+
+
+def estimate_noise_sigma(image: Any) -> float:
+    """Robust estimate of the per-pixel Gaussian noise sigma of an image.
+
+    The image is convolved with Immerkaer's 3 x 3 kernel
+    ``[[1, -2, 1], [-2, 4, -2], [1, -2, 1]]`` (the product of two second
+    differences), which cancels any locally planar intensity: the flat
+    inside and outside of a bright disc, and smooth shading, give zero.
+    Only noise and the few pixels on an edge remain. For white Gaussian
+    noise of sigma ``s`` the output has standard deviation ``6 s`` (the
+    kernel's L2 norm), so the estimate is ``1.4826 * MAD / 6`` over the
+    interior pixels, where MAD is the median absolute deviation from the
+    median. The median ignores the edge pixels as long as they are a
+    minority of the image.
+
+    When more than half of the filtered pixels are equal (a quantised image
+    with almost no noise, where the MAD is 0), the mean absolute value is
+    used instead: ``sqrt(pi / 2) * mean(|x|) / 6``, Immerkaer's original
+    estimator.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        A finite 2-D image.
+
+    Returns
+    -------
+    float
+        The noise sigma in the image's units (0.0 for a constant or
+        noiseless planar image, or an image smaller than 3 x 3).
+
+    Raises
+    ------
+    TypeError
+        If ``image`` is not 2-D or not numeric.
+    ValueError
+        If ``image`` is empty or has NaN or inf pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> image = 100.0 + rng.normal(0.0, 2.0, (256, 256))
+    >>> round(estimate_noise_sigma(image), 1)
+    2.0
+    """
+    arr = check_image(image)
+    if arr.shape[0] < 3 or arr.shape[1] < 3:
+        return 0.0
+    filtered = scipy.ndimage.convolve(arr, _NOISE_KERNEL, mode="reflect")[1:-1, 1:-1].ravel()
+    centre = float(np.median(filtered))
+    mad = float(np.median(np.abs(filtered - centre)))
+    if mad > 0.0:
+        return _MAD_TO_SIGMA * mad / _NOISE_KERNEL_NORM
+    return math.sqrt(math.pi / 2.0) * float(np.mean(np.abs(filtered))) / _NOISE_KERNEL_NORM
+
+
+# ---------------------------------------------------------------------------
+# Image products
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class ImageProducts:
+    """Everything the fitter needs from one image, computed once.
+
+    Build it with :func:`prepare_image`; pass it to
+    :func:`~dtalign.pipeline.fit_polyline_products` as many times as there
+    are polylines. The arrays are read-only.
+
+    Attributes
+    ----------
+    shape : tuple of int
+        The image shape ``(H, W)``.
+    noise_sigma : float
+        The noise sigma the edge threshold used (given, or estimated by
+        :func:`estimate_noise_sigma`).
+    gradient_magnitude : ndarray, shape (H, W)
+        ``hypot(g_v, g_u)`` of the Sobel-of-Gaussian gradient.
+    edge_dt : ndarray, shape (H, W)
+        Truncated Euclidean distance to the nearest thinned edge pixel.
+    gradient_vu : ndarray, shape (H, W, 2)
+        The gradient vectors ``(g_v, g_u)`` (polarity and ridge polish).
+    edge_mask : ndarray of bool, shape (H, W)
+        ``edge_dt <= 0.5``: what the coarse search matches against.
+    config : ImageDerivativesConfig
+        The tunables the products were computed with.
+    noise_sigma_estimated : bool
+        True when ``noise_sigma`` was estimated from the image.
+    timings_s : dict
+        Wall time of each step (``noise``, ``derivatives``), seconds.
+
+    Instances compare by identity (the arrays have no single truth value).
+    """
+
+    shape: tuple[int, int]
+    noise_sigma: float
+    gradient_magnitude: FloatArray
+    edge_dt: FloatArray
+    gradient_vu: FloatArray
+    edge_mask: NDArray[np.bool_]
+    config: ImageDerivativesConfig = field(default_factory=ImageDerivativesConfig)
+    noise_sigma_estimated: bool = False
+    timings_s: dict[str, float] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        for name in ("gradient_magnitude", "edge_dt", "gradient_vu", "edge_mask"):
+            value = getattr(self, name)
+            if not isinstance(value, np.ndarray):
+                raise TypeError(f"{name} must be a numpy.ndarray, got {type(value).__name__}")
+            object.__setattr__(self, name, _readonly(value))
+        shape = tuple(int(s) for s in self.shape)
+        if len(shape) != 2:
+            raise ValueError(f"shape must be (H, W), got {self.shape!r}")
+        object.__setattr__(self, "shape", shape)
+        for name in ("gradient_magnitude", "edge_dt", "edge_mask"):
+            if getattr(self, name).shape != shape:
+                raise ValueError(
+                    f"{name} shape {getattr(self, name).shape} does not match shape {shape}"
+                )
+        if self.gradient_vu.shape != (*shape, 2):
+            raise ValueError(
+                f"gradient_vu must have shape {(*shape, 2)}, got {self.gradient_vu.shape}"
+            )
+
+
+def prepare_image(
+    image: Any, noise_sigma: float | None = None, *, config: ImageDerivativesConfig | None = None
+) -> ImageProducts:
+    """Compute an image's fitting products once.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        A finite, non-empty 2-D image.
+    noise_sigma : float, optional
+        The image noise sigma, in the image's units. Estimated with
+        :func:`estimate_noise_sigma` when None.
+    config : ImageDerivativesConfig, optional
+        Gradient smoothing, edge threshold and DT truncation; defaults when
+        None.
+
+    Returns
+    -------
+    ImageProducts
+
+    Raises
+    ------
+    TypeError
+        If ``image`` is not a 2-D numeric array, or ``config`` is not an
+        :class:`~dtalign.ImageDerivativesConfig`.
+    ValueError
+        If ``image`` is empty or not finite, or ``noise_sigma`` is negative
+        or not finite.
+    """
+    try:
+        arr = check_image(image)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(str(exc).replace("image_ext", "image")) from None
+    cfg = resolve_config(config)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    estimated = noise_sigma is None
+    if estimated:
+        sigma = estimate_noise_sigma(arr)
+    else:
+        try:
+            sigma = check_noise_sigma(noise_sigma)
+        except ValueError as exc:
+            raise ValueError(str(exc).replace("image_noise_sigma", "noise_sigma")) from None
+    t1 = time.perf_counter()
+    timings["noise"] = t1 - t0
+    magnitude, edge_dt, gradient_vu = _compute_all_image_derivatives(arr, sigma, config=cfg)
+    edge_mask = np.asarray(edge_dt) <= 0.5
+    timings["derivatives"] = time.perf_counter() - t1
+    return ImageProducts(
+        shape=(arr.shape[0], arr.shape[1]),
+        noise_sigma=float(sigma),
+        gradient_magnitude=np.asarray(magnitude),
+        edge_dt=np.asarray(edge_dt),
+        gradient_vu=np.asarray(gradient_vu),
+        edge_mask=edge_mask,
+        config=cfg,
+        noise_sigma_estimated=estimated,
+        timings_s=timings,
+    )
