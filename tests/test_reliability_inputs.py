@@ -213,10 +213,10 @@ _add(LM, "image_gradient_vu", "missing-with-polarity", None, ValueError,
 for arg in ["half_width_px", "sample_step_px"]:
     for label, val in [("zero", 0.0), ("negative", -0.5), ("nan", NAN), ("inf", INF)]:
         _add(RIDGE, arg, label, val, ValueError, f"{arg} must be a finite positive number")
-_add(RIDGE, "half_width_px", "below-half-step", 0.2, ValueError, "half_width_px must be at least half")
+_add(RIDGE, "half_width_px", "below-half-step", 0.2, ValueError, "half_width_px / sample_step_px must round to at least 1")
 # round(0.5) == 0 (Python rounds half to even): exactly half a step is refused too
 CASES.append(pytest.param(RIDGE, "half_width_px", {"half_width_px": 0.5, "sample_step_px": 1.0}, ValueError,
-                          "half_width_px must be at least half", id="ridge-half-width-exactly-half-step"))
+                          "half_width_px / sample_step_px must round to at least 1", id="ridge-half-width-exactly-half-step"))
 for label, val in [("nan", NAN), ("negative", -1.0)]:
     _add(RIDGE, "max_total_displacement_px", label, val, ValueError, "max_total_displacement_px must be >= 0")
 for label, value in [("short", np.ones(N - 1, bool)), ("2d", np.ones((N, 1), bool)),
@@ -261,9 +261,7 @@ for label, value, exc, match in [
 _add("tukey_biweight_weights", "residuals", "2d", np.ones((3, 2)), ValueError, "residuals must be 1-D")
 CASES.append(pytest.param(
     "tukey_biweight_weights", "residuals", 1.0, ValueError, "residuals must be 1-D",
-    id="tukey_biweight_weights-residuals-scalar",
-    marks=pytest.mark.xfail(strict=True, reason="np.ascontiguousarray turns a 0-D scalar into shape "
-                            "(1,) in _validation._as_float_array, so the 1-D check never sees it")))
+    id="tukey_biweight_weights-residuals-scalar"))
 _add("tukey_biweight_weights", "residuals", "strings", np.array(["a"]), TypeError, "residuals")
 for label, val in [("zero", 0.0), ("negative", -1.0), ("nan", NAN), ("inf", INF)]:
     _add("tukey_biweight_weights", "c", label, val, ValueError, "c must be a positive finite")
@@ -588,15 +586,8 @@ BIG_CASES = [("sample_dt_bilinear", "dt"), ("polarity_filter", "image_gradient_v
 @pytest.mark.parametrize("value", [NAN, INF, -INF], ids=["nan", "inf", "-inf"])
 @pytest.mark.parametrize(("fn", "arr"), BIG_CASES, ids=[f"{f}-{a}" for f, a in BIG_CASES])
 class TestLargeArrayRegime:
-    def test_refused_when_read(self, fn, arr, value, request):
+    def test_refused_when_read(self, fn, arr, value):
         assert _scene(BIG).dt.size > _validation.FULL_SCAN_MAX_SIZE
-        if arr == "image_edge_dt":
-            # Intermittent, so not strict: on a DT read failure the kernel
-            # returns uninitialised r/w (np.empty) and _kernels/fit.py still
-            # builds the covariance from them; garbage weights make numba's
-            # eigh raise LinAlgError instead of this ValueError (issue #5 report).
-            request.applymarker(pytest.mark.xfail(strict=False, raises=np.linalg.LinAlgError,
-                                                  reason="fit() summarises uninitialised state"))
         try:
             _big_call(fn, arr, "read", value)
         except np.linalg.LinAlgError:  # a ValueError subclass: do not let it pass below
@@ -649,30 +640,21 @@ _V3 = np.array([[5.0, 5.0], [5.0, 7.0], [7.0, 5.0]])
 _N3 = np.tile([1.0, 0.0], (3, 1))
 _LM3 = dict(vertices_vu=_V3, normals_vu=_N3, sigma_normal_per_vertex_px=np.ones(3),
             image_edge_dt=np.ones((12, 12)), use_polarity=False)
-_INFO_OVERFLOW = ("J^T W J overflows to inf: numba's eigh raises LinAlgError (NaN results with "
-                  "NUMBA_DISABLE_JIT=1) instead of a ValueError naming the argument")
-_POS_OVERFLOW = "transformed positions overflow to NaN; see the report of issue #5"
 EXTREME = [
-    pytest.param(LM, dict(_LM3, image_edge_dt=_HUGE_DT), "image_edge_dt", id="lm-dt-1e300",
-                 marks=pytest.mark.xfail(strict=True, reason=_INFO_OVERFLOW)),
+    pytest.param(LM, dict(_LM3, image_edge_dt=_HUGE_DT), "image_edge_dt", id="lm-dt-1e300",),
     pytest.param(COV, dict(jacobian=np.array([[1e200, 0.0], [0.0, 1.0]]), weights=np.ones(2)),
-                 "jacobian", id="cov-jacobian-1e200",
-                 marks=pytest.mark.xfail(strict=True, reason=_INFO_OVERFLOW)),
+                 "jacobian", id="cov-jacobian-1e200",),
     pytest.param(RIDGE, dict(vertices_vu=[[2.0, 2.0]], normals_vu=[[1e308, 1e308]],
                              sigma_normal_per_vertex_px=[1.0], gradient_magnitude=np.arange(25.0).reshape(5, 5),
                              initial_offset_vu=(0, 0), initial_rotation_rad=0.5),
-                 "normals_vu", id="ridge-normals-1e308",
-                 marks=pytest.mark.xfail(strict=True, reason="J^T W J overflows to inf, the step is NaN "
-                                         "and the next profile is blamed on gradient_magnitude")),
+                 "normals_vu", id="ridge-normals-1e308"),
     pytest.param(LM, dict(_LM3, vertices_vu=[[1e308, 1.0], [1e308, 2.0]], normals_vu=_N3[:2],
                           sigma_normal_per_vertex_px=np.ones(2), initial_rotation_rad=0.1),
-                 "vertices_vu", id="lm-centroid-overflow",
-                 marks=pytest.mark.xfail(strict=True, reason=_POS_OVERFLOW)),
+                 "vertices_vu", id="lm-centroid-overflow",),
     pytest.param(LM, dict(_LM3, vertices_vu=[[1e308, 1e308]], normals_vu=_N3[:1],
                           sigma_normal_per_vertex_px=np.ones(1), initial_rotation_rad=0.1,
                           pivot_vu=(-1e308, -1e308)),
-                 "pivot_vu", id="lm-pivot-far",
-                 marks=pytest.mark.xfail(strict=True, reason=_POS_OVERFLOW)),
+                 "pivot_vu", id="lm-pivot-far",),
     pytest.param(LM, dict(_LM3, initial_offset_vu=(1e308, -1e308), fit_rotation=True, pivot_distance_px=1.0),
                  None, id="lm-offset-1e308"),
     pytest.param(LM, dict(_LM3, initial_rotation_rad=1e308, fit_rotation=True, pivot_distance_px=1e300),

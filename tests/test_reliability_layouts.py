@@ -156,12 +156,7 @@ _TABLE = {
     "ridge-rotation": {"gradient_magnitude": FIELD, "vertices_vu": VERTEX},
     **{k: {"image_ext": IMAGE} for k in ("gradient", "edge_dt", "derivatives")},
 }
-_READONLY_BUG = pytest.mark.xfail(strict=True, reason=(
-    "a read-only array reaches the kernels unconverted, Numba compiles a separate readonly "
-    "specialisation, and its code rounds differently in the rotating ridge polish (~1e-14 px); "
-    "see the issue #5 report"))
-PARAMS = [pytest.param(c, a, lay, id=f"{c}-{a}-{lay}",
-                       marks=[_READONLY_BUG] if (c, lay) == ("ridge-rotation", "readonly") else [])
+PARAMS = [pytest.param(c, a, lay, id=f"{c}-{a}-{lay}")
           for c in CALL_NAMES for a, lays in _TABLE[c].items() for lay in lays]
 
 

@@ -189,7 +189,7 @@ def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
     sample_step = check.positive_real(kw["sample_step_px"], "sample_step_px")
     if round(half_width / sample_step) < 1:
         raise ValueError(
-            "half_width_px must be at least half of sample_step_px: the profile "
+            "half_width_px / sample_step_px must round to at least 1: the profile "
             f"needs three samples (got {half_width!r} and {sample_step!r})"
         )
     return RidgeArgs(

@@ -74,7 +74,7 @@ def check_image(image_ext: Any) -> FloatArray:
     out = np.ascontiguousarray(arr, dtype=np.float64)
     if not np.isfinite(out).all():
         raise ValueError("image_ext must be finite: found NaN or inf pixels")
-    return out
+    return check.readonly(out)
 
 
 def check_sigma_px(sigma_px: Any) -> float:

@@ -22,14 +22,29 @@ FloatArray = NDArray[np.float64]
 _F8 = np.dtype(np.float64)
 
 
-def _as_float_array(value: Any, name: str) -> FloatArray:
-    """Convert to a C-contiguous native float64 array, refusing non-numbers.
+def readonly(arr: np.ndarray) -> np.ndarray:
+    """A read-only view of ``arr`` (no copy).
 
-    The common case (already such an array) returns the input itself after
-    three attribute checks: this runs several times per fit.
+    Every array a kernel receives as input is read-only: Numba compiles a
+    separate specialisation for read-only and writable arrays, which costs a
+    compile each and may round differently, so one calling convention keeps
+    the result independent of the caller's array flags.
+    """
+    if not arr.flags.writeable:
+        return arr
+    view = arr.view()
+    view.flags.writeable = False
+    return view
+
+
+def _as_float_array(value: Any, name: str) -> FloatArray:
+    """Convert to a C-contiguous, native float64, read-only array (same ndim).
+
+    The common case (already such an array) is three attribute checks and a
+    view: this runs several times per fit.
     """
     if type(value) is np.ndarray and value.dtype == _F8 and value.flags.c_contiguous:
-        return value
+        return readonly(value)
     if isinstance(value, np.ndarray):
         probe = value
     else:
@@ -39,7 +54,11 @@ def _as_float_array(value: Any, name: str) -> FloatArray:
             raise TypeError(f"{name} must be a numeric array: {exc}") from exc
     if probe.dtype.kind not in "biuf":
         raise TypeError(f"{name} must be a real numeric array, got dtype {probe.dtype}")
-    return np.ascontiguousarray(probe, dtype=np.float64)
+    # asarray, not ascontiguousarray: the latter turns a 0-D scalar into 1-D
+    arr = np.asarray(probe, dtype=np.float64)
+    if not arr.flags.c_contiguous:
+        arr = arr.copy(order="C")
+    return readonly(arr)
 
 
 def require_finite(arr: FloatArray, name: str) -> None:
@@ -271,7 +290,7 @@ def polyline(
     (~1 us instead of ~15 us of NumPy calls), which also returns the vertex
     centroid, the default rotation pivot.
     """
-    from ._kernels.checks import BAD_NORMALS, BAD_VERTICES, polyline_status
+    from ._kernels.checks import BAD_CENTROID, BAD_NORMALS, BAD_VERTICES, polyline_status
 
     verts = _vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
     norms = _normals_shape(normals_vu, verts.shape[0])
@@ -279,6 +298,10 @@ def polyline(
     status, c_v, c_u = polyline_status(verts, norms, sig)
     if status == BAD_VERTICES:
         raise ValueError("vertices_vu must be finite (found NaN or inf)")
+    if status == BAD_CENTROID:
+        raise ValueError(
+            "vertices_vu must be finite and not so large that their centroid overflows"
+        )
     if status == BAD_NORMALS:
         raise ValueError("normals_vu must be finite (found NaN or inf)")
     if status != 0:
@@ -312,8 +335,18 @@ def pose(
     offset = pair(initial_offset_vu, "initial_offset_vu")
     rotation = finite_real(initial_rotation_rad, "initial_rotation_rad")
     if pivot_vu is None and centroid is not None:
-        return offset, rotation, centroid, distance
-    return offset, rotation, resolve_pivot(verts, pivot_vu), distance
+        pivot = centroid
+    else:
+        pivot = resolve_pivot(verts, pivot_vu)
+    if pivot_vu is not None and (fit_rotation or rotation != 0.0):
+        # rotating about a pivot needs (vertex - pivot) to stay finite
+        with np.errstate(over="ignore", invalid="ignore"):
+            spread = 2.0 * (verts - np.asarray(pivot))
+        if not np.isfinite(spread).all():
+            raise ValueError(
+                "pivot_vu is so far from vertices_vu that the rotated positions overflow"
+            )
+    return offset, rotation, pivot, distance
 
 
 def resolve_pivot(verts: FloatArray, pivot_vu: Any) -> tuple[float, float]:
@@ -324,6 +357,11 @@ def resolve_pivot(verts: FloatArray, pivot_vu: Any) -> tuple[float, float]:
     ``mean(axis=0)`` does for an ``(N, 2)`` C array: tested bit-for-bit).
     """
     if pivot_vu is None:
-        centroid = verts.mean(axis=0)
+        with np.errstate(over="ignore", invalid="ignore"):
+            centroid = verts.mean(axis=0)
+        if not np.isfinite(centroid).all():
+            raise ValueError(
+                "vertices_vu must be finite and not so large that their centroid overflows"
+            )
         return float(centroid[0]), float(centroid[1])
     return pair(pivot_vu, "pivot_vu")

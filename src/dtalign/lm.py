@@ -130,6 +130,11 @@ def _fit(a: LMArgs) -> LMRefineResult:
         raise nonfinite_read("image_gradient_vu")
     if error == _k.BAD_DT:
         raise nonfinite_read("image_edge_dt")
+    if error == _k.DIVERGED:
+        raise ValueError(
+            "the fit diverged to non-finite values: image_edge_dt (or the sigmas' "
+            "1/sigma^2 weights) too large for the normal equations"
+        )
     return LMRefineResult(
         offset_vu=(float(pose[0]), float(pose[1])),
         rotation_rad=float(pose[2]),

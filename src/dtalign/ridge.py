@@ -82,13 +82,18 @@ def gradient_ridge_refine(
     """
     a = check_ridge_inputs(locals())
     pose0 = np.array([a.offset[0], a.offset[1], a.rotation])
-    pose, iterations, converged, bad = _k.ridge_loop(
+    pose, iterations, converged, status = _k.ridge_loop(
         a.magnitude, _NO_GRADIENT, 0, 0, a.vertices, a.normals, a.sigmas, a.weight_mask, pose0,
         np.array(a.pivot), a.fit_rotation, a.pivot_distance, a.max_iterations,
         a.step_tolerance, a.tukey_c, round(a.half_width / a.sample_step), a.sample_step,
     )
-    if bad:
+    if status == _k.RIDGE_BAD_FIELD:
         raise nonfinite_read("gradient_magnitude")
+    if status == _k.RIDGE_DIVERGED or not np.isfinite(pose).all():
+        raise ValueError(
+            "the ridge polish diverged to non-finite values: gradient_magnitude or "
+            "normals_vu too large for the normal equations"
+        )
     moved = math.hypot(pose[0] - pose0[0], pose[1] - pose0[1])
     applied = iterations > 0 and not moved > a.max_total_displacement
     final = pose if applied else pose0

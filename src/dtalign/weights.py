@@ -97,4 +97,9 @@ def information_matrix_to_covariance(
     if jac.shape[0] == 0 or not (w > 0).any():
         return no_information_covariance(jac.shape[1])
     info, _ = _k.normal_equations(jac, w, np.zeros(jac.shape[0]), jac.shape[1])
-    return _k.symmetric_pinvh(info, rcond)  # type: ignore[no-any-return]
+    cov, ok = _k.symmetric_pinvh(info, rcond)
+    if not ok:
+        raise ValueError(
+            "jacobian and weights are too large: the information matrix J^T W J overflows"
+        )
+    return cov  # type: ignore[no-any-return]

@@ -11,14 +11,16 @@ OK = 0
 BAD_VERTICES = 1
 BAD_NORMALS = 2
 BAD_SIGMAS = 3
+BAD_CENTROID = 4
 
 
 @kernel
 def polyline_status(pts, nrm, sig):  # pragma: no cover - compiled
     """First failing check and the vertex centroid.
 
-    Vertices and normals must be finite; sigmas finite, > 0 and with a
-    finite ``1 / sigma^2``. The centroid is the sequential sum divided by
+    Vertices and normals must be finite (and the vertices' sum too, so the
+    centroid pivot is); sigmas finite, > 0 and with a finite
+    ``1 / sigma^2``. The centroid is the sequential sum divided by
     N, bit-identical to ``pts.mean(axis=0)`` for an ``(N, 2)`` C array.
     """
     n = pts.shape[0]
@@ -36,4 +38,8 @@ def polyline_status(pts, nrm, sig):  # pragma: no cover - compiled
         s = sig[i]
         if not (math.isfinite(s) and s > 0.0 and math.isfinite(1.0 / (s * s))):
             return BAD_SIGMAS, 0.0, 0.0
-    return OK, s0 / n, s1 / n
+    c_v = s0 / n
+    c_u = s1 / n
+    if not (math.isfinite(c_v) and math.isfinite(c_u)):
+        return BAD_CENTROID, 0.0, 0.0
+    return OK, c_v, c_u

@@ -12,14 +12,40 @@ import math
 import numpy as np
 
 from .._jit import kernel
-from .lm import evaluate_state, lm_loop
-from .ridge import PATCH_MARGIN, magnitude_patch, ridge_loop
+from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop
+from .ridge import (
+    PATCH_MARGIN,
+    RIDGE_BAD_FIELD,
+    RIDGE_DIVERGED,
+    magnitude_patch,
+    ridge_loop,
+)
 from .robust import normal_equations, polarity, symmetric_pinvh
 
 #: Error codes returned by :func:`fit` (the wrapper raises for them).
 OK = 0
 BAD_GRADIENT = 1
 BAD_DT = 2
+DIVERGED = 3  # a step or the normal equations overflowed to non-finite values
+
+
+@kernel
+def _failed(error, pose0, n, n_params):  # pragma: no cover - compiled
+    """The tuple :func:`fit` returns with an error code (the rest is unused)."""
+    empty = np.zeros(n)
+    return (error, pose0.copy(), 0, False, empty, empty.copy(), np.zeros((n, n_params)),
+            np.full((n_params, n_params), np.inf), math.inf, math.inf, 0, True)
+
+
+@kernel
+def _count(w):  # pragma: no cover - compiled
+    inliers = 0
+    total = 0.0
+    for i in range(w.shape[0]):
+        if w[i] > 0.0:
+            inliers += 1
+        total += w[i]
+    return inliers, total
 
 
 @kernel
@@ -33,49 +59,42 @@ def fit(
 
     Returns ``(error, pose, iterations, converged, r, w, jac, covariance,
     rms, raw_rms, inlier_count, degenerate)``; when ``error`` is not
-    :data:`OK` the other values are meaningless.
+    :data:`OK` the other values are placeholders.
     """
     n = pts.shape[0]
     n_params = 3 if fit_rotation else 2
-    error = OK
     if use_polarity:
         pol, bad = polarity(pts, nrm, grad, pose0[0], pose0[1])
         if bad:
-            error = BAD_GRADIENT
+            return _failed(BAD_GRADIENT, pose0, n, n_params)
     else:
         pol = np.ones(n)
-    pose = pose0.copy()
-    iterations = 0
-    converged = False
-    r = np.zeros(n)
-    w = np.zeros(n)
-    jac = np.zeros((n, n_params))
-    if error == OK:
-        pose, iterations, converged, r, w, jac, bad = lm_loop(
-            dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
-            damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
-        )
-        if bad:
-            error = BAD_DT
-    inlier_count = 0
-    total_weight = 0.0
-    for i in range(n):
-        if w[i] > 0.0:
-            inlier_count += 1
-        total_weight += w[i]
-    if error == OK and ridge and inlier_count > 0:
+    pose, iterations, converged, r, w, jac, status = lm_loop(
+        dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
+        damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
+    )
+    if status == LOOP_BAD_DT:
+        return _failed(BAD_DT, pose0, n, n_params)
+    if status == LOOP_DIVERGED:
+        return _failed(DIVERGED, pose0, n, n_params)
+    inlier_count, total_weight = _count(w)
+    if ridge and inlier_count > 0:
         patch, r0, c0 = magnitude_patch(
             grad, pts, pose[0], pose[1], ridge_half * ridge_sample_step + PATCH_MARGIN, use_libm
         )
-        new_pose, ridge_iterations, _, bad = ridge_loop(
+        new_pose, ridge_iterations, _, ridge_status = ridge_loop(
             patch, grad, r0, c0, pts, nrm, sig, pol, pose, pivot, fit_rotation, pivot_distance,
             ridge_max_iterations, ridge_step_tolerance, tukey_c, ridge_half, ridge_sample_step,
         )
-        if bad:
-            error = BAD_GRADIENT
-        elif ridge_iterations > 0 and not (
-            math.hypot(new_pose[0] - pose[0], new_pose[1] - pose[1]) > ridge_max_displacement
-        ):
+        if ridge_status == RIDGE_BAD_FIELD:
+            return _failed(BAD_GRADIENT, pose0, n, n_params)
+        if ridge_status == RIDGE_DIVERGED:
+            return _failed(DIVERGED, pose0, n, n_params)
+        moved = math.hypot(new_pose[0] - pose[0], new_pose[1] - pose[1])
+        if not (math.isfinite(new_pose[0]) and math.isfinite(new_pose[1])
+                and math.isfinite(new_pose[2])):
+            return _failed(DIVERGED, pose0, n, n_params)
+        if ridge_iterations > 0 and not moved > ridge_max_displacement:
             pose = new_pose
             inv_var = np.empty(n)
             for i in range(n):
@@ -87,13 +106,8 @@ def fit(
                 scratch_h, scratch_g,
             )[0]
             if status < 0:
-                error = BAD_DT
-            inlier_count = 0
-            total_weight = 0.0
-            for i in range(n):
-                if w[i] > 0.0:
-                    inlier_count += 1
-                total_weight += w[i]
+                return _failed(BAD_DT, pose0, n, n_params)
+            inlier_count, total_weight = _count(w)
     degenerate = inlier_count == 0 or total_weight == 0.0
     weighted = 0.0
     raw = 0.0
@@ -107,5 +121,8 @@ def fit(
     else:
         rms = math.sqrt(weighted / total_weight)
         info, _ = normal_equations(jac, w, r, n_params)
-        cov = symmetric_pinvh(info, rcond)
-    return error, pose, iterations, converged, r, w, jac, cov, rms, raw_rms, inlier_count, degenerate
+        cov, ok = symmetric_pinvh(info, rcond)
+        if not ok:
+            return _failed(DIVERGED, pose0, n, n_params)
+    return (OK, pose, iterations, converged, r, w, jac, cov, rms, raw_rms, inlier_count,
+            degenerate)

@@ -25,6 +25,11 @@ EPS_R = 1.0e-3
 LAMBDA_MIN = 1.0e-12
 LAMBDA_MAX = 1.0e6
 
+#: Status of :func:`lm_loop`.
+LOOP_OK = 0
+LOOP_BAD_DT = 1  # a sample read a NaN or inf from the DT
+LOOP_DIVERGED = 2  # the normal equations or a step overflowed
+
 
 @kernel
 def evaluate_state(dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad):  # pragma: no cover
@@ -140,16 +145,18 @@ def lm_loop(
 
     ``trust_region < 0`` means no trust region. Returns the final pose
     ``(dv, du, theta)``, the iteration count, the converged flag, the
-    state ``r, w, J`` at the final pose, and ``bad``: True if the DT was
-    found non-finite where the fit sampled it (the rest is then invalid).
+    state ``r, w, J`` at the final pose, and a status: :data:`LOOP_OK`,
+    :data:`LOOP_BAD_DT` (the DT was found non-finite where the fit sampled
+    it) or :data:`LOOP_DIVERGED` (a non-finite step: the normal equations
+    overflowed); with a bad status the rest is invalid.
 
     After a rejected step the state, and so ``H``, ``g`` and the cost, are
     unchanged: they are kept rather than recomputed (same values exactly).
     """
     n = pts.shape[0]
     n_params = 3 if fit_rotation else 2
-    r = np.empty(n)
-    w = np.empty(n)
+    r = np.zeros(n)
+    w = np.zeros(n)
     jac = np.zeros((n, n_params))
     inv_var = np.empty(n)
     for i in range(n):
@@ -173,7 +180,7 @@ def lm_loop(
                 dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad
             )
             if status < 0:
-                return pose, iterations, converged, r, w, jac, True
+                return pose, iterations, converged, r, w, jac, LOOP_BAD_DT
             fresh = True
             if status == 0:
                 break
@@ -189,6 +196,9 @@ def lm_loop(
         for a in range(n_params):
             damped[a, a] = hess[a, a] + lam * hess[a, a]
         step = solve_step(damped, grad, rcond)
+        for a in range(n_params):
+            if not math.isfinite(step[a]):
+                return pose, iterations, converged, r, w, jac, LOOP_DIVERGED
         for a in range(3):
             trial[a] = pose[a]
         for a in range(n_params):
@@ -201,7 +211,7 @@ def lm_loop(
             continue
         trial_cost = weighted_cost(dt, pts, pol, w, trial, pivot)
         if not math.isfinite(trial_cost):
-            return pose, iterations, converged, r, w, jac, True
+            return pose, iterations, converged, r, w, jac, LOOP_BAD_DT
         if tikhonov_alpha > 0:
             trial_cost += t * ((trial[0] - dv0) ** 2 + (trial[1] - du0) ** 2)
         if trial_cost < cost:
@@ -222,4 +232,4 @@ def lm_loop(
         status = evaluate_state(
             dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad
         )[0]
-    return pose, iterations, converged, r, w, jac, status < 0
+    return pose, iterations, converged, r, w, jac, LOOP_BAD_DT if status < 0 else LOOP_OK

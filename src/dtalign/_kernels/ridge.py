@@ -18,6 +18,11 @@ from .lm import EPS_R, step_norm
 from .robust import irls_weight, normal_equations, solve_step
 from .sampling import sample_magnitude, transform
 
+#: Status of :func:`ridge_loop`.
+RIDGE_OK = 0
+RIDGE_BAD_FIELD = 1  # a profile sample read a NaN or inf
+RIDGE_DIVERGED = 2  # a Gauss-Newton step overflowed
+
 CURVATURE_EPS = 1.0e-12
 PINVH_RCOND = 1.0e-9
 #: Largest magnitude patch (pixels) built for a gradient-vector image;
@@ -109,7 +114,7 @@ def ridge_loop(
     max_iterations, step_tolerance, tukey_c, half, sample_step,
 ):  # pragma: no cover - compiled
     """Gauss-Newton on ``t*``; returns the final pose, iterations, converged
-    and ``bad`` (True if the field was found non-finite where sampled).
+    and a status (:data:`RIDGE_OK`, :data:`RIDGE_BAD_FIELD`, :data:`RIDGE_DIVERGED`).
 
     ``half`` is ``round(half_width / sample_step)`` (Python's rounding, so
     computed by the caller). Whether the result is applied (moved less
@@ -137,7 +142,7 @@ def ridge_loop(
         theta = pose[2]
         if not peak_offsets(patch, grad, r0, c0, pts, nrm, pose[0],
                             pose[1], theta, pivot, t, sample_step, prof, r, valid, n_rot):
-            return pose, iterations, converged, True
+            return pose, iterations, converged, RIDGE_BAD_FIELD
         any_positive = False
         for i in range(n):
             w[i] = irls_weight(r[i], sig[i], tukey_c, valid[i]) * weight_mask[i]
@@ -155,15 +160,18 @@ def ridge_loop(
                                 pose[1], theta - EPS_R, pivot, t, sample_step, prof, r_m,
                                 scratch_valid, scratch_n)
             if not (ok_p and ok_m):
-                return pose, iterations, converged, True
+                return pose, iterations, converged, RIDGE_BAD_FIELD
             for i in range(n):
                 jac[i, 2] = (r_p[i] - r_m[i]) / (2 * EPS_R)
         hess, g_vec = normal_equations(jac, w, r, n_params)
         step = solve_step(hess, g_vec, PINVH_RCOND)
+        for a in range(n_params):
+            if not math.isfinite(step[a]):
+                return pose, iterations, converged, RIDGE_DIVERGED
         for a in range(n_params):
             pose[a] = pose[a] + step[a]
         iterations += 1
         if step_norm(step, pivot_distance) < step_tolerance:
             converged = True
             break
-    return pose, iterations, converged, False
+    return pose, iterations, converged, RIDGE_OK

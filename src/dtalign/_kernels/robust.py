@@ -109,9 +109,19 @@ def pinvh(matrix, rcond):  # pragma: no cover - compiled
 
 @kernel
 def symmetric_pinvh(matrix, rcond):  # pragma: no cover - compiled
-    """``0.5 * (P + P^T)`` with ``P = pinvh(matrix, rcond)``: the covariance map."""
+    """``0.5 * (P + P^T)`` with ``P = pinvh(matrix, rcond)``: the covariance map.
+
+    Returns ``(covariance, ok)``; ``ok`` is False (and the covariance all
+    ``inf``) when the matrix overflowed to a non-finite value, which the
+    eigensolver would refuse.
+    """
+    n = matrix.shape[0]
+    for a in range(n):
+        for b in range(n):
+            if not math.isfinite(matrix[a, b]):
+                return np.full((n, n), np.inf), False
     p = pinvh(matrix, rcond)
-    return 0.5 * (p + p.T)
+    return 0.5 * (p + p.T), True
 
 
 @kernel
@@ -124,6 +134,12 @@ def solve_step(matrix, rhs, rcond):  # pragma: no cover - compiled
     is when ``numpy.linalg.solve`` raises.
     """
     n = matrix.shape[0]
+    for i in range(n):
+        ok = math.isfinite(rhs[i])
+        for j in range(n):
+            ok = ok and math.isfinite(matrix[i, j])
+        if not ok:  # overflowed normal equations: a NaN step the caller refuses
+            return np.full(n, np.nan)
     a = matrix.copy()
     b = rhs.copy()
     for k in range(n):

@@ -15,11 +15,23 @@ from .._jit import inline_kernel, kernel
 
 
 @inline_kernel
+def clamp(x, hi):
+    """``np.clip(x, 0, hi)`` for finite ``x``; NaN maps to 0.
+
+    A NaN position (a diverged pose) must never become an index: the
+    callers detect non-finite poses and refuse them, this only keeps the
+    read in bounds until they do.
+    """
+    x = x if x > 0.0 else 0.0
+    return x if x < hi else hi
+
+
+@inline_kernel
 def bilinear(dt, v, u):  # pragma: no cover - compiled
     """``dt`` sampled at ``(v, u)``, clamped to the image."""
     h, w = dt.shape
-    v = min(max(v, 0.0), h - 1.0)
-    u = min(max(u, 0.0), w - 1.0)
+    v = clamp(v, h - 1.0)
+    u = clamp(u, w - 1.0)
     v0 = int(math.floor(v))
     u0 = int(math.floor(u))
     v1 = min(v0 + 1, h - 1)
@@ -39,8 +51,8 @@ def _bilinear_hypot(grad, v, u):  # pragma: no cover - compiled
     """:func:`bilinear` of ``hypot(g_v, g_u)`` straight from the gradient vectors."""
     h = grad.shape[0]
     w = grad.shape[1]
-    v = min(max(v, 0.0), h - 1.0)
-    u = min(max(u, 0.0), w - 1.0)
+    v = clamp(v, h - 1.0)
+    u = clamp(u, w - 1.0)
     v0 = int(math.floor(v))
     u0 = int(math.floor(u))
     v1 = min(v0 + 1, h - 1)
