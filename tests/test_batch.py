@@ -1,0 +1,190 @@
+"""dtalign.batch: threaded and process batches give exactly the serial results, in order."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+import dtalign
+from dtalign import scenes
+from dtalign.batch import fit_images, fit_many, map_ordered, results_equal
+from dtalign.pipeline import fit_polyline_products, prepare_image
+
+WINDOW = (12, 12)
+
+
+@pytest.fixture(scope="module")
+def nav():
+    """A small navigation scene: limb, terminator and straight ring edge."""
+    return scenes.navigation_scene(shape=(256, 256), radius=60.0, n_vertices=80,
+                                   offset_vu=(3.4, -2.2), search_window=12)
+
+
+@pytest.fixture(scope="module")
+def products(nav):
+    return prepare_image(nav.image, nav.noise_sigma)
+
+
+@pytest.fixture(scope="module")
+def polylines(nav):
+    """Twelve distinct polylines: the three of the scene, shifted by whole and half pixels."""
+    out = []
+    for k in range(12):
+        p = nav.polylines[k % 3]
+        shift = np.array([0.5 * (k // 3), -0.25 * (k // 3)])
+        out.append(scenes.Polyline(p.name, p.vertices_vu + shift, p.normals_vu, p.sigmas))
+    return out
+
+
+def _serial(products, polylines, **options):
+    return [
+        fit_polyline_products(products, p.vertices_vu, p.normals_vu, p.sigmas,
+                              search_window_vu=WINDOW, **options)
+        for p in polylines
+    ]
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3, 16])
+def test_fit_many_equals_serial(products, polylines, workers):
+    expected = _serial(products, polylines, trust_region_px=1.0)
+    got = fit_many(products, polylines, search_window_vu=WINDOW, workers=workers,
+                   trust_region_px=1.0)
+    assert len(got) == len(expected)
+    assert results_equal(got, expected)
+    # Order: each result belongs to its own polyline (they all differ).
+    offsets = [f.offset_vu for f in got]
+    assert len(set(offsets)) == len(offsets)
+    assert offsets == [f.offset_vu for f in expected]
+
+
+def test_fit_many_options_and_tuple_polylines(products, polylines, nav):
+    options = {"fit_rotation": True, "pivot_distance_px": nav.pivot_distance_px,
+               "final_gradient_ridge": True}
+    items = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines[:6]]
+    got = fit_many(products, items, search_window_vu=WINDOW, workers=2, **options)
+    assert results_equal(got, _serial(products, polylines[:6], **options))
+    assert all(f.fit_rotation for f in got)
+
+
+def test_fit_many_empty_and_single(products, polylines):
+    assert fit_many(products, [], search_window_vu=WINDOW) == []
+    assert results_equal(fit_many(products, polylines[:1], search_window_vu=WINDOW),
+                         _serial(products, polylines[:1]))
+
+
+@pytest.mark.parametrize("executor", ["thread", "process"])
+def test_fit_images_equals_serial(nav, executor):
+    other = scenes.navigation_scene(shape=(256, 256), radius=50.0, n_vertices=60,
+                                    offset_vu=(-2.6, 1.7), seed=3)
+    items = [nav, (other.image, None, other.polylines), (nav.image, 2.0, nav.polylines[:1])]
+    expected = []
+    for image, noise, polys in [(nav.image, nav.noise_sigma, nav.polylines),
+                                (other.image, None, other.polylines),
+                                (nav.image, 2.0, nav.polylines[:1])]:
+        expected.append(_serial(prepare_image(image, noise), polys))
+    got = fit_images(items, search_window_vu=WINDOW, workers=2, executor=executor)
+    assert [len(g) for g in got] == [3, 3, 1]
+    assert results_equal(got, expected)
+    assert got[1][0].noise_sigma == expected[1][0].noise_sigma  # estimated the same way
+
+
+def test_public_functions_scale_in_a_thread_pool(nav):
+    """The kernels release the GIL; threaded calls give the serial results."""
+    _, dt, grad = dtalign.compute_all_image_derivatives(nav.image, nav.noise_sigma)
+    edge = dt <= 0.5
+
+    def one(p):
+        mask = dtalign.build_polyline_mask(p.vertices_vu, dt.shape)
+        seed = dtalign.coarse_ncc_search(edge, mask, WINDOW)
+        return seed, dtalign.lm_subpixel_refine(
+            vertices_vu=p.vertices_vu, normals_vu=p.normals_vu,
+            sigma_normal_per_vertex_px=p.sigmas, image_edge_dt=dt, image_gradient_vu=grad,
+            initial_offset_vu=(float(seed[0]), float(seed[1])))
+
+    polys = list(nav.polylines) * 4
+    serial = [one(p) for p in polys]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        threaded = list(pool.map(one, polys))
+    assert results_equal(threaded, serial)
+    assert results_equal(map_ordered(one, polys, workers=2), serial)
+
+    images = [nav.image, nav.image[::-1].copy(), nav.image.T.copy()]
+    serial_d = [dtalign.compute_all_image_derivatives(im, 2.0) for im in images]
+    threaded_d = map_ordered(lambda im: dtalign.compute_all_image_derivatives(im, 2.0),
+                             images, workers=2)
+    assert results_equal(threaded_d, serial_d)
+
+
+def test_map_ordered_raises_first_error_in_order():
+    def fn(x):
+        if x in (3, 5):
+            raise ValueError(f"bad {x}")
+        return x * x
+
+    assert map_ordered(fn, range(3), workers=2) == [0, 1, 4]
+    with pytest.raises(ValueError, match="bad 3"):
+        map_ordered(fn, range(8), workers=2)
+
+
+def test_fit_many_propagates_fit_errors(products, polylines):
+    p = polylines[0]
+    bad = (p.vertices_vu, p.normals_vu, -p.sigmas)
+    items = [polylines[1], bad, polylines[2]]
+    with pytest.raises(ValueError, match="sigmas must be finite and > 0"):
+        fit_many(products, items, search_window_vu=WINDOW, workers=2)
+    with pytest.raises(TypeError, match="search_window_vu"):
+        fit_many(products, polylines[:2], search_window_vu=(1.5, 2), workers=2)
+
+
+@pytest.mark.parametrize("workers, exc, match", [
+    (0, ValueError, "workers must be >= 1"),
+    (-2, ValueError, "workers must be >= 1"),
+    (1.5, TypeError, "workers must be an int"),
+    ("2", TypeError, "workers must be an int"),
+    (True, TypeError, "workers must be an int"),
+    (None, TypeError, "workers must be an int"),
+])
+def test_bad_workers(products, polylines, workers, exc, match):
+    with pytest.raises(exc, match=match):
+        fit_many(products, polylines[:2], search_window_vu=WINDOW, workers=workers)
+    with pytest.raises(exc, match=match):
+        fit_images([], search_window_vu=WINDOW, workers=workers)
+    with pytest.raises(exc, match=match):
+        map_ordered(abs, [1], workers=workers)
+
+
+def test_argument_errors(products, polylines, nav):
+    with pytest.raises(TypeError, match="products must be an ImageProducts"):
+        fit_many(nav.image, polylines, search_window_vu=WINDOW)
+    with pytest.raises(TypeError, match="unexpected fit option.*'trust_region'"):
+        fit_many(products, polylines, search_window_vu=WINDOW, trust_region=1.0)
+    with pytest.raises(TypeError, match=r"polylines\[1\] must have vertices_vu"):
+        fit_many(products, [polylines[0], "limb"], search_window_vu=WINDOW)
+    with pytest.raises(TypeError, match=r"polylines\[0\] must have"):
+        fit_many(products, [(1, 2)], search_window_vu=WINDOW)
+    with pytest.raises(TypeError, match=r"items\[0\] must be an \(image, noise_sigma"):
+        fit_images([nav.image], search_window_vu=WINDOW)
+    with pytest.raises(TypeError, match=r"items\[0\] polylines must be an iterable"):
+        fit_images([(nav.image, 2.0, 5)], search_window_vu=WINDOW)
+    with pytest.raises(ValueError, match="executor must be one of"):
+        fit_images([nav], search_window_vu=WINDOW, executor="gpu")
+    with pytest.raises(TypeError, match="config must be an ImageDerivativesConfig"):
+        fit_images([nav], search_window_vu=WINDOW, config={"dt_half_width_px": 10.0})
+    with pytest.raises(TypeError, match="unexpected fit option"):
+        fit_images([nav], search_window_vu=WINDOW, noise=2.0)
+    with pytest.raises(TypeError, match="image must be 2-D"):
+        fit_images([(nav.image[0], 2.0, nav.polylines)], search_window_vu=WINDOW, workers=2)
+
+
+def test_results_equal(products, polylines):
+    a, b = _serial(products, polylines[:2])
+    again = _serial(products, polylines[:2])
+    assert results_equal([a, b], again)
+    assert not results_equal(a, b)
+    assert not results_equal([a], [a, b])
+    assert results_equal(np.array([np.nan, 1.0]), np.array([np.nan, 1.0]))
+    assert not results_equal(np.zeros(2), np.zeros(3))
+    assert not results_equal(a, a.lm)
+    assert results_equal(float("nan"), float("nan"))
