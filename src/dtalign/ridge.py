@@ -22,8 +22,10 @@ from ._validation import nonfinite_read
 
 __all__ = ["RidgeRefineResult", "gradient_ridge_refine"]
 
-#: An empty gradient tells the kernel that its patch is the whole magnitude image.
+#: An empty gradient tells the kernel to sample the magnitude image itself.
 _NO_GRADIENT = np.zeros((0, 0, 2))
+_NO_TILES = np.zeros((0, 0), dtype=np.uint8)
+_NO_PATCH = np.zeros((0, 0))
 
 
 def gradient_ridge_refine(
@@ -83,7 +85,7 @@ def gradient_ridge_refine(
     a = check_ridge_inputs(locals())
     pose0 = np.array([a.offset[0], a.offset[1], a.rotation])
     pose, iterations, converged, status = _k.ridge_loop(
-        a.magnitude, _NO_GRADIENT, 0, 0, a.vertices, a.normals, a.sigmas, a.weight_mask, pose0,
+        a.magnitude, _NO_PATCH, _NO_TILES, _NO_GRADIENT, 0, 0, False, a.vertices, a.normals, a.sigmas, a.weight_mask, pose0,
         np.array(a.pivot), a.fit_rotation, a.pivot_distance, a.max_iterations,
         a.step_tolerance, a.tukey_c, round(a.half_width / a.sample_step), a.sample_step,
     )

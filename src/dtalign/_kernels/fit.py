@@ -22,6 +22,9 @@ from .ridge import (
 )
 from .robust import normal_equations, polarity, symmetric_pinvh
 
+#: The LM driver's polish samples its gradient vectors, not a magnitude image.
+_NO_MAGNITUDE = np.zeros((0, 0))
+
 #: Error codes returned by :func:`fit` (the wrapper raises for them).
 OK = 0
 BAD_GRADIENT = 1
@@ -79,11 +82,11 @@ def fit(
         return _failed(DIVERGED, pose0, n, n_params)
     inlier_count, total_weight = _count(w)
     if ridge and inlier_count > 0:
-        patch, r0, c0 = magnitude_patch(
-            grad, pts, pose[0], pose[1], ridge_half * ridge_sample_step + PATCH_MARGIN, use_libm
+        patch, tiles, r0, c0 = magnitude_patch(
+            grad, pts, pose[0], pose[1], ridge_half * ridge_sample_step + PATCH_MARGIN
         )
         new_pose, ridge_iterations, _, ridge_status = ridge_loop(
-            patch, grad, r0, c0, pts, nrm, sig, pol, pose, pivot, fit_rotation, pivot_distance,
+            _NO_MAGNITUDE, patch, tiles, grad, r0, c0, use_libm, pts, nrm, sig, pol, pose, pivot, fit_rotation, pivot_distance,
             ridge_max_iterations, ridge_step_tolerance, tukey_c, ridge_half, ridge_sample_step,
         )
         if ridge_status == RIDGE_BAD_FIELD:

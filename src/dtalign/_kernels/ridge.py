@@ -13,10 +13,9 @@ import math
 import numpy as np
 
 from .._jit import kernel
-from .image import hypot_row
 from .lm import EPS_R, step_norm
 from .robust import irls_weight, normal_equations, solve_step
-from .sampling import sample_magnitude, transform
+from .sampling import TILE, sample_magnitude, transform
 
 #: Status of :func:`ridge_loop`.
 RIDGE_OK = 0
@@ -34,15 +33,15 @@ PATCH_MARGIN = 8
 
 
 @kernel
-def magnitude_patch(grad, pts, dv, du, reach, use_libm):  # pragma: no cover - compiled
-    """``hypot(g_v, g_u)`` over the box the vertices' profiles can reach, and its origin.
+def magnitude_patch(grad, pts, dv, du, reach):  # pragma: no cover - compiled
+    """An unfilled magnitude patch over the box the profiles can reach.
 
-    The LM driver polishes against the magnitude of its gradient-vector
-    image; forming it only in this box (with the vectorised, bit-identical
-    :func:`hypot_row`) costs a fraction of the whole image's. Samples
-    outside the box fall back to per-pixel hypot (see
-    :func:`sample_magnitude`). A box over ``MAX_PATCH`` pixels is not
-    built (empty patch: every sample falls back).
+    Returns ``(patch, tiles, r0, c0)``: the patch is filled tile by tile as
+    samples need it (see :func:`sample_magnitude`). The LM driver polishes
+    against the magnitude of its gradient-vector image; forming it only
+    where the profiles go costs a fraction of the whole image's. A box over
+    ``MAX_PATCH`` pixels is not built (empty patch: every sample falls back
+    to per-pixel hypot).
     """
     h = grad.shape[0]
     w = grad.shape[1]
@@ -57,26 +56,19 @@ def magnitude_patch(grad, pts, dv, du, reach, use_libm):  # pragma: no cover - c
     rows = r_hi - r_lo + 1
     cols = c_hi - c_lo + 1
     if rows * cols > MAX_PATCH:
-        return np.empty((0, 0)), 0, 0
-    patch = np.empty((rows, cols))
-    g_v = np.empty(cols)
-    g_u = np.empty(cols)
-    for r in range(rows):
-        for j in range(cols):  # de-interleave so the hypot loop vectorises
-            g_v[j] = grad[r_lo + r, c_lo + j, 0]
-            g_u[j] = grad[r_lo + r, c_lo + j, 1]
-        hypot_row(g_v, g_u, patch[r], use_libm)
-    return patch, r_lo, c_lo
+        rows = cols = 0
+    tiles = np.zeros((rows // TILE + 1, cols // TILE + 1), dtype=np.uint8)
+    return np.empty((rows, cols)), tiles, r_lo, c_lo
 
 
 @kernel
-def peak_offsets(patch, grad, r0, c0, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot):  # pragma: no cover
+def peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot):  # pragma: no cover
     """Sub-pixel signed distance ``t*`` to the magnitude peak along each normal.
 
     Writes ``t*`` into ``out``, 1.0/0.0 validity into ``valid`` and the
     normals rotated by ``theta`` into ``n_rot``; ``prof`` is scratch of
     length ``K``. The field is sampled by :func:`sample_magnitude` from
-    ``patch, grad, r0, c0``. Returns False if a sample read a NaN or inf.
+    ``magnitude, patch, tiles, grad, r0, c0, use_libm``. Returns False if a sample read a NaN or inf.
     """
     k_count = t.shape[0]
     cos_t, sin_t = math.cos(theta), math.sin(theta)
@@ -91,7 +83,9 @@ def peak_offsets(patch, grad, r0, c0, pts, nrm, dv, du, theta, pivot, t, step, p
         v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, cos_t, sin_t, pivot[0], pivot[1])
         k_star = 0
         for k in range(k_count):
-            prof[k] = sample_magnitude(patch, grad, r0, c0, v + t[k] * nv, u + t[k] * nu)
+            prof[k] = sample_magnitude(
+                magnitude, patch, tiles, grad, r0, c0, use_libm, v + t[k] * nv, u + t[k] * nu
+            )
             if not math.isfinite(prof[k]):
                 return False
             if prof[k] > prof[k_star]:
@@ -110,7 +104,7 @@ def peak_offsets(patch, grad, r0, c0, pts, nrm, dv, du, theta, pivot, t, step, p
 
 @kernel
 def ridge_loop(
-    patch, grad, r0, c0, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pivot_distance,
+    magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pivot_distance,
     max_iterations, step_tolerance, tukey_c, half, sample_step,
 ):  # pragma: no cover - compiled
     """Gauss-Newton on ``t*``; returns the final pose, iterations, converged
@@ -140,7 +134,7 @@ def ridge_loop(
     converged = False
     for _ in range(max_iterations):
         theta = pose[2]
-        if not peak_offsets(patch, grad, r0, c0, pts, nrm, pose[0],
+        if not peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, pose[0],
                             pose[1], theta, pivot, t, sample_step, prof, r, valid, n_rot):
             return pose, iterations, converged, RIDGE_BAD_FIELD
         any_positive = False
@@ -153,10 +147,10 @@ def ridge_loop(
         if not any_positive:
             break
         if fit_rotation:
-            ok_p = peak_offsets(patch, grad, r0, c0, pts, nrm, pose[0],
+            ok_p = peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, pose[0],
                                 pose[1], theta + EPS_R, pivot, t, sample_step, prof, r_p,
                                 scratch_valid, scratch_n)
-            ok_m = peak_offsets(patch, grad, r0, c0, pts, nrm, pose[0],
+            ok_m = peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, pose[0],
                                 pose[1], theta - EPS_R, pivot, t, sample_step, prof, r_m,
                                 scratch_valid, scratch_n)
             if not (ok_p and ok_m):

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from .._jit import inline_kernel, kernel
+from .image import hypot_row
 
 
 @inline_kernel
@@ -66,23 +67,58 @@ def _bilinear_hypot(grad, v, u):  # pragma: no cover - compiled
     return a * (1 - fv) * (1 - fu) + b * (1 - fv) * fu + c * fv * (1 - fu) + d * fv * fu
 
 
-@inline_kernel
-def sample_magnitude(patch, grad, r0, c0, v, u):  # pragma: no cover - compiled
-    """Bilinear gradient magnitude at ``(v, u)``, from a magnitude patch.
+#: Side of the square tiles in which the ridge polish forms magnitudes.
+TILE = 16
 
-    With an empty ``grad``, ``patch`` is the whole magnitude image. Else
-    ``patch`` holds ``hypot(g_v, g_u)`` of ``grad`` over the box at
-    ``(r0, c0)``, and a sample whose cell lies inside the box is
+
+@kernel
+def fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr, pc):  # pragma: no cover - compiled
+    """Form ``hypot(g_v, g_u)`` in every unfilled tile covering rows ``pr..pr+1``
+    and columns ``pc..pc+1`` of the patch (out of line: it runs once per tile)."""
+    for tr in range(pr // TILE, (pr + 1) // TILE + 1):
+        for tc in range(pc // TILE, (pc + 1) // TILE + 1):
+            if tiles[tr, tc]:
+                continue
+            lo = tc * TILE
+            hi = min(lo + TILE, patch.shape[1])
+            g_v = np.empty(hi - lo)
+            g_u = np.empty(hi - lo)
+            for r in range(tr * TILE, min(tr * TILE + TILE, patch.shape[0])):
+                for j in range(lo, hi):
+                    g_v[j - lo] = grad[r0 + r, c0 + j, 0]
+                    g_u[j - lo] = grad[r0 + r, c0 + j, 1]
+                hypot_row(g_v, g_u, patch[r, lo:hi], use_libm)
+            tiles[tr, tc] = 1
+
+
+@inline_kernel
+def sample_magnitude(magnitude, patch, tiles, grad, r0, c0, use_libm, v, u):  # pragma: no cover - compiled
+    """Bilinear gradient magnitude at ``(v, u)``.
+
+    With an empty ``grad``, this samples the magnitude image ``magnitude``.
+    Else ``patch`` holds ``hypot(g_v, g_u)`` of ``grad`` over a box at
+    ``(r0, c0)``, formed tile by tile (``tiles`` flags the filled ones) the
+    first time a sample needs it: the profiles of a limb touch an annulus,
+    a fifth of its bounding box. A sample whose cell lies inside the box is
     :func:`bilinear` of the patch at ``(v - r0, u - c0)``: bit-identical to
     sampling the whole magnitude image (an integer shift of ``v`` is exact,
-    so the cell and its fractions are the same, and no clamping applies);
-    any other sample is formed from ``grad`` directly.
+    so the cell and its fractions are the same, and no clamping applies;
+    the magnitudes are bit-identical to ``np.hypot``). Any other sample is
+    formed from ``grad`` directly.
     """
     if grad.shape[0] == 0:
-        return bilinear(patch, v, u)
+        return bilinear(magnitude, v, u)
     pv = v - r0
     pu = u - c0
     if 0.0 <= pv < patch.shape[0] - 1 and 0.0 <= pu < patch.shape[1] - 1:
+        pr = int(pv)
+        pc = int(pu)
+        a = pr // TILE
+        c = (pr + 1) // TILE
+        b = pc // TILE
+        d = (pc + 1) // TILE
+        if not (tiles[a, b] & tiles[a, d] & tiles[c, b] & tiles[c, d]):
+            fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr, pc)
         return bilinear(patch, pv, pu)
     return _bilinear_hypot(grad, v, u)
 
