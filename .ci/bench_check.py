@@ -7,7 +7,8 @@ longer agrees with the reference). Absolute times are never checked: only
 ratios measured in the same process, alternating reference and dtalign
 runs, so a slow or loaded CI machine slows both sides alike.
 
-Usage (from the repository root; the checkout's ``src`` is used)::
+Usage (from the repository root; the installed ``dtalign`` is used, or the
+checkout's ``src`` when none is installed)::
 
     python .ci/bench_check.py [--json PATH] [--warn-only]
 
@@ -15,10 +16,11 @@ Floors
 ------
 floor = target * (1 - spread), where spread is the relative drop of the
 ratio below its median that was MEASURED on the 2-core development
-machine: NOISE_RUNS quick runs (NOISE_LOADED_RUNS of them with a busy-loop
-process on one core, and other engineers' jobs sharing the machine
-throughout), spread = (median - min) / median over those runs, rounded up
-to the next 5 %. The per-workload numbers are in FLOORS below.
+machine: NOISE_RUNS quick runs in two campaigns (NOISE_LOADED_RUNS of them
+with a busy-loop process on one core; in one campaign other engineers' test
+suites shared the machine throughout), spread = (median - min) / median of
+the ratio over a campaign's runs, the larger of the two, rounded up to the
+next 5 %. The per-workload numbers are in FLOORS below.
 """
 
 from __future__ import annotations
@@ -30,28 +32,46 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-if (ROOT / "src" / "dtalign").is_dir():
+try:  # the installed package (CI installs the checkout; its kernel cache is warm)
+    import dtalign
+except ImportError:  # a bare checkout: use its src/
     sys.path.insert(0, str(ROOT / "src"))
+    import dtalign
 
 from dtalign import benchmarking  # noqa: E402
 
-NOISE_RUNS = 10
-NOISE_LOADED_RUNS = 3
+NOISE_RUNS = 20
+NOISE_LOADED_RUNS = 7
 
-#: name -> (target, measured spread of the quick-run ratio). floor = target * (1 - spread).
-#: Measured on the 2-core machine, numbers of each run in the comments:
-#: median ratio, min ratio over NOISE_RUNS runs -> spread.
+#: name -> (target, spread); floor = target * (1 - spread).
+#: Measured 2026-11-22 on the 2-core development machine in two campaigns of
+#: 10 quick runs each: A = while other engineers' test suites kept 1.0-1.6
+#: cores busy (3 runs with an extra busy-loop process too); B = quiet machine,
+#: 4 of the 10 runs with a busy-loop process on one core. Per workload:
+#: median ratio / lowest ratio / (median - lowest) / median, for A and B;
+#: the spread used is the larger, rounded up to the next 5 %.
 FLOORS: dict[str, tuple[float, float]] = {
-    "derivatives_1024": (5.0, 0.25),
+    # A 11.8 / 11.3 / 0.04   B 11.7 / 11.3 / 0.04
+    "derivatives_1024": (5.0, 0.05),
+    # A 240 / 186 / 0.23     B 236 / 218 / 0.07
     "coarse_30": (300.0, 0.25),
-    "coarse_50": (300.0, 0.25),
-    "lm_n200": (50.0, 0.25),
-    "lm_trust_region": (50.0, 0.25),
-    "lm_rotation": (50.0, 0.25),
-    "lm_ridge": (40.0, 0.25),
+    # A 465 / 390 / 0.16     B 464 / 421 / 0.09
+    "coarse_50": (300.0, 0.20),
+    # A 80.8 / 59.3 / 0.27   B 77.2 / 74.5 / 0.03
+    "lm_n200": (50.0, 0.30),
+    # A 85.2 / 57.1 / 0.33   B 77.3 / 75.1 / 0.03
+    "lm_trust_region": (50.0, 0.35),
+    # A 48.3 / 39.3 / 0.19   B 49.0 / 46.3 / 0.06
+    "lm_rotation": (50.0, 0.20),
+    # A 29.4 / 14.9 / 0.49   B 36.1 / 31.2 / 0.14
+    "lm_ridge": (40.0, 0.50),
+    # A 10.5 / 9.0 / 0.14    B 9.6 / 7.5 / 0.22
     "lm_n20000": (30.0, 0.25),
-    "end_to_end": (10.0, 0.25),
-    "batch_64_fits": (1.8, 0.25),
+    # A 20.1 / 17.0 / 0.15   B 20.4 / 19.6 / 0.04
+    "end_to_end": (10.0, 0.15),
+    # 2 threads vs 1: A 1.0 / 0.8 / 0.14   B 1.06 / 0.96 / 0.09. Checked only
+    # when the GIL-free control scaled at least as far as the floor.
+    "batch_64_fits": (1.8, 0.15),
 }
 
 
@@ -93,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="print the failures but exit 0")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
+    print(f"bench_check: dtalign {dtalign.__version__} from {Path(dtalign.__file__).parent}")
     report = benchmarking.run(quick=True, startup="quick")
     print(benchmarking.format_table(report["rows"]))
     print("floors: " + ", ".join(f"{n} {floor(n):.1f}x" for n in FLOORS))

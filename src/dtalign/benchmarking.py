@@ -658,8 +658,11 @@ def format_rst(report: dict[str, Any]) -> str:
         f"Measured {report['created']} on {m['cpu_count']} CPU(s) ({m['processor']}), "
         f"Python {m['python']}, NumPy {m['numpy']}, Numba {m['numba']}; "
         f"{report['settings']['mode']} run, medians of {report['settings']['repeats']} "
-        "alternating samples. Ratio = reference time / dtalign time; for "
-        "``batch_64_fits`` the columns are 1 and 2 workers.",
+        "alternating samples. Ratio = reference time / dtalign time. Batch rows: "
+        "the columns are 1 and 2 worker threads, the control is GIL-free C code "
+        "run the same way (what the machine allowed). Start-up rows: fresh "
+        "processes. Memory rows: image-sized float64 temporaries, and the LM "
+        "peak with a 512^2 / 2048^2 DT (tracemalloc).",
         "",
         ".. list-table::",
         "   :header-rows: 1",
