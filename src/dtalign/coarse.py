@@ -10,7 +10,7 @@ from . import _validation as check
 from ._args import check_coarse_inputs
 from ._kernels import coarse as _k
 
-__all__ = ["build_polyline_mask", "coarse_ncc_search"]
+__all__ = ["build_polyline_mask", "coarse_ncc_search", "coarse_search_vertices"]
 
 
 def build_polyline_mask(vertices_vu: Any, shape_vu: Any) -> np.ndarray:
@@ -70,6 +70,44 @@ def coarse_ncc_search(edge_mask: Any, polyline_mask: Any, search_window_vu: Any)
     if h == 0 or w == 0:
         return 0, 0
     dv, du = _k.coarse_search(*_flat_words(edge), *_flat_words(poly), h, w, mv, mu)
+    return int(dv), int(du)
+
+
+def coarse_search_vertices(
+    edge_mask: Any, vertices_vu: Any, search_window_vu: Any
+) -> tuple[int, int]:
+    """``coarse_ncc_search(edge_mask, build_polyline_mask(vertices_vu, shape), window)``
+    without the polyline mask.
+
+    Same result (the support is the same set of pixels), but no image-sized
+    mask is allocated and scanned per polyline: what a pipeline fitting many
+    polylines against one image's edge mask wants (it also keeps threads
+    from contending for the allocator).
+
+    Parameters
+    ----------
+    edge_mask : array_like, shape (H, W)
+        Edge pixels (nonzero), e.g. ``edge_dt <= 0.5``.
+    vertices_vu : array_like, shape (N, 2)
+        Polyline vertices; rounded half-to-even, outside ones dropped.
+    search_window_vu : tuple or list of two int
+        Non-negative margins ``(mv, mu)``.
+
+    Returns
+    -------
+    tuple of int
+        The best ``(dv, du)``, as :func:`coarse_ncc_search`.
+    """
+    edge = check.mask2d(edge_mask, "edge_mask")
+    pts = check.vertices(vertices_vu, "vertices_vu")
+    mv, mu = check.search_window(search_window_vu)
+    h, w = edge.shape
+    mv = min(mv, max(h - 1, 0))
+    mu = min(mu, max(w - 1, 0))
+    if h == 0 or w == 0:
+        return 0, 0
+    pv, pu = _k.support_of_vertices(pts, h, w)
+    dv, du = _k.search_support(*_flat_words(edge), pv, pu, h, w, mv, mu)
     return int(dv), int(du)
 
 

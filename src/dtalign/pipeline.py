@@ -436,9 +436,12 @@ def fit_polyline_products(
     api = _api()
     timings: dict[str, float] = dict(products.timings_s)
     t0 = time.perf_counter()
-    mask = api.build_polyline_mask(verts, products.shape)
+    # The coarse search of build_polyline_mask(verts), without building the
+    # image-sized mask (same pixels, same result; see coarse_search_vertices).
+    from .coarse import coarse_search_vertices
+
     t1 = time.perf_counter()
-    coarse = api.coarse_ncc_search(products.edge_mask, mask, window)
+    coarse = coarse_search_vertices(products.edge_mask, verts, window)
     coarse = (int(coarse[0]), int(coarse[1]))
     t2 = time.perf_counter()
     lm = api.lm_subpixel_refine(

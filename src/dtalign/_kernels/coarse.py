@@ -195,14 +195,32 @@ def best_shift(overlap, counts, mv, mu):  # pragma: no cover - compiled
 
 
 @kernel
-def coarse_search(edge_flat, edge_words, poly_flat, poly_words, h, w, mv, mu):  # pragma: no cover
-    """``(dv, du)`` of the best shift; ``(0, 0)`` when no pixel can stay inside.
+def support_of_vertices(pts, h, w):  # pragma: no cover - compiled
+    """Row-major unique ``(rows, cols)`` of the pixels :func:`rasterise` would set."""
+    flat = np.empty(pts.shape[0], dtype=np.int64)
+    n = 0
+    for i in range(pts.shape[0]):
+        iv = np.rint(pts[i, 0])
+        iu = np.rint(pts[i, 1])
+        if iv >= 0 and iv < h and iu >= 0 and iu < w:
+            flat[n] = int(iv) * w + int(iu)
+            n += 1
+    flat = np.unique(flat[:n])
+    rows = np.empty(flat.shape[0], dtype=np.int64)
+    cols = np.empty(flat.shape[0], dtype=np.int64)
+    for j in range(flat.shape[0]):
+        rows[j] = flat[j] // w
+        cols[j] = flat[j] - rows[j] * w
+    return rows, cols
 
-    Masks come flattened as uint8 plus a uint64 view of their whole words.
+
+@kernel
+def search_support(edge_flat, edge_words, pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
+    """Best shift for a polyline support given as row-major ``(pv, pu)``.
+
     Only the edge pixels within the window around the polyline's bounding
     box can score, so only that box of the edge mask is scanned.
     """
-    pv, pu = nonzero_in_box(poly_flat, poly_words, w, 0, h - 1, 0, w - 1)
     if pv.shape[0] == 0:
         return 0, 0
     e_rows, e_cols = nonzero_in_box(
@@ -211,3 +229,13 @@ def coarse_search(edge_flat, edge_words, poly_flat, poly_words, h, w, mv, mu):  
     )
     overlap, counts = overlap_and_counts(pv, pu, e_rows, e_cols, h, w, mv, mu)
     return best_shift(overlap, counts, mv, mu)
+
+
+@kernel
+def coarse_search(edge_flat, edge_words, poly_flat, poly_words, h, w, mv, mu):  # pragma: no cover
+    """``(dv, du)`` of the best shift; ``(0, 0)`` when no pixel can stay inside.
+
+    Masks come flattened as uint8 plus a uint64 view of their whole words.
+    """
+    pv, pu = nonzero_in_box(poly_flat, poly_words, w, 0, h - 1, 0, w - 1)
+    return search_support(edge_flat, edge_words, pv, pu, h, w, mv, mu)
