@@ -23,6 +23,7 @@ re-exported here; :func:`~dtalign.products.prepare_image`,
 
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 import time
@@ -139,11 +140,9 @@ class PolylineFit:
         The pivot-to-image-centre distance used to scale the rotation step.
     noise_sigma : float
         The image noise sigma the edge threshold used.
-    normal_covariance : ndarray, shape (P, P)
-        The pose covariance when each vertex measures only its shift along
-        its normal (see
-        :func:`~dtalign.observability.normal_information_covariance`), with
-        the LM's final weights. It decides :attr:`observable_rank`.
+    vertices_vu, normals_vu : ndarray, shape (N, 2)
+        The fitted polyline (read-only): what :attr:`normal_covariance` is
+        formed from.
     pinvh_rcond : float
         The pseudoinverse cutoff of the covariance.
     tukey_c : float
@@ -167,13 +166,39 @@ class PolylineFit:
     pivot_vu: tuple[float, float]
     pivot_distance_px: float
     noise_sigma: float
-    normal_covariance: FloatArray = field(default_factory=lambda: np.full((2, 2), np.inf))
+    vertices_vu: FloatArray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    normals_vu: FloatArray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
     pinvh_rcond: float = DEFAULT_PINVH_RCOND
     tukey_c: float = DEFAULT_TUKEY_C
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "normal_covariance", _readonly(np.asarray(self.normal_covariance)))
+        for name in ("vertices_vu", "normals_vu"):
+            object.__setattr__(self, name, _readonly(np.asarray(getattr(self, name))))
+
+    @functools.cached_property
+    def normal_covariance(self) -> FloatArray:
+        """Pose covariance when each vertex measures only its shift along its normal.
+
+        Formed by :func:`~dtalign.observability.normal_information_covariance`
+        from the polyline and the LM's final weights, on first access (it is
+        not needed by most callers, and batch fits should not pay for it).
+        It decides :attr:`observable_rank`.
+        """
+        if self.vertices_vu.shape[0] == 0:
+            n = 3 if self.fit_rotation else 2
+            return _readonly(np.full((n, n), np.inf))
+        cov = normal_information_covariance(
+            self.vertices_vu,
+            self.normals_vu,
+            np.asarray(self.lm.weights),
+            offset_vu=self.lm.offset_vu,
+            rotation_rad=self.lm.rotation_rad,
+            fit_rotation=self.fit_rotation,
+            pivot_vu=self.pivot_vu,
+            rcond=self.pinvh_rcond,
+        )
+        return _readonly(np.asarray(cov))
 
     @property
     def covariance(self) -> FloatArray:
@@ -469,16 +494,6 @@ def fit_polyline_products(
     timings.update(mask=t1 - t0, coarse=t2 - t1, lm=t3 - t2)
 
     sig_all = _sigmas_from_cov(np.asarray(lm.covariance))
-    normal_cov = normal_information_covariance(
-        verts,
-        norms,
-        np.asarray(lm.weights),
-        offset_vu=lm.offset_vu,
-        rotation_rad=lm.rotation_rad,
-        fit_rotation=fit_rotation,
-        pivot_vu=pivot,
-        rcond=pinvh_rcond,
-    )
     return PolylineFit(
         offset_vu=(float(lm.offset_vu[0]), float(lm.offset_vu[1])),
         rotation_rad=float(lm.rotation_rad),
@@ -492,7 +507,8 @@ def fit_polyline_products(
         pivot_vu=pivot,
         pivot_distance_px=float(distance),
         noise_sigma=products.noise_sigma,
-        normal_covariance=normal_cov,
+        vertices_vu=verts,
+        normals_vu=norms,
         pinvh_rcond=float(pinvh_rcond),
         tukey_c=float(tukey_c),
         timings_s=timings,
