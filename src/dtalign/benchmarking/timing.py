@@ -1,0 +1,327 @@
+"""Timing, the workload and batch sections, and the table they print.
+
+Wall time is :func:`time.perf_counter` (garbage collection paused, as
+timeit); both sides are sampled round-robin so that load drifts hit them
+alike. Peak memory is the :mod:`tracemalloc` peak of one call.
+"""
+
+from __future__ import annotations
+
+import gc
+import hashlib
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+import tracemalloc
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from .workloads import (
+    BATCH_FITS,
+    BATCH_TARGET,
+    DESCRIPTIONS,
+    TARGETS,
+    Inputs,
+    _same,
+    workload_call,
+)
+
+# ---------------------------------------------------------------------------
+# Timing
+# ---------------------------------------------------------------------------
+
+
+def _time(fn: Callable[[], Any], number: int) -> float:
+    """Mean wall time of ``number`` calls, garbage collection paused (as timeit)."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn()
+        return (time.perf_counter() - t0) / number
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def _loops(fn: Callable[[], Any], min_sample_s: float) -> int:
+    """Calls per sample so that one sample lasts at least ``min_sample_s``."""
+    once = max(_time(fn, 1), 1e-7)
+    return max(1, math.ceil(min_sample_s / once))
+
+
+def alternate(
+    fns: Sequence[Callable[[], Any]], repeats: int, min_sample_s: float
+) -> list[list[float]]:
+    """Per-call times of each callable, sampled round-robin ``repeats`` times."""
+    loops = [_loops(f, min_sample_s) for f in fns]
+    samples: list[list[float]] = [[] for _ in fns]
+    for _ in range(repeats):
+        for f, n, out in zip(fns, loops, samples, strict=True):
+            out.append(_time(f, n))
+    return samples
+
+
+def peak_bytes(fn: Callable[[], Any]) -> int:
+    """tracemalloc peak of one call (its result included), bytes."""
+    was_tracing = tracemalloc.is_tracing()
+    if not was_tracing:
+        tracemalloc.start()
+    tracemalloc.reset_peak()
+    base = tracemalloc.get_traced_memory()[0]
+    result = fn()
+    peak = tracemalloc.get_traced_memory()[1] - base
+    del result
+    if not was_tracing:
+        tracemalloc.stop()
+    return int(peak)
+
+
+def _spread(xs: Sequence[float]) -> float:
+    """Half the interquartile range relative to the median."""
+    if len(xs) < 4:
+        return (max(xs) - min(xs)) / (2 * statistics.median(xs))
+    q = statistics.quantiles(xs, n=4)
+    return (q[2] - q[0]) / (2 * statistics.median(xs))
+
+
+class _Load:
+    """CPU used by *other* processes during a block, in cores (Linux only)."""
+
+    def __enter__(self) -> _Load:
+        self.start = self._snap()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        end = self._snap()
+        self.cores: float | None = None
+        if self.start is not None and end is not None:
+            busy = (end[0] - self.start[0]) / os.sysconf("SC_CLK_TCK")
+            own = end[1] - self.start[1]
+            self.cores = max(0.0, (busy - own) / max(end[2] - self.start[2], 1e-9))
+
+    @staticmethod
+    def _snap() -> tuple[float, float, float] | None:
+        try:
+            with open("/proc/stat") as fh:
+                vals = [int(x) for x in fh.readline().split()[1:9]]
+        except OSError:
+            return None
+        t = os.times()
+        return float(sum(vals) - vals[3] - vals[4]), t.user + t.system, time.monotonic()
+
+
+# ---------------------------------------------------------------------------
+# Sections: workloads and batch
+# ---------------------------------------------------------------------------
+
+
+def measure_workloads(
+    names: Sequence[str], inputs: Inputs, repeats: int, min_sample_s: float
+) -> list[dict[str, Any]]:
+    """Time, check and memory-profile each workload; one row dict per workload."""
+    import dtalign
+
+    from .. import reference
+
+    rows = []
+    for name in names:
+        ref_fn = workload_call(name, reference, inputs)
+        jit_fn = workload_call(name, dtalign, inputs)
+        agree = _same(ref_fn(), jit_fn())
+        with _Load() as load:
+            ref_t, jit_t = alternate([ref_fn, jit_fn], repeats, min_sample_s)
+        ref_med, jit_med = statistics.median(ref_t), statistics.median(jit_t)
+        ratio = ref_med / jit_med
+        target = TARGETS[name]
+        rows.append(
+            {
+                "name": name,
+                "kind": "speed",
+                "description": DESCRIPTIONS[name],
+                "reference_s": ref_med,
+                "dtalign_s": jit_med,
+                "ratio": ratio,
+                "ratio_of_minima": min(ref_t) / min(jit_t),
+                "target": target,
+                "passed": agree and (target is None or ratio >= target),
+                "results_agree": agree,
+                "reference_times_s": ref_t,
+                "dtalign_times_s": jit_t,
+                "pair_ratios": [r / j for r, j in zip(ref_t, jit_t, strict=True)],
+                "spread": {"reference": _spread(ref_t), "dtalign": _spread(jit_t)},
+                "peak_reference_bytes": peak_bytes(ref_fn),
+                "peak_dtalign_bytes": peak_bytes(jit_fn),
+                "other_load_cores": load.cores,
+            }
+        )
+        _progress(_format_row(rows[-1]))
+    return rows
+
+
+def measure_batch(repeats: int) -> list[dict[str, Any]]:
+    """Throughput of :mod:`dtalign.batch` with 2 worker threads against 1.
+
+    ``batch_64_fits``: :func:`~dtalign.batch.fit_many`, 64 fits (the three
+    navigation polylines in turn) against one image's products.
+    ``batch_images``: :func:`~dtalign.batch.fit_images`, 4 navigation
+    images of 3 polylines each (informational). Each is alternated with a
+    control, SHA-256 of 512 KiB blocks on the same pool (C code that releases
+    the GIL): its ratio (``control_ratio``) is what the machine allowed at
+    that moment; below ~1.8 another process held the second core.
+    """
+    from .. import scenes
+    from ..batch import fit_images, fit_many, map_ordered, results_equal
+    from ..pipeline import prepare_image
+
+    scene = scenes.navigation_scene()
+    products = prepare_image(scene.image, scene.noise_sigma)
+    polys = [scene.polylines[i % len(scene.polylines)] for i in range(BATCH_FITS)]
+    images = [scenes.navigation_scene(seed=k) for k in range(4)]
+    cases = {
+        "batch_64_fits": (
+            f"fit_many: {BATCH_FITS} fits on one image, 1 vs 2 threads", BATCH_TARGET,
+            lambda w: fit_many(products, polys, search_window_vu=(30, 30), workers=w,
+                               trust_region_px=1.0)),
+        "batch_images": (
+            "fit_images: 4 images x 3 polylines, 1 vs 2 threads", None,
+            lambda w: fit_images(images, search_window_vu=(30, 30), workers=w,
+                                 trust_region_px=1.0)),
+    }
+    # Control: a C routine that releases the GIL (SHA-256 of 512 KiB), run the
+    # same way. If it does not scale either, the machine had no free core.
+    buf = bytes(range(256)) * 2048
+    control = {w: (lambda w=w: map_ordered(lambda _: hashlib.sha256(buf).digest(),
+                                           range(BATCH_FITS), workers=w)) for w in (1, 2)}
+    rows = []
+    for name, (description, target, run) in cases.items():
+        one, two = (lambda run=run: run(1)), (lambda run=run: run(2))
+        agree = results_equal(one(), two())
+        with _Load() as load:
+            t1, t2, c1, c2 = alternate([one, two, control[1], control[2]], repeats, 0.0)
+        ratio = statistics.median(t1) / statistics.median(t2)
+        control_ratio = statistics.median(c1) / statistics.median(c2)
+        rows.append({
+            "name": name, "kind": "batch", "description": description,
+            "reference_s": statistics.median(t1), "dtalign_s": statistics.median(t2),
+            "ratio": ratio, "ratio_of_minima": min(t1) / min(t2), "target": target,
+            "passed": agree and (target is None or ratio >= target), "results_agree": agree,
+            "control_ratio": control_ratio,
+            "reference_times_s": t1, "dtalign_times_s": t2,
+            "pair_ratios": [a / b for a, b in zip(t1, t2, strict=True)],
+            "other_load_cores": load.cores,
+        })
+        _progress(_format_row(rows[-1]))
+    return rows
+
+
+# ---------------------------------------------------------------------------
+# Output
+# ---------------------------------------------------------------------------
+
+
+def _fmt_s(t: float | None) -> str:
+    if t is None:
+        return "-"
+    if t < 1e-3:
+        return f"{t * 1e6:.1f} us"
+    if t < 1.0:
+        return f"{t * 1e3:.2f} ms"
+    return f"{t:.2f} s"
+
+
+def _mib(b: int | None) -> str:
+    return "-" if b is None else f"{b / 2**20:.2f} MiB"
+
+
+HEADER = ("workload", "reference", "dtalign", "ratio", "target", "status", "peak ref", "peak dtalign")
+
+
+def _cells(row: dict[str, Any]) -> tuple[str, ...]:
+    status = "pass" if row["passed"] else "FAIL"
+    if row["kind"] in ("speed", "batch"):
+        if not row.get("results_agree", True):
+            status = "FAIL (results differ)"
+        target = "-" if row["target"] is None else f">= {row['target']:g}x"
+        if row["target"] is None:
+            status = "info"
+        if "control_ratio" in row:  # what the machine itself allowed (GIL-free C code)
+            status += f" (control {row['control_ratio']:.2f}x)"
+        return (row["name"], _fmt_s(row["reference_s"]), _fmt_s(row["dtalign_s"]),
+                f"{row['ratio']:.1f}x" if row["kind"] == "speed" else f"{row['ratio']:.2f}x",
+                target, status,
+                _mib(row.get("peak_reference_bytes")), _mib(row.get("peak_dtalign_bytes")))
+    if row["kind"] == "startup":
+        target = "-" if row["target_s"] is None else f"< {row['target_s']:g} s"
+        return (row["name"], "-", _fmt_s(row["dtalign_s"]), "-", target, status, "-", "-")
+    return (row["name"], row["reference"], row["dtalign"], "-", row["target"], status, "-", "-")
+
+
+def _format_row(row: dict[str, Any]) -> str:
+    return "  ".join(_cells(row))
+
+
+def format_table(rows: list[dict[str, Any]]) -> str:
+    """The plain-text table."""
+    cells = [HEADER, *(_cells(r) for r in rows)]
+    widths = [max(len(c[i]) for c in cells) for i in range(len(HEADER))]
+    line = "  ".join("-" * w for w in widths)
+    text = [line]
+    for i, c in enumerate(cells):
+        text.append("  ".join(x.ljust(w) for x, w in zip(c, widths, strict=True)).rstrip())
+        if i == 0:
+            text.append(line)
+    text.append(line)
+    return "\n".join(text)
+
+
+def format_rst(report: dict[str, Any]) -> str:
+    """The table as an RST list-table, with the machine it was measured on."""
+    m = report["machine"]
+    out = [
+        ".. Generated by ``python -m dtalign.benchmarking --rst``; do not edit.",
+        "",
+        f"Measured {report['created']} on {m['cpu_count']} CPU(s) ({m['processor']}), "
+        f"Python {m['python']}, NumPy {m['numpy']}, Numba {m['numba']}; "
+        f"{report['settings']['mode']} run, medians of {report['settings']['repeats']} "
+        "alternating samples. Ratio = reference time / dtalign time. Batch rows: "
+        "the columns are 1 and 2 worker threads, the control is GIL-free C code "
+        "run the same way (what the machine allowed). Start-up rows: fresh "
+        "processes. Memory rows: image-sized float64 temporaries, and the LM "
+        "peak with a 512^2 / 2048^2 DT (tracemalloc).",
+        "",
+        ".. list-table::",
+        "   :header-rows: 1",
+        "",
+    ]
+    for cells in [HEADER, *(_cells(r) for r in report["rows"])]:
+        out.append("   * - " + cells[0])
+        out.extend(f"     - {c}" for c in cells[1:])
+    return "\n".join(out) + "\n"
+
+
+def machine_info() -> dict[str, Any]:
+    """CPU count and the versions the numbers depend on."""
+    import numba
+    import scipy
+
+    return {
+        "cpu_count": os.cpu_count(),
+        "processor": platform.processor() or platform.machine(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "numba": numba.__version__,
+        "loadavg": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+    }
+
+
+def _progress(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)

@@ -1,0 +1,162 @@
+"""Workloads of the benchmark table: targets, inputs and the calls timed.
+
+Every SPEC section 7 workload is a no-argument callable built by
+:func:`workload_call` for an API module (:mod:`dtalign.reference` or
+:mod:`dtalign`) on the :class:`Inputs` of :func:`build_inputs`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: Ratio targets (reference time / dtalign time, single thread); None = informational.
+TARGETS: dict[str, float | None] = {
+    "derivatives_1024": 5.0,
+    "coarse_30": 300.0,
+    "coarse_50": 300.0,
+    "lm_n200": 50.0,
+    "lm_trust_region": 50.0,
+    "lm_rotation": 50.0,
+    "lm_ridge": 40.0,
+    "lm_n2000": None,
+    "lm_n20000": 30.0,
+    "lm_outliers": None,
+    "end_to_end": 10.0,
+}
+WORKLOADS: tuple[str, ...] = tuple(TARGETS)
+DESCRIPTIONS = {
+    "derivatives_1024": "compute_all_image_derivatives, 1024x1024 disc",
+    "coarse_30": "coarse_ncc_search +-30, 200-pixel limb",
+    "coarse_50": "coarse_ncc_search +-50, 200-pixel limb",
+    "lm_n200": "lm_subpixel_refine, translation, N=200",
+    "lm_trust_region": "LM N=200, trust_region_px=1.0",
+    "lm_rotation": "LM N=200, fit_rotation (true 0.01 rad)",
+    "lm_ridge": "LM N=200, final_gradient_ridge=True",
+    "lm_n2000": "LM translation, N=2,000",
+    "lm_n20000": "LM translation, N=20,000",
+    "lm_outliers": "LM N=200, 10% outliers displaced 30 px",
+    "end_to_end": "derivatives + (mask, coarse +-30, LM tr=1) x 3 polylines",
+}
+#: Section names accepted by ``--only`` besides the workloads.
+SECTIONS = ("batch", "startup", "memory")
+BATCH_TARGET = 1.8
+BATCH_FITS = 64
+IMPORT_TARGET_S = 0.5
+FIRST_FIT_TARGET_S = 1.0
+DERIVATIVE_TEMPORARIES_TARGET = 3.0
+
+
+# ---------------------------------------------------------------------------
+# Inputs and workloads
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class Inputs:
+    """Everything the workloads read, built once (derivatives by the reference)."""
+
+    image: np.ndarray
+    noise_sigma: float
+    dt: np.ndarray
+    gradient: np.ndarray
+    edge_mask: np.ndarray
+    limb_mask: np.ndarray
+    lm: dict[str, dict[str, Any]]
+    navigation: Any
+
+
+def build_inputs() -> Inputs:
+    """Scenes of SPEC section 7 and their derivatives, computed once.
+
+    The disc and its variants share one image (only the polylines differ),
+    so one set of derivatives serves every coarse and LM workload. Each LM
+    starts from the coarse seed of its own polyline, as in production.
+    """
+    from .. import reference as ref
+    from .. import scenes
+
+    base = scenes.disc_scene()
+    _, dt, grad = ref.compute_all_image_derivatives(base.image, base.noise_sigma)
+    edge = dt <= 0.5
+    variants: dict[str, tuple[Any, dict[str, Any]]] = {
+        "lm_n200": (base, {}),
+        "lm_trust_region": (base, {"trust_region_px": 1.0}),
+        "lm_ridge": (base, {"final_gradient_ridge": True}),
+        "lm_rotation": (scenes.disc_scene(rotation_rad=0.01), {"fit_rotation": True}),
+        "lm_n2000": (scenes.disc_scene(n_vertices=2000), {}),
+        "lm_n20000": (scenes.disc_scene(n_vertices=20000), {}),
+        "lm_outliers": (scenes.disc_scene(outlier_fraction=0.1), {}),
+    }
+    lm: dict[str, dict[str, Any]] = {}
+    for name, (scene, extra) in variants.items():
+        if not np.array_equal(scene.image, base.image):  # pragma: no cover - scene change
+            raise RuntimeError(f"{name}: the scene image differs from the base disc")
+        p = scene.polyline
+        seed = ref.coarse_ncc_search(edge, ref.build_polyline_mask(p.vertices_vu, dt.shape), (30, 30))
+        kw = {
+            "vertices_vu": p.vertices_vu,
+            "normals_vu": p.normals_vu,
+            "sigma_normal_per_vertex_px": p.sigmas,
+            "image_edge_dt": dt,
+            "image_gradient_vu": grad,
+            "initial_offset_vu": (float(seed[0]), float(seed[1])),
+            **extra,
+        }
+        if extra.get("fit_rotation"):
+            kw["pivot_distance_px"] = scene.pivot_distance_px
+        lm[name] = kw
+    limb = ref.build_polyline_mask(base.polyline.vertices_vu, dt.shape)
+    return Inputs(base.image, base.noise_sigma, dt, grad, edge, limb, lm, scenes.navigation_scene())
+
+
+def end_to_end(api: Any, scene: Any, window: tuple[int, int] = (30, 30)) -> list[Any]:
+    """Derivatives, then mask + coarse search + LM (trust region 1 px) per polyline."""
+    _, dt, grad = api.compute_all_image_derivatives(scene.image, scene.noise_sigma)
+    edge = dt <= 0.5
+    fits = []
+    for p in scene.polylines:
+        seed = api.coarse_ncc_search(edge, api.build_polyline_mask(p.vertices_vu, dt.shape), window)
+        fits.append(
+            api.lm_subpixel_refine(
+                vertices_vu=p.vertices_vu,
+                normals_vu=p.normals_vu,
+                sigma_normal_per_vertex_px=p.sigmas,
+                image_edge_dt=dt,
+                image_gradient_vu=grad,
+                initial_offset_vu=(float(seed[0]), float(seed[1])),
+                trust_region_px=1.0,
+            )
+        )
+    return fits
+
+
+def workload_call(name: str, api: Any, inputs: Inputs) -> Callable[[], Any]:
+    """A no-argument callable running workload ``name`` with ``api`` (a module)."""
+    if name == "derivatives_1024":
+        return lambda: api.compute_all_image_derivatives(inputs.image, inputs.noise_sigma)
+    if name in ("coarse_30", "coarse_50"):
+        m = int(name[-2:])
+        return lambda: api.coarse_ncc_search(inputs.edge_mask, inputs.limb_mask, (m, m))
+    if name == "end_to_end":
+        return lambda: end_to_end(api, inputs.navigation)
+    kw = inputs.lm[name]
+    return lambda: api.lm_subpixel_refine(**kw)
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two workload results agree (a sanity check, not the parity suite)."""
+    if isinstance(a, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if hasattr(a, "offset_vu"):
+        return bool(
+            np.allclose(a.offset_vu, b.offset_vu, rtol=0, atol=1e-9)
+            and abs(a.rotation_rad - b.rotation_rad) <= 1e-9
+            and a.iterations == b.iterations
+        )
+    if isinstance(a, tuple) and a and isinstance(a[0], np.ndarray):
+        return all(np.allclose(x, y, rtol=1e-10, atol=1e-10) for x, y in zip(a, b, strict=True))
+    return bool(a == b)
