@@ -28,9 +28,15 @@ def rasterise(pts, h, w):  # pragma: no cover - compiled
     return mask
 
 
+#: Pixels the first scan of :func:`nonzero_in_box` has room for.
+FIRST_BUFFER = 1 << 13
+
+
 @kernel
 def _fill(flat, words, start, stop, out, k):  # pragma: no cover - compiled
     """Write the indices of the nonzero bytes of ``flat[start:stop]`` from ``out[k]``.
+
+    Returns the new count; indices past ``out``'s end are counted, not written.
 
     The aligned middle is read as uint64 words (``words`` views the same
     buffer), eight at a time: almost every word of a sparse mask is zero, so
@@ -40,7 +46,8 @@ def _fill(flat, words, start, stop, out, k):  # pragma: no cover - compiled
     j1 = max(stop // 8, j0)
     for i in range(start, min(j0 * 8, stop)):
         if flat[i] != 0:
-            out[k] = i
+            if k < out.shape[0]:
+                out[k] = i
             k += 1
     j = j0
     while j < j1:
@@ -53,12 +60,14 @@ def _fill(flat, words, start, stop, out, k):  # pragma: no cover - compiled
         if words[j] != 0:
             for i in range(8 * j, 8 * j + 8):
                 if flat[i] != 0:
-                    out[k] = i
+                    if k < out.shape[0]:
+                        out[k] = i
                     k += 1
         j += 1
     for i in range(max(j1 * 8, start), stop):
         if flat[i] != 0:
-            out[k] = i
+            if k < out.shape[0]:
+                out[k] = i
             k += 1
     return k
 
@@ -68,28 +77,38 @@ def nonzero_in_box(flat, words, width, r_lo, r_hi, c_lo, c_hi):  # pragma: no co
     """Row-major ``(rows, cols)`` of the nonzero bytes in rows ``r_lo..r_hi``
     and columns ``c_lo..c_hi`` of a flattened uint8 mask (typically sparse).
 
-    One pass: the output buffer is allocated for the whole box (untouched
-    pages of a large allocation cost nothing) and trimmed. A box spanning
-    whole rows is scanned as one contiguous run.
+    Masks are sparse: the scan fills a buffer sized for a few thousand
+    pixels, and only a denser mask (more pixels than that) is scanned a
+    second time into a buffer of the exact size. No allocation scales with
+    the box, which keeps threads out of the allocator. A box spanning whole
+    rows is scanned as one contiguous run.
     """
     whole_rows = c_lo == 0 and c_hi == width - 1
     n_runs = 1 if whole_rows else r_hi - r_lo + 1
     span = (r_hi - r_lo + 1) * width if whole_rows else c_hi - c_lo + 1
     first = r_lo * width + (0 if whole_rows else c_lo)
     step = 0 if whole_rows else width
-    index = np.empty(n_runs * span, dtype=np.int64)
-    rows = np.empty(n_runs * span, dtype=np.int64)
-    k = 0
-    for run in range(n_runs):
-        k0 = k
-        k = _fill(flat, words, first + run * step, first + run * step + span, index, k)
-        for j in range(k0, k):
-            # an integer division per pixel costs more than the scan itself
-            rows[j] = index[j] // width if whole_rows else r_lo + run
+    index = np.empty(min(n_runs * span, FIRST_BUFFER), dtype=np.int64)
+    run_end = np.empty(n_runs, dtype=np.int64)
+    for _attempt in range(2):  # the second pass only for a dense mask
+        k = 0
+        for run in range(n_runs):
+            k = _fill(flat, words, first + run * step, first + run * step + span, index, k)
+            run_end[run] = k
+        if k <= index.shape[0]:
+            break
+        index = np.empty(k, dtype=np.int64)
+    rows = np.empty(k, dtype=np.int64)
     cols = np.empty(k, dtype=np.int64)
-    for j in range(k):
-        cols[j] = index[j] - rows[j] * width
-    return rows[:k].copy(), cols
+    j = 0
+    for run in range(n_runs):
+        while j < run_end[run]:
+            # an integer division per pixel costs more than the scan itself
+            r = index[j] // width if whole_rows else r_lo + run
+            rows[j] = r
+            cols[j] = index[j] - r * width
+            j += 1
+    return rows, cols
 
 
 @kernel
