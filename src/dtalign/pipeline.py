@@ -149,7 +149,7 @@ class PolylineFit:
         The Tukey cutoff used, in units of each vertex's sigma.
     timings_s : dict
         Wall time of each stage in seconds (``noise``, ``derivatives`` when
-        the products were computed here, ``mask``, ``coarse``, ``lm``).
+        the products were computed here, ``coarse``, ``lm``).
 
     Instances compare by identity; compare fields to compare fits.
     """
@@ -385,9 +385,10 @@ def fit_polyline_products(
 ) -> PolylineFit:
     """Fit one polyline against precomputed image products.
 
-    Steps: rasterise the polyline (:func:`dtalign.build_polyline_mask`),
-    find the integer seed (:func:`dtalign.coarse_ncc_search` against
-    ``products.edge_mask``), then refine from the seed with
+    Steps: find the integer seed of the rasterised polyline against
+    ``products.edge_mask`` (:func:`dtalign.coarse.coarse_search_vertices`:
+    :func:`dtalign.coarse_ncc_search` of :func:`dtalign.build_polyline_mask`,
+    without building the mask), then refine from the seed with
     :func:`dtalign.lm_subpixel_refine`.
 
     Parameters
@@ -460,7 +461,6 @@ def fit_polyline_products(
 
     api = _api()
     timings: dict[str, float] = dict(products.timings_s)
-    t0 = time.perf_counter()
     # The coarse search of build_polyline_mask(verts), without building the
     # image-sized mask (same pixels, same result; see coarse_search_vertices).
     from .coarse import coarse_search_vertices
@@ -491,7 +491,7 @@ def fit_polyline_products(
         final_gradient_ridge=final_gradient_ridge,
     )
     t3 = time.perf_counter()
-    timings.update(mask=t1 - t0, coarse=t2 - t1, lm=t3 - t2)
+    timings.update(coarse=t2 - t1, lm=t3 - t2)
 
     sig_all = _sigmas_from_cov(np.asarray(lm.covariance))
     return PolylineFit(
