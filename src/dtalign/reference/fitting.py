@@ -145,9 +145,10 @@ def _step_norm(step: FloatArray, pivot_distance_px: float) -> float:
 def _solve_normal_equations(matrix: FloatArray, rhs: FloatArray, rcond: float) -> FloatArray:
     """``-solve(matrix, rhs)``, the pseudoinverse when the solve is singular."""
     try:
-        return -np.linalg.solve(matrix, rhs)
+        step = -np.linalg.solve(matrix, rhs)
     except np.linalg.LinAlgError:
-        return -(scipy.linalg.pinvh(matrix, rtol=rcond) @ rhs)
+        step = -(scipy.linalg.pinvh(matrix, rtol=rcond) @ rhs)
+    return np.asarray(step, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------
@@ -284,6 +285,7 @@ def lm_subpixel_refine(
     pivot = a.pivot
 
     if a.use_polarity:
+        assert grad is not None  # check_lm_inputs refused use_polarity without it
         polarity = _polarity(pts, nrm, grad, dv0, du0)
     else:
         polarity = np.ones(pts.shape[0], dtype=bool)
@@ -358,6 +360,7 @@ def lm_subpixel_refine(
     r, w, jac = state
 
     if a.final_gradient_ridge and (w > 0).any():
+        assert grad is not None  # check_lm_inputs refused the ridge without it
         magnitude = np.hypot(grad[:, :, 0], grad[:, :, 1])
         ridge = _ridge(
             pts, nrm, sig, magnitude, pose, a.fit_rotation, pivot, a.pivot_distance,
@@ -433,7 +436,7 @@ def gradient_ridge_refine(
 
 def _ridge_offsets(
     magnitude: FloatArray, pts: FloatArray, nrm: FloatArray, pose: FloatArray,
-    pivot: tuple[float, float], t: FloatArray, step: float,
+    pivot: tuple[float, float], t: np.ndarray, step: float,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Sub-pixel peak offset ``t*`` along each normal, validity, and normals."""
     n_rot = _rotate_normals(nrm, pose[2])
