@@ -69,6 +69,39 @@ class LMRefineResult:
         for name in ("covariance", "residuals_px", "weights"):
             object.__setattr__(self, name, _readonly(name, getattr(self, name)))
 
+    @classmethod
+    def _from_kernel(
+        cls,
+        offset_vu: tuple[float, float],
+        rotation_rad: float,
+        covariance: NDArray[np.float64],
+        residuals_px: NDArray[np.float64],
+        weights: NDArray[np.float64],
+        rms_px: float,
+        raw_rms_px: float,
+        iterations: int,
+        converged: bool,
+        inlier_count: int,
+        degenerate: bool,
+    ) -> LMRefineResult:
+        """Wrap arrays a kernel just allocated (nobody else holds them).
+
+        Same fields and invariants as the constructor; the arrays are made
+        read-only in place instead of through views, and the frozen
+        ``__setattr__`` is bypassed once: this runs on every fit and the
+        generated ``__init__`` costs several microseconds.
+        """
+        for arr in (covariance, residuals_px, weights):
+            arr.flags.writeable = False
+        obj = object.__new__(cls)
+        obj.__dict__.update(
+            offset_vu=offset_vu, rotation_rad=rotation_rad, covariance=covariance,
+            residuals_px=residuals_px, weights=weights, rms_px=rms_px, raw_rms_px=raw_rms_px,
+            iterations=iterations, converged=converged, inlier_count=inlier_count,
+            degenerate=degenerate,
+        )
+        return obj
+
 
 @dataclass(frozen=True)
 class RidgeRefineResult:

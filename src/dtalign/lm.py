@@ -135,16 +135,7 @@ def _fit(a: LMArgs) -> LMRefineResult:
             "the fit diverged to non-finite values: image_edge_dt (or the sigmas' "
             "1/sigma^2 weights) too large for the normal equations"
         )
-    return LMRefineResult(
-        offset_vu=(float(pose[0]), float(pose[1])),
-        rotation_rad=float(pose[2]),
-        covariance=cov,
-        residuals_px=r,
-        weights=w,
-        rms_px=float(rms),
-        raw_rms_px=float(raw_rms),
-        iterations=int(iterations),
-        converged=bool(converged),
-        inlier_count=int(inliers),
-        degenerate=bool(degenerate),
+    return LMRefineResult._from_kernel(
+        (float(pose[0]), float(pose[1])), float(pose[2]), cov, r, w, float(rms),
+        float(raw_rms), int(iterations), bool(converged), int(inliers), bool(degenerate),
     )
