@@ -235,7 +235,8 @@ def tukey_biweight_weights(residuals: Any, *, c: float = DEFAULT_TUKEY_C) -> Flo
 
 def _tukey(r: FloatArray, c: float) -> FloatArray:
     s = r / c
-    return np.where(np.abs(s) <= 1.0, (1.0 - s * s) ** 2, 0.0)
+    with np.errstate(over="ignore"):  # huge |s| overflow only in the discarded branch
+        return np.where(np.abs(s) <= 1.0, (1.0 - s * s) ** 2, 0.0)
 
 
 def information_matrix_to_covariance(
