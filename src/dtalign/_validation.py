@@ -266,13 +266,27 @@ def _normals_shape(value: Any, n_vertices: int) -> FloatArray:
     return arr
 
 
-def _sigmas_shape(value: Any, n_vertices: int) -> FloatArray:
-    arr = _as_float_array(value, "sigma_normal_per_vertex_px")
+def _sigmas_shape(value: Any, n_vertices: int, name: str = "sigma_normal_per_vertex_px") -> FloatArray:
+    arr = _as_float_array(value, name)
     if arr.ndim != 1 or arr.shape[0] != n_vertices:
         raise ValueError(
-            "sigma_normal_per_vertex_px must be a 1-D vector of length "
-            f"{n_vertices}, got shape {arr.shape}"
+            f"{name} must be a 1-D vector of length {n_vertices}, got shape {arr.shape}"
         )
+    return arr
+
+
+def sigmas(value: Any, n_vertices: int, name: str = "sigma_normal_per_vertex_px") -> FloatArray:
+    """Per-vertex prior sigmas: 1-D, length N, finite, > 0, with finite ``1/sigma^2``.
+
+    The NumPy form of the checks :func:`polyline` runs compiled, for
+    callers (the pipeline) whose argument has another name.
+    """
+    arr = _sigmas_shape(value, n_vertices, name)
+    with np.errstate(over="ignore", divide="ignore"):
+        ok = bool(np.isfinite(arr).all() and (arr > 0.0).all()
+                  and np.isfinite(1.0 / (arr * arr)).all())
+    if not ok:
+        raise ValueError(f"{name} must be finite and > 0 (and 1/sigma^2 representable)")
     return arr
 
 

@@ -342,22 +342,6 @@ class PolylineFit:
 # ---------------------------------------------------------------------------
 
 
-def _check_sigmas(value: Any, n_vertices: int) -> FloatArray:
-    """Per-vertex prior sigmas: 1-D, length N, finite and > 0."""
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"sigmas must be a numeric array: {exc}") from None
-    if arr.ndim != 1 or arr.shape[0] != n_vertices:
-        raise ValueError(
-            f"sigmas must be a 1-D vector of length {n_vertices} (one per vertex), "
-            f"got shape {arr.shape}"
-        )
-    if not (np.isfinite(arr).all() and (arr > 0.0).all()):
-        raise ValueError("sigmas must be finite and > 0")
-    return np.ascontiguousarray(arr)
-
-
 def _at_window_edge(coarse: tuple[int, int], window: tuple[int, int]) -> bool:
     return any(m > 0 and abs(c) >= m for c, m in zip(coarse, window, strict=False))
 
@@ -442,7 +426,7 @@ def fit_polyline_products(
         raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
     verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
     norms = check.normals(normals_vu, verts.shape[0])
-    sig = _check_sigmas(sigmas, verts.shape[0])
+    sig = check.sigmas(sigmas, verts.shape[0], "sigmas")
     window = check.search_window(search_window_vu)
     fit_rotation = bool(fit_rotation)
     pivot = check.resolve_pivot(verts, pivot_vu)
