@@ -234,8 +234,9 @@ def tukey_biweight_weights(residuals: Any, *, c: float = DEFAULT_TUKEY_C) -> Flo
 
 
 def _tukey(r: FloatArray, c: float) -> FloatArray:
-    s = r / c
-    with np.errstate(over="ignore"):  # huge |s| overflow only in the discarded branch
+    # a huge |r / c| overflows only where the biweight is 0 anyway
+    with np.errstate(over="ignore"):
+        s = r / c
         return np.where(np.abs(s) <= 1.0, (1.0 - s * s) ** 2, 0.0)
 
 
