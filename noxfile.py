@@ -48,7 +48,8 @@ def bench(session: nox.Session) -> None:
     """Benchmark table: reference vs dtalign on SPEC section 7 workloads."""
     session.install(".[test]")
     session.run(
-        "python", "-m", "dtalign.benchmarking", "--rst", "docs/_generated/bench_table.rst",
+        "python", "-m", "dtalign.benchmarking", "--json", "benchmarks/results/latest.json",
+        "--rst", "docs/_generated/bench_table.rst",
         *session.posargs,
     )
 

@@ -158,8 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=None, help="alternating samples per side")
     p.add_argument("--startup", choices=("quick", "full", "none"), default=None,
                    help="start-up section depth (default: quick with --quick, else full)")
-    p.add_argument("--json", default="benchmarks/results/latest.json",
-                   help="where to write the JSON report ('' to skip)")
+    p.add_argument("--json", default=None,
+                   help="also write the JSON report here (nox -s bench: "
+                        "benchmarks/results/latest.json)")
     p.add_argument("--rst", default=None, help="also write the table as RST to this path")
     p.add_argument("--strict", action="store_true", help="exit 1 when a target is missed")
     p.add_argument("--list", action="store_true", help="list the workloads and exit")
