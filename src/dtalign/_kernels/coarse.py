@@ -4,7 +4,7 @@ Instead of gathering edge pixels once per shift (what the reference does),
 each polyline pixel scatters its contribution into the whole score table,
 visiting only the edge pixels that can meet it: the work is proportional
 to the pixel pairs within the window, not to the window area times the
-polyline length. Masks are scanned a word at a time. Scores are the same
+polyline length. Masks are scanned a word at a time (:mod:`.bits`). Scores are the same
 integer ratios as the reference, and the argmax uses the same total
 order, so the result is identical.
 """
@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import kernel
+from .bits import fill
 
 
 @kernel
@@ -33,46 +34,6 @@ FIRST_BUFFER = 1 << 13
 
 
 @kernel
-def _fill(flat, words, start, stop, out, k):  # pragma: no cover - compiled
-    """Write the indices of the nonzero bytes of ``flat[start:stop]`` from ``out[k]``.
-
-    Returns the new count; indices past ``out``'s end are counted, not written.
-
-    The aligned middle is read as uint64 words (``words`` views the same
-    buffer), eight at a time: almost every word of a sparse mask is zero, so
-    the common step tests 64 bytes with one branch.
-    """
-    j0 = min((start + 7) // 8, stop // 8)
-    j1 = max(stop // 8, j0)
-    for i in range(start, min(j0 * 8, stop)):
-        if flat[i] != 0:
-            if k < out.shape[0]:
-                out[k] = i
-            k += 1
-    j = j0
-    while j < j1:
-        if j + 8 <= j1 and (
-            words[j] | words[j + 1] | words[j + 2] | words[j + 3]
-            | words[j + 4] | words[j + 5] | words[j + 6] | words[j + 7]
-        ) == 0:
-            j += 8
-            continue
-        if words[j] != 0:
-            for i in range(8 * j, 8 * j + 8):
-                if flat[i] != 0:
-                    if k < out.shape[0]:
-                        out[k] = i
-                    k += 1
-        j += 1
-    for i in range(max(j1 * 8, start), stop):
-        if flat[i] != 0:
-            if k < out.shape[0]:
-                out[k] = i
-            k += 1
-    return k
-
-
-@kernel
 def nonzero_in_box(flat, words, width, r_lo, r_hi, c_lo, c_hi):  # pragma: no cover - compiled
     """Row-major ``(rows, cols)`` of the nonzero bytes in rows ``r_lo..r_hi``
     and columns ``c_lo..c_hi`` of a flattened uint8 mask (typically sparse).
@@ -80,10 +41,12 @@ def nonzero_in_box(flat, words, width, r_lo, r_hi, c_lo, c_hi):  # pragma: no co
     Masks are sparse: the scan fills a buffer sized for a few thousand
     pixels, and only a denser mask (more pixels than that) is scanned a
     second time into a buffer of the exact size. No allocation scales with
-    the box, which keeps threads out of the allocator. A box spanning whole
-    rows is scanned as one contiguous run.
+    the box, which keeps threads out of the allocator. A box at least a
+    quarter of the image wide is scanned as one contiguous run of whole
+    rows, its pixels outside the columns dropped afterwards: long runs scan
+    fastest, and masks are sparse outside the box too.
     """
-    whole_rows = c_lo == 0 and c_hi == width - 1
+    whole_rows = 4 * (c_hi - c_lo + 1) >= width
     n_runs = 1 if whole_rows else r_hi - r_lo + 1
     span = (r_hi - r_lo + 1) * width if whole_rows else c_hi - c_lo + 1
     first = r_lo * width + (0 if whole_rows else c_lo)
@@ -93,20 +56,33 @@ def nonzero_in_box(flat, words, width, r_lo, r_hi, c_lo, c_hi):  # pragma: no co
     for _attempt in range(2):  # the second pass only for a dense mask
         k = 0
         for run in range(n_runs):
-            k = _fill(flat, words, first + run * step, first + run * step + span, index, k)
+            k = fill(flat, words, first + run * step, first + run * step + span, index, k)
             run_end[run] = k
         if k <= index.shape[0]:
             break
         index = np.empty(k, dtype=np.int64)
     rows = np.empty(k, dtype=np.int64)
     cols = np.empty(k, dtype=np.int64)
+    n = 0
+    if whole_rows:
+        # indices ascend, so the row only ever steps forward (no division)
+        r = r_lo
+        row_start = r_lo * width
+        for j in range(k):
+            while index[j] >= row_start + width:
+                r += 1
+                row_start += width
+            c = index[j] - row_start
+            if c_lo <= c <= c_hi:
+                rows[n] = r
+                cols[n] = c
+                n += 1
+        return rows[:n], cols[:n]
     j = 0
     for run in range(n_runs):
         while j < run_end[run]:
-            # an integer division per pixel costs more than the scan itself
-            r = index[j] // width if whole_rows else r_lo + run
-            rows[j] = r
-            cols[j] = index[j] - r * width
+            rows[j] = r_lo + run
+            cols[j] = index[j] - (r_lo + run) * width
             j += 1
     return rows, cols
 
