@@ -188,3 +188,124 @@ def test_results_equal(products, polylines):
     assert not results_equal(np.zeros(2), np.zeros(3))
     assert not results_equal(a, a.lm)
     assert results_equal(float("nan"), float("nan"))
+
+
+def _serial_error(products, items, **options):
+    """The exception the serial loop raises for ``items`` (None if none)."""
+    try:
+        for v, n, s in items:
+            fit_polyline_products(products, v, n, s, search_window_vu=WINDOW, **options)
+    except (TypeError, ValueError) as exc:
+        return exc
+    return None
+
+
+def _bad_variants(p):
+    """Polylines that fail a different check each, as fitting them alone reports."""
+    v, n, s = p.vertices_vu, p.normals_vu, p.sigmas
+    nan_v = v.copy()
+    nan_v[3, 0] = np.nan
+    inf_n = n.copy()
+    inf_n[5, 1] = np.inf
+    huge = np.full_like(v, 1e308)
+    return {
+        "nan vertex": (nan_v, n, s),
+        "inf normal": (v, inf_n, s),
+        "zero sigma": (v, n, np.where(np.arange(s.size) == 7, 0.0, s)),
+        "tiny sigma": (v, n, np.full_like(s, 1e-200)),
+        "normals shape": (v, n[:-1], s),
+        "sigmas shape": (v, n, s[:-1]),
+        "vertices shape": (v[:, :1], n, s),
+        "empty": (v[:0], n[:0], s[:0]),
+        "strings": (v.astype(str), n, s),
+        "centroid overflow": (huge, n, s),
+    }
+
+
+@pytest.mark.parametrize("kind", sorted(_bad_variants(scenes.disc_scene(n_vertices=16).polyline)))
+@pytest.mark.parametrize("position", [0, 1, 5])
+@pytest.mark.parametrize("workers", [1, 2])
+def test_fit_many_raises_what_the_serial_loop_raises(products, polylines, kind, position, workers):
+    items = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines[:8]]
+    items[position] = _bad_variants(polylines[position])[kind]
+    expected = _serial_error(products, items)
+    assert expected is not None
+    with pytest.raises(type(expected)) as info:
+        fit_many(products, items, search_window_vu=WINDOW, workers=workers)
+    assert str(info.value) == str(expected)
+
+
+def test_fit_many_rotation_pivot_spread_error_in_the_middle(products, polylines):
+    # With a far pivot, a polyline of huge coordinates overflows only when rotated.
+    items = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines[:4]]
+    items[2] = (np.full((6, 2), 1e308), polylines[2].normals_vu[:6], polylines[2].sigmas[:6])
+    options = {"fit_rotation": True, "pivot_vu": (-1e308, 0.0), "pivot_distance_px": 50.0}
+    expected = _serial_error(products, items, **options)
+    assert expected is not None
+    with pytest.raises(type(expected)) as info:
+        fit_many(products, items, search_window_vu=WINDOW, workers=2, **options)
+    assert str(info.value) == str(expected)
+
+
+def test_fit_many_first_error_in_input_order_beats_later_ones(products, polylines):
+    bad = _bad_variants(polylines[0])
+    items = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines[:10]]
+    items[3] = bad["inf normal"]
+    items[8] = bad["nan vertex"]
+    with pytest.raises(ValueError, match="normals_vu must be finite"):
+        fit_many(products, items, search_window_vu=WINDOW, workers=2)
+
+
+def test_fit_many_kernel_error_before_a_bad_polyline_comes_first(nav):
+    # A NaN in the DT where polyline 0's fit reads it fails in the kernel;
+    # polyline 1 is malformed. The serial loop stops at polyline 0.
+    prods = prepare_image(nav.image, nav.noise_sigma)
+    dt = np.array(prods.edge_dt)
+    p = nav.polylines[0]
+    iv, iu = np.rint(p.vertices_vu[0] + 0.0).astype(int)
+    dt[max(iv - 20, 0) : iv + 20, max(iu - 20, 0) : iu + 20] = np.nan
+    import dataclasses
+
+    broken = dataclasses.replace(prods, edge_dt=dt)
+    items = [(p.vertices_vu, p.normals_vu, p.sigmas), _bad_variants(p)["nan vertex"]]
+    expected = _serial_error(broken, items)
+    assert expected is not None and "image_edge_dt" in str(expected)
+    with pytest.raises(ValueError) as info:
+        fit_many(broken, items, search_window_vu=WINDOW, workers=2)
+    assert str(info.value) == str(expected)
+
+
+def test_fit_many_converts_layouts_like_the_serial_calls(products, polylines):
+    items = []
+    for k, p in enumerate(polylines):
+        v, n, s = p.vertices_vu, p.normals_vu, p.sigmas
+        if k % 4 == 1:
+            v, n, s = v.astype(np.float32), n.tolist(), s.astype(np.float32)
+        elif k % 4 == 2:
+            v, n = np.asfortranarray(v), n[::-1][::-1].copy(order="F")
+        elif k % 4 == 3:
+            v = v.astype(">f8")
+        items.append((v, n, s))
+    serial = [fit_polyline_products(products, *it, search_window_vu=WINDOW) for it in items]
+    assert results_equal(fit_many(products, items, search_window_vu=WINDOW, workers=2), serial)
+
+
+def test_batch_fit_results_are_read_only_and_independent(products, polylines):
+    fits = fit_many(products, polylines[:4], search_window_vu=WINDOW, workers=2)
+    for f in fits:
+        for arr in (f.vertices_vu, f.normals_vu, f.lm.residuals_px, f.lm.weights, f.lm.covariance):
+            assert not arr.flags.writeable
+        assert set(f.timings_s) >= {"fit"}
+    fits[0].timings_s["fit"] = -1.0
+    assert fits[1].timings_s["fit"] >= 0.0
+
+
+def test_nested_map_ordered_does_not_deadlock(products, polylines):
+    # fn itself fans out on the same kept-alive pool: must finish, in order.
+    def inner(k):
+        return fit_many(products, polylines[k : k + 3], search_window_vu=WINDOW, workers=2)
+
+    with ThreadPoolExecutor(max_workers=1) as guard:  # a deadlock fails instead of hanging
+        got = guard.submit(map_ordered, inner, range(4), workers=2).result(timeout=120)
+    for k, fits in enumerate(got):
+        assert results_equal(fits, _serial(products, polylines[k : k + 3]))

@@ -126,6 +126,16 @@ def _fit(a: LMArgs) -> LMRefineResult:
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
         DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(),
     )
+    if error != _k.OK:
+        _raise_for(int(error))
+    return LMRefineResult._from_kernel(
+        (float(pose[0]), float(pose[1])), float(pose[2]), cov, r, w, float(rms),
+        float(raw_rms), int(iterations), bool(converged), int(inliers), bool(degenerate),
+    )
+
+
+def _raise_for(error: int) -> None:
+    """Raise the ValueError of a :mod:`dtalign._kernels.fit` error code."""
     if error == _k.BAD_GRADIENT:
         raise nonfinite_read("image_gradient_vu")
     if error == _k.BAD_DT:
@@ -135,7 +145,4 @@ def _fit(a: LMArgs) -> LMRefineResult:
             "the fit diverged to non-finite values: image_edge_dt (or the sigmas' "
             "1/sigma^2 weights) too large for the normal equations"
         )
-    return LMRefineResult._from_kernel(
-        (float(pose[0]), float(pose[1])), float(pose[2]), cov, r, w, float(rms),
-        float(raw_rms), int(iterations), bool(converged), int(inliers), bool(degenerate),
-    )
+    raise AssertionError(f"unknown fit error code {error}")  # pragma: no cover

@@ -24,9 +24,7 @@ re-exported here; :func:`~dtalign.products.prepare_image`,
 from __future__ import annotations
 
 import functools
-import importlib
 import math
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -67,37 +65,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-_FITTER_NAMES = (
-    "build_polyline_mask",
-    "coarse_ncc_search",
-    "compute_all_image_derivatives",
-    "compute_image_gradient_vu",
-    "information_matrix_to_covariance",
-    "lm_subpixel_refine",
-)
-
-
-class _Fitter:
-    """The compiled implementation, looked up on the top-level package.
-
-    Looked up lazily: ``dtalign/__init__`` re-exports this module, so a
-    module-level ``from dtalign import ...`` here would be circular.
-    """
-
-    def __getattr__(self, name: str) -> Any:
-        if name not in _FITTER_NAMES:
-            raise AttributeError(name)
-        return getattr(importlib.import_module("dtalign"), name)
-
-
-_FITTER = _Fitter()
-
-
-def _api() -> Any:
-    """The fitting and image functions of the compiled implementation."""
-    return _FITTER
-
 
 # ---------------------------------------------------------------------------
 # Fit result
@@ -149,7 +116,9 @@ class PolylineFit:
         The Tukey cutoff used, in units of each vertex's sigma.
     timings_s : dict
         Wall time of each stage in seconds (``noise``, ``derivatives`` when
-        the products were computed here, ``coarse``, ``lm``).
+        the products were computed here, ``coarse``, ``lm``). Fits of
+        :func:`dtalign.batch.fit_many` have ``fit`` instead of ``coarse`` and
+        ``lm``: their chunk's compiled call time divided by its fits.
 
     Instances compare by identity; compare fields to compare fits.
     """
@@ -342,10 +311,6 @@ class PolylineFit:
 # ---------------------------------------------------------------------------
 
 
-def _at_window_edge(coarse: tuple[int, int], window: tuple[int, int]) -> bool:
-    return any(m > 0 and abs(c) >= m for c, m in zip(coarse, window, strict=False))
-
-
 def fit_polyline_products(
     products: ImageProducts,
     vertices_vu: Any,
@@ -422,81 +387,20 @@ def fit_polyline_products(
         On malformed vertices, normals, sigmas, window, pivot or LM
         parameters; the message names the argument.
     """
-    if not isinstance(products, ImageProducts):
-        raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
-    verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
-    norms = check.normals(normals_vu, verts.shape[0])
-    sig = check.sigmas(sigmas, verts.shape[0], "sigmas")
-    window = check.search_window(search_window_vu)
-    fit_rotation = bool(fit_rotation)
-    pivot = check.resolve_pivot(verts, pivot_vu)
-    if pivot_distance_px is None:
-        if fit_rotation:
-            h, w = products.shape
-            distance = max(math.hypot(pivot[0] - (h - 1) / 2.0, pivot[1] - (w - 1) / 2.0), 1.0)
-        else:
-            distance = 0.0
-    else:
-        distance = check.finite_real(pivot_distance_px, "pivot_distance_px")
-        if fit_rotation and distance <= 0.0:
-            raise ValueError(
-                f"fit_rotation=True requires a finite pivot_distance_px > 0, got {distance!r}"
-            )
+    from . import _fitjobs
 
-    api = _api()
-    timings: dict[str, float] = dict(products.timings_s)
-    # The coarse search of build_polyline_mask(verts), without building the
-    # image-sized mask (same pixels, same result; see coarse_search_vertices).
-    from .coarse import coarse_search_vertices
-
-    t1 = time.perf_counter()
-    coarse = coarse_search_vertices(products.edge_mask, verts, window)
-    coarse = (int(coarse[0]), int(coarse[1]))
-    t2 = time.perf_counter()
-    lm = api.lm_subpixel_refine(
-        vertices_vu=verts,
-        normals_vu=norms,
-        sigma_normal_per_vertex_px=sig,
-        image_edge_dt=products.edge_dt,
-        image_gradient_vu=products.gradient_vu,
-        initial_offset_vu=(float(coarse[0]), float(coarse[1])),
-        initial_rotation_rad=initial_rotation_rad,
-        fit_rotation=fit_rotation,
-        pivot_vu=pivot,
-        pivot_distance_px=distance,
-        use_polarity=use_polarity,
-        max_iterations=max_iterations,
-        damping=damping,
-        step_tolerance_px=step_tolerance_px,
-        tukey_c=tukey_c,
-        pinvh_rcond=pinvh_rcond,
-        trust_region_px=trust_region_px,
-        tikhonov_alpha=tikhonov_alpha,
-        final_gradient_ridge=final_gradient_ridge,
+    shared, item = _fitjobs.plan(
+        products, vertices_vu, normals_vu, sigmas, search_window_vu=search_window_vu,
+        fit_rotation=fit_rotation, pivot_vu=pivot_vu, pivot_distance_px=pivot_distance_px,
+        lm_options={
+            "use_polarity": use_polarity, "max_iterations": max_iterations, "damping": damping,
+            "step_tolerance_px": step_tolerance_px, "tukey_c": tukey_c,
+            "pinvh_rcond": pinvh_rcond, "trust_region_px": trust_region_px,
+            "tikhonov_alpha": tikhonov_alpha, "final_gradient_ridge": final_gradient_ridge,
+            "initial_rotation_rad": initial_rotation_rad,
+        },
     )
-    t3 = time.perf_counter()
-    timings.update(coarse=t2 - t1, lm=t3 - t2)
-
-    sig_all = _sigmas_from_cov(np.asarray(lm.covariance))
-    return PolylineFit(
-        offset_vu=(float(lm.offset_vu[0]), float(lm.offset_vu[1])),
-        rotation_rad=float(lm.rotation_rad),
-        sigma_vu=(float(sig_all[0]), float(sig_all[1])),
-        sigma_rotation_rad=float(sig_all[2]) if fit_rotation else None,
-        coarse_offset_vu=coarse,
-        at_window_edge=_at_window_edge(coarse, window),
-        lm=lm,
-        search_window_vu=window,
-        fit_rotation=fit_rotation,
-        pivot_vu=pivot,
-        pivot_distance_px=float(distance),
-        noise_sigma=products.noise_sigma,
-        vertices_vu=verts,
-        normals_vu=norms,
-        pinvh_rcond=float(pinvh_rcond),
-        tukey_c=float(tukey_c),
-        timings_s=timings,
-    )
+    return _fitjobs.fit_one(shared, item)
 
 
 def fit_polyline(

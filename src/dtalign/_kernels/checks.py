@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .._jit import kernel
 
 #: Status codes of :func:`polyline_status`, in SPEC section 1's check order.
@@ -43,3 +45,24 @@ def polyline_status(pts, nrm, sig):  # pragma: no cover - compiled
     if not (math.isfinite(c_v) and math.isfinite(c_u)):
         return BAD_CENTROID, 0.0, 0.0
     return OK, c_v, c_u
+
+
+@kernel
+def polylines_status(pts, nrm, sig, starts):  # pragma: no cover - compiled
+    """:func:`polyline_status` of each polyline ``starts[j]:starts[j+1]`` of
+    the concatenated arrays, up to the first that fails.
+
+    Returns ``(j, status, centroids)``: ``j`` is the first failing
+    polyline (or the count), ``status`` its code, ``centroids[:j]`` valid.
+    """
+    k = starts.shape[0] - 1
+    centroids = np.zeros((k, 2))
+    for j in range(k):
+        a = starts[j]
+        b = starts[j + 1]
+        status, c_v, c_u = polyline_status(pts[a:b], nrm[a:b], sig[a:b])
+        if status != OK:
+            return j, status, centroids
+        centroids[j, 0] = c_v
+        centroids[j, 1] = c_u
+    return k, OK, centroids

@@ -1,0 +1,370 @@
+"""The pipeline's fits: checks once per call, compiled work, light result wrapping.
+
+:func:`dtalign.pipeline.fit_polyline_products` and
+:func:`dtalign.batch.fit_many` share this. The first polyline of a call
+is checked exactly as the step-by-step pipeline checks it (its own
+arrays, the window, the pivot, then every LM option and the products'
+arrays, in that order): that fixes which error a bad call raises. What it
+validated holds for every further polyline of the call, which then only
+needs its own arrays checked (one compiled pass) and, when rotating, its
+pivot spread. A chunk of polylines then runs as one compiled call with the
+GIL released (:mod:`dtalign._kernels.pipeline`).
+
+The kernels are imported on first use: importing :mod:`dtalign.pipeline`
+must not import Numba.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+
+from . import _validation as check
+from ._constants import (
+    DEFAULT_LM_STEP_TOLERANCE,
+    DEFAULT_RIDGE_MAX_ITERATIONS,
+    DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
+    DEFAULT_RIDGE_SAMPLE_STEP_PX,
+)
+from .products import ImageProducts
+
+if TYPE_CHECKING:
+    from ._args import LMArgs
+    from .pipeline import PolylineFit
+
+FloatArray = check.FloatArray
+
+
+class Plan(NamedTuple):
+    """What every polyline of one call shares, validated once."""
+
+    products: ImageProducts
+    window: tuple[int, int]
+    h: int
+    w: int
+    mv: int
+    mu: int
+    edge_flat: np.ndarray
+    edge_words: np.ndarray
+    lm: LMArgs
+    pivot_vu: tuple[float, float] | None
+    pivot_distance_px: float | None
+
+
+class Item(NamedTuple):
+    """One polyline's checked arrays and its resolved pivot."""
+
+    vertices: FloatArray
+    normals: FloatArray
+    sigmas: FloatArray
+    pivot: tuple[float, float]
+    distance: float
+
+
+def _distance(products: ImageProducts, pivot: tuple[float, float], fit_rotation: bool,
+              pivot_distance_px: Any) -> float:
+    """The pivot distance the pipeline passes to the LM (see ``fit_polyline_products``)."""
+    if pivot_distance_px is None:
+        if not fit_rotation:
+            return 0.0
+        h, w = products.shape
+        return max(math.hypot(pivot[0] - (h - 1) / 2.0, pivot[1] - (w - 1) / 2.0), 1.0)
+    distance = check.finite_real(pivot_distance_px, "pivot_distance_px")
+    if fit_rotation and distance <= 0.0:
+        raise ValueError(
+            f"fit_rotation=True requires a finite pivot_distance_px > 0, got {distance!r}"
+        )
+    return distance
+
+
+def plan(
+    products: Any, vertices_vu: Any, normals_vu: Any, sigmas: Any, *, search_window_vu: Any,
+    fit_rotation: bool, pivot_vu: Any, pivot_distance_px: Any, lm_options: dict[str, Any],
+) -> tuple[Plan, Item]:
+    """Check the first polyline and everything shared, in the pipeline's order.
+
+    ``lm_options`` are the keywords passed on to ``lm_subpixel_refine``
+    (``use_polarity``, ``trust_region_px``, ...).
+    """
+    from ._args import check_lm_inputs
+    from .coarse import _flat_words
+
+    if not isinstance(products, ImageProducts):
+        raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
+    verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
+    norms = check.normals(normals_vu, verts.shape[0])
+    sig = check.sigmas(sigmas, verts.shape[0], "sigmas")
+    window = check.search_window(search_window_vu)
+    fit_rotation = bool(fit_rotation)
+    pivot = check.resolve_pivot(verts, pivot_vu)
+    distance = _distance(products, pivot, fit_rotation, pivot_distance_px)
+    edge = check.mask2d(products.edge_mask, "edge_mask")
+    # The LM's own checks, as lm_subpixel_refine runs them; any finite
+    # offset stands for the coarse seed (always a pair of ints).
+    lm = check_lm_inputs({
+        "vertices_vu": verts, "normals_vu": norms, "sigma_normal_per_vertex_px": sig,
+        "image_edge_dt": products.edge_dt, "image_gradient_vu": products.gradient_vu,
+        "initial_offset_vu": (0.0, 0.0), "fit_rotation": fit_rotation, "pivot_vu": pivot,
+        "pivot_distance_px": distance, **lm_options,
+    })
+    h, w = edge.shape
+    shared = Plan(
+        products=products, window=window, h=h, w=w,
+        mv=min(window[0], max(h - 1, 0)), mu=min(window[1], max(w - 1, 0)),
+        edge_flat=_flat_words(edge)[0], edge_words=_flat_words(edge)[1], lm=lm,
+        pivot_vu=None if pivot_vu is None else pivot, pivot_distance_px=pivot_distance_px,
+    )
+    return shared, Item(lm.vertices, lm.normals, lm.sigmas, pivot, distance)
+
+
+def recheck(shared: Plan, vertices_vu: Any, normals_vu: Any, sigmas: Any) -> None:
+    """Raise what fitting this polyline alone would raise (it failed a bulk check).
+
+    Runs :func:`plan`'s exact sequence with the call's options.
+    """
+    lm = shared.lm
+    options = {name: getattr(lm, field) for name, field in _LM_OPTION_FIELDS.items()}
+    plan(shared.products, vertices_vu, normals_vu, sigmas, search_window_vu=shared.window,
+         fit_rotation=lm.fit_rotation, pivot_vu=shared.pivot_vu,
+         pivot_distance_px=shared.pivot_distance_px, lm_options=options)
+    raise AssertionError("unreachable: the bulk checks and plan() disagree")  # pragma: no cover
+
+
+class Batch(NamedTuple):
+    """Checked polylines of one call, concatenated for the compiled loop."""
+
+    n: int
+    pts: FloatArray
+    nrm: FloatArray
+    sig: FloatArray
+    starts: np.ndarray
+    pivots: list[tuple[float, float]]
+    distances: list[float]
+
+
+def _plain(v: Any, n: Any, s: Any) -> bool:
+    """Whether a polyline is float64 arrays of the right shapes (no conversion
+    needed; ``np.concatenate`` copies any layout)."""
+    return (
+        type(v) is np.ndarray and type(n) is np.ndarray and type(s) is np.ndarray
+        and v.dtype == _F8 and n.dtype == _F8 and s.dtype == _F8
+        and v.ndim == 2 and v.shape[1] == 2 and v.shape[0] > 0
+        and n.shape == v.shape and s.shape == (v.shape[0],)
+    )
+
+
+_F8 = np.dtype(np.float64)
+
+
+def prepare(
+    shared: Plan, parts: Sequence[tuple[Any, Any, Any]], first: Item | None = None
+) -> tuple[Batch, Exception | None]:
+    """Check polylines of a call whose first polyline passed :func:`plan`.
+
+    ``first``, when given, is that polyline, already checked: it stands
+    for ``parts[0]``. Shapes are checked per polyline (a few attribute
+    tests for float64 arrays), values in one compiled pass over all of
+    them. Returns the polylines up to the first bad one, and the error
+    that one raises alone (None if all pass).
+    """
+    from ._kernels.checks import polylines_status
+
+    lm = shared.lm
+    verts: list[FloatArray] = []
+    norms: list[FloatArray] = []
+    sigs: list[FloatArray] = []
+    if first is not None:
+        verts, norms, sigs = [first.vertices], [first.normals], [first.sigmas]
+    bad = len(parts)
+    for k in range(len(verts), len(parts)):
+        v, n, s = parts[k]
+        if not _plain(v, n, s):
+            try:
+                v = check._vertex_shape(v, "vertices_vu", allow_empty=False)
+                n = check._normals_shape(n, v.shape[0])
+                s = check._sigmas_shape(s, v.shape[0], "sigmas")
+            except (TypeError, ValueError):
+                bad = k
+                break
+        verts.append(v)
+        norms.append(n)
+        sigs.append(s)
+    starts = np.zeros(len(verts) + 1, dtype=np.int64)
+    np.cumsum([v.shape[0] for v in verts], out=starts[1:])
+    empty = np.zeros((0, 2))
+    pts = check.readonly(np.concatenate(verts) if verts else empty)
+    nrm = check.readonly(np.concatenate(norms) if norms else empty)
+    sig = check.readonly(np.concatenate(sigs) if sigs else empty[:, 0])
+    n_ok, _, centroids = polylines_status(pts, nrm, sig, starts)
+    bad = min(bad, int(n_ok))
+    pivots = [] if first is None else [first.pivot]
+    distances = [] if first is None else [first.distance]
+    rotating = lm.fit_rotation or lm.rotation != 0.0
+    for k, (c_v, c_u) in enumerate(centroids[len(pivots):bad].tolist(), start=len(pivots)):
+        pivot = (c_v, c_u) if shared.pivot_vu is None else shared.pivot_vu
+        distance = _distance(shared.products, pivot, lm.fit_rotation, shared.pivot_distance_px)
+        if rotating:  # the pivot-spread check of a rotating fit
+            try:
+                check.pose(pts[starts[k] : starts[k + 1]], fit_rotation=lm.fit_rotation,
+                           pivot_vu=pivot, pivot_distance_px=distance,
+                           initial_offset_vu=(0.0, 0.0), initial_rotation_rad=lm.rotation,
+                           centroid=(c_v, c_u))
+            except (TypeError, ValueError):
+                bad = k
+                break
+        pivots.append(pivot)
+        distances.append(distance)
+    error: Exception | None = None
+    if bad < len(parts):
+        try:
+            recheck(shared, *parts[bad])
+        except Exception as exc:  # raised by the caller after the fits before it
+            error = exc
+    n_fit = len(pivots)
+    end = int(starts[n_fit])
+    return Batch(n_fit, pts[:end], nrm[:end], sig[:end], starts[: n_fit + 1], pivots, distances), error
+
+
+#: lm_subpixel_refine keyword -> LMArgs field, for re-running plan() on a polyline.
+_LM_OPTION_FIELDS = {
+    "use_polarity": "use_polarity", "max_iterations": "max_iterations", "damping": "damping",
+    "step_tolerance_px": "step_tolerance", "tukey_c": "tukey_c", "pinvh_rcond": "pinvh_rcond",
+    "trust_region_px": "trust_region_px", "tikhonov_alpha": "tikhonov_alpha",
+    "final_gradient_ridge": "final_gradient_ridge", "initial_rotation_rad": "rotation",
+}
+
+
+def _sigma(x: float) -> float:
+    """``_sigmas_from_cov`` of one diagonal entry: negatives give 0, NaN gives inf."""
+    return math.inf if math.isnan(x) else math.sqrt(max(x, 0.0))
+
+
+def fit_one(shared: Plan, it: Item) -> PolylineFit:
+    """Coarse search, then LM, timed separately (``coarse`` and ``lm``)."""
+    from ._kernels import coarse as _kc
+    from .lm import _fit
+    from .pipeline import PolylineFit
+
+    p = shared.products
+    h, w = shared.h, shared.w
+    t1 = time.perf_counter()
+    if h == 0 or w == 0:
+        dv, du = 0, 0
+    else:
+        sv, su = _kc.support_of_vertices(it.vertices, h, w)
+        dv, du = _kc.search_support(shared.edge_flat, shared.edge_words, sv, su, h, w,
+                                    shared.mv, shared.mu)
+    coarse = (int(dv), int(du))
+    t2 = time.perf_counter()
+    lm = _fit(shared.lm._replace(
+        vertices=it.vertices, normals=it.normals, sigmas=it.sigmas,
+        offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
+    ))
+    t3 = time.perf_counter()
+    cov = lm.covariance
+    fit_rotation = shared.lm.fit_rotation
+    return PolylineFit(
+        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad,
+        sigma_vu=(_sigma(float(cov[0, 0])), _sigma(float(cov[1, 1]))),
+        sigma_rotation_rad=_sigma(float(cov[2, 2])) if fit_rotation else None,
+        coarse_offset_vu=coarse,
+        at_window_edge=any(m > 0 and abs(c) >= m for c, m in zip(coarse, shared.window, strict=True)),
+        lm=lm, search_window_vu=shared.window, fit_rotation=fit_rotation, pivot_vu=it.pivot,
+        pivot_distance_px=float(it.distance), noise_sigma=shared.products.noise_sigma,
+        vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
+        tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": t2 - t1, "lm": t3 - t2},
+    )
+
+
+def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
+    """Fit the polylines of ``batch`` in one compiled call (GIL released).
+
+    Each fit's ``timings_s`` has ``fit``: the call's wall time divided
+    evenly among its polylines (the coarse search and LM run interleaved).
+    Raises the error of the first polyline that fails, like the serial loop.
+    """
+    from ._kernels.pipeline import fit_polylines
+    from ._results import LMRefineResult
+    from .image import _use_libm_hypot
+    from .lm import _NO_GRADIENT, _RIDGE_HALF, _raise_for
+    from .pipeline import PolylineFit
+
+    lo, hi = 0, batch.n
+    if hi <= lo:
+        return []
+    p = shared.products
+    h, w = shared.h, shared.w
+    if h == 0 or w == 0:  # nothing to search: the one-by-one path handles it
+        return [fit_one(shared, _item(batch, k)) for k in range(lo, hi)]
+    a = shared.lm
+    first, last = int(batch.starts[lo]), int(batch.starts[hi])
+    starts = batch.starts[lo : hi + 1] - first
+    pts, nrm, sig = batch.pts[first:last], batch.nrm[first:last], batch.sig[first:last]
+    pivots = np.array(batch.pivots[lo:hi], dtype=np.float64)
+    distances = np.array(batch.distances[lo:hi], dtype=np.float64)
+    t0 = time.perf_counter()
+    (done, error, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
+     degenerate, r_all, w_all) = fit_polylines(
+        shared.edge_flat, shared.edge_words, h, w, shared.mv, shared.mu, a.dt,
+        a.gradient if a.gradient is not None else _NO_GRADIENT, pts, nrm, sig, starts,
+        pivots, distances, a.rotation, a.use_polarity, a.fit_rotation, a.max_iterations,
+        a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,
+        -1.0 if a.trust_region_px is None else a.trust_region_px, a.tikhonov_alpha,
+        a.final_gradient_ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
+        DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
+        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(),
+    )
+    elapsed = time.perf_counter() - t0
+    if done < hi - lo:
+        _raise_for(int(error))
+    # Per-fit values as Python scalars in bulk, and read-only arrays whose
+    # slices each fit keeps: a few microseconds per fit under the GIL.
+    for arr in (covs, r_all, w_all):
+        arr.flags.writeable = False
+    with np.errstate(invalid="ignore"):
+        diag = np.diagonal(covs, axis1=1, axis2=2)
+        sig_l = np.where(np.isnan(diag), np.inf, np.sqrt(np.maximum(diag, 0.0))).tolist()
+    poses_l = poses.tolist()
+    coarse_l = coarse.tolist()
+    bounds = starts.tolist()
+    fit_rotation = a.fit_rotation
+    mv, mu = shared.window
+    common = {
+        "search_window_vu": shared.window, "fit_rotation": fit_rotation,
+        "noise_sigma": p.noise_sigma, "pinvh_rcond": a.pinvh_rcond, "tukey_c": a.tukey_c,
+    }
+    timings = {**p.timings_s, "fit": elapsed / (hi - lo)}
+    out = []
+    for j, (pose, (dv, du), sd, n_iter, conv, rms_j, raw_j, inl, deg) in enumerate(zip(
+        poses_l, coarse_l, sig_l, iterations.tolist(), converged.tolist(), rms.tolist(),
+        raw_rms.tolist(), inliers.tolist(), degenerate.tolist(), strict=True,
+    )):
+        s_j, e_j = bounds[j], bounds[j + 1]
+        lm = object.__new__(LMRefineResult)
+        lm.__dict__.update(
+            offset_vu=(pose[0], pose[1]), rotation_rad=pose[2], covariance=covs[j],
+            residuals_px=r_all[s_j:e_j], weights=w_all[s_j:e_j],
+            rms_px=rms_j, raw_rms_px=raw_j, iterations=n_iter, converged=conv,
+            inlier_count=inl, degenerate=deg,
+        )
+        fit = object.__new__(PolylineFit)
+        fit.__dict__.update(
+            common, offset_vu=lm.offset_vu, rotation_rad=pose[2], sigma_vu=(sd[0], sd[1]),
+            sigma_rotation_rad=sd[2] if fit_rotation else None, coarse_offset_vu=(dv, du),
+            at_window_edge=(mv > 0 and abs(dv) >= mv) or (mu > 0 and abs(du) >= mu), lm=lm,
+            pivot_vu=batch.pivots[lo + j], pivot_distance_px=batch.distances[lo + j],
+            vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], timings_s=dict(timings),
+        )
+        out.append(fit)
+    return out
+
+
+def _item(batch: Batch, k: int) -> Item:
+    """Polyline ``k`` of a batch as an :class:`Item`."""
+    a, b = int(batch.starts[k]), int(batch.starts[k + 1])
+    return Item(batch.pts[a:b], batch.nrm[a:b], batch.sig[a:b], batch.pivots[k],
+                batch.distances[k])
