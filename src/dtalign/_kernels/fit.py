@@ -106,7 +106,7 @@ def fit(
             scratch_g = np.zeros(n_params)
             status = evaluate_state(
                 dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac,
-                scratch_h, scratch_g,
+                scratch_h, scratch_g, np.zeros(n), np.zeros(n), False,
             )[0]
             if status < 0:
                 return _failed(BAD_DT, pose0, n, n_params)

@@ -2,10 +2,10 @@
 
 A pure-NumPy iteration spends most of its time in interpreter overhead on
 arrays of a few hundred vertices; compiling the whole loop removes that.
-A new pose costs one pass over the vertices for residuals, Jacobian,
-weights and the normal equations together (no N x 5 temporaries); a trial
-step costs one pass for its cost, and a 2x2 or 3x3 solve. The state arrays
-are allocated once per fit and overwritten.
+A trial step costs one pass over the vertices for its cost (keeping the
+DT samples), and a 2x2 or 3x3 solve; an accepted step then costs the
+Jacobian's samples, the weights and the normal equations (no N x 5
+temporaries). The state arrays are allocated once per fit and overwritten.
 """
 
 from __future__ import annotations
@@ -32,18 +32,28 @@ LOOP_DIVERGED = 2  # the normal equations or a step overflowed
 
 
 @kernel
-def evaluate_state(dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad):  # pragma: no cover
+def evaluate_state(
+    dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad, sw,
+    samples, sampled,
+):  # pragma: no cover - compiled
     """State at ``pose``: residuals, IRLS weights and Jacobian into ``r, w, jac``,
-    and in the same pass ``H = A^T A``, ``g = A^T (sqrt(w) r)`` (``A = sqrt(w) J``)
-    into ``hess, grad``.
+    and ``H = A^T A``, ``g = A^T (sqrt(w) r)`` (``A = sqrt(w) J``) into
+    ``hess, grad``.
 
     Rejected-polarity vertices get the penalty residual; their Jacobian row
     is still the DT's (it carries zero weight). ``inv_var`` is
-    ``1 / sigma^2``. Returns ``(status, cost, total_weight)``: status 1 if
-    any weight is positive, 0 if none is, -1 if a sample read a NaN or inf
-    from ``dt`` (the caller refuses the DT: the image is too large to scan
-    on every call, but no non-finite value reaches a result unnoticed).
-    Sums run over the vertices in order, as SPEC's formulas read.
+    ``1 / sigma^2``; ``sw`` is scratch for ``sqrt(w)``. With ``sampled``,
+    ``samples`` already holds the DT at every vertex at this pose (the trial
+    cost of the step that led here sampled it: :func:`weighted_cost`).
+    Returns ``(status, cost, total_weight)``: status 1 if any weight is
+    positive, 0 if none is, -1 if a sample read a NaN or inf from ``dt``
+    (the caller refuses the DT: the image is too large to scan on every
+    call, but no non-finite value reaches a result unnoticed).
+
+    Three passes: the samples; the weights, branch-free so that LLVM
+    vectorises their two divisions and square root (a third of the time
+    when computed vertex by vertex); the sums, over the vertices in order
+    as SPEC's formulas read. Every value is computed exactly as in one pass.
     """
     dv, du, theta = pose[0], pose[1], pose[2]
     pv, pu = pivot[0], pivot[1]
@@ -53,21 +63,15 @@ def evaluate_state(dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_
     cm, sm = math.cos(tm), math.sin(tm)
     two_eps_t = 2 * EPS_T
     two_eps_r = 2 * EPS_R
-    status = 0
-    cost = 0.0
-    total = 0.0
-    # scalar accumulators (kept in registers) for H and g, P = 2 or 3
-    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-    g0 = g1 = g2 = 0.0
-    j2 = 0.0
-    for i in range(pts.shape[0]):
+    n = pts.shape[0]
+    for i in range(n):
         v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pv, pu)
-        sample = bilinear(dt, v, u)
+        sample = samples[i] if sampled else bilinear(dt, v, u)
         j0 = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / two_eps_t
         j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / two_eps_t
         # inf - inf and nan propagate, so one test covers all five samples
         if not math.isfinite(sample + j0 + j1):
-            return -1, cost, total
+            return -1, 0.0, 0.0
         jac[i, 0] = j0
         jac[i, 1] = j1
         if fit_rotation:
@@ -75,27 +79,36 @@ def evaluate_state(dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_
             vm, um = transform(pts[i, 0], pts[i, 1], dv, du, tm, cm, sm, pv, pu)
             j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / two_eps_r
             if not math.isfinite(j2):
-                return -1, cost, total
+                return -1, 0.0, 0.0
             jac[i, 2] = j2
-        ri = sample if pol[i] != 0.0 else PENALTY
-        r[i] = ri
-        wi = inv_var[i] * tukey(ri / sig[i], tukey_c) * pol[i]
+        r[i] = sample if pol[i] != 0.0 else PENALTY
+    for i in range(n):
+        wi = inv_var[i] * tukey(r[i] / sig[i], tukey_c) * pol[i]
         w[i] = wi
+        sw[i] = np.sqrt(wi)
+    status = 0
+    cost = 0.0
+    total = 0.0
+    # scalar accumulators (kept in registers) for H and g, P = 2 or 3
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    g0 = g1 = g2 = 0.0
+    for i in range(n):
+        ri = r[i]
+        wi = w[i]
         cost += wi * ri * ri
         total += wi
         if wi > 0.0:
             status = 1
-            sw = np.sqrt(wi)
-            swr = sw * ri
-            a0 = sw * j0
-            a1 = sw * j1
+            swr = sw[i] * ri
+            a0 = sw[i] * jac[i, 0]
+            a1 = sw[i] * jac[i, 1]
             g0 += a0 * swr
             g1 += a1 * swr
             h00 += a0 * a0
             h01 += a0 * a1
             h11 += a1 * a1
             if fit_rotation:
-                a2 = sw * j2
+                a2 = sw[i] * jac[i, 2]
                 g2 += a2 * swr
                 h02 += a0 * a2
                 h12 += a1 * a2
@@ -114,17 +127,22 @@ def evaluate_state(dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_
 
 
 @kernel
-def weighted_cost(dt, pts, pol, w, pose, pivot):  # pragma: no cover - compiled
+def weighted_cost(dt, pts, pol, w, pose, pivot, samples):  # pragma: no cover - compiled
     """``sum(w * r * r)`` with residuals at ``pose`` and fixed weights ``w``.
 
     Non-finite when a sample read a NaN or inf (``0 * inf`` is NaN too).
+    The DT at every vertex (rejected-polarity ones included) is kept in
+    ``samples``: if the step is accepted, :func:`evaluate_state` at this
+    pose starts from them.
     """
     dv, du, theta = pose[0], pose[1], pose[2]
     c0, s0 = math.cos(theta), math.sin(theta)
     total = 0.0
     for i in range(pts.shape[0]):
         v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pivot[0], pivot[1])
-        ri = bilinear(dt, v, u) if pol[i] != 0.0 else PENALTY
+        sample = bilinear(dt, v, u)
+        samples[i] = sample
+        ri = sample if pol[i] != 0.0 else PENALTY
         total += w[i] * ri * ri
     return total
 
@@ -174,10 +192,14 @@ def lm_loop(
     hess = np.zeros((n_params, n_params))
     grad = np.zeros(n_params)
     damped = np.zeros((n_params, n_params))
+    sw = np.zeros(n)
+    samples = np.zeros(n)
+    sampled = False  # samples holds the DT at `pose` (set by the accepted trial)
     while iterations < max_iterations:
         if not fresh:
             status, cost, total_w = evaluate_state(
-                dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad
+                dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess,
+                grad, sw, samples, sampled,
             )
             if status < 0:
                 return pose, iterations, converged, r, w, jac, LOOP_BAD_DT
@@ -209,7 +231,7 @@ def lm_loop(
             if lam >= LAMBDA_MAX:
                 break
             continue
-        trial_cost = weighted_cost(dt, pts, pol, w, trial, pivot)
+        trial_cost = weighted_cost(dt, pts, pol, w, trial, pivot, samples)
         if not math.isfinite(trial_cost):
             return pose, iterations, converged, r, w, jac, LOOP_BAD_DT
         if tikhonov_alpha > 0:
@@ -220,6 +242,7 @@ def lm_loop(
             lam = max(lam / 2, LAMBDA_MIN)
             iterations += 1
             fresh = False
+            sampled = True
             if step_norm(step, pivot_distance) < step_tolerance:
                 converged = True
                 break
@@ -230,6 +253,7 @@ def lm_loop(
                 break
     if not fresh:
         status = evaluate_state(
-            dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad
+            dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad,
+            sw, samples, sampled,
         )[0]
     return pose, iterations, converged, r, w, jac, LOOP_BAD_DT if status < 0 else LOOP_OK

@@ -6,17 +6,19 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 
 
-@kernel
+@inline_kernel
 def tukey(x, c):  # pragma: no cover - compiled
-    """Biweight of one scaled residual: ``(1 - s^2)^2`` for ``|s| <= 1``."""
+    """Biweight of one scaled residual: ``(1 - s^2)^2`` for ``|s| <= 1``, else 0.
+
+    A select rather than a branch (``t * t`` is formed either way and
+    dropped outside), so that loops over many residuals vectorise.
+    """
     s = x / c
-    if abs(s) <= 1.0:
-        t = 1.0 - s * s
-        return t * t
-    return 0.0
+    t = 1.0 - s * s
+    return t * t if abs(s) <= 1.0 else 0.0
 
 
 @kernel
