@@ -20,7 +20,7 @@ from .ridge import (
     magnitude_patch,
     ridge_loop,
 )
-from .robust import normal_equations, polarity, symmetric_pinvh
+from .robust import polarity, symmetric_pinvh
 
 #: The LM driver's polish samples its gradient vectors, not a magnitude image.
 _NO_MAGNITUDE = np.zeros((0, 0))
@@ -72,7 +72,7 @@ def fit(
             return _failed(BAD_GRADIENT, pose0, n, n_params)
     else:
         pol = np.ones(n)
-    pose, iterations, converged, r, w, jac, status = lm_loop(
+    pose, iterations, converged, r, w, jac, info, status = lm_loop(
         dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
         damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
     )
@@ -102,11 +102,10 @@ def fit(
             inv_var = np.empty(n)
             for i in range(n):
                 inv_var[i] = 1.0 / (sig[i] * sig[i])
-            scratch_h = np.zeros((n_params, n_params))
-            scratch_g = np.zeros(n_params)
+            info = np.zeros((n_params, n_params))
             status = evaluate_state(
                 dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac,
-                scratch_h, scratch_g, np.zeros(n), np.zeros(n), False,
+                info, np.zeros(n_params), np.zeros(n), np.zeros(n), False,
             )[0]
             if status < 0:
                 return _failed(BAD_DT, pose0, n, n_params)
@@ -123,7 +122,8 @@ def fit(
         cov = np.full((n_params, n_params), np.inf)
     else:
         rms = math.sqrt(weighted / total_weight)
-        info, _ = normal_equations(jac, w, r, n_params)
+        # info: the final state's J^T W J, which evaluate_state summed exactly
+        # as normal_equations(jac, w, r) would (same products, same order)
         cov, ok = symmetric_pinvh(info, rcond)
         if not ok:
             return _failed(DIVERGED, pose0, n, n_params)

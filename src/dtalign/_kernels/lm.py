@@ -163,7 +163,8 @@ def lm_loop(
 
     ``trust_region < 0`` means no trust region. Returns the final pose
     ``(dv, du, theta)``, the iteration count, the converged flag, the
-    state ``r, w, J`` at the final pose, and a status: :data:`LOOP_OK`,
+    state ``r, w, J`` at the final pose, its ``H = J^T W J`` (no Tikhonov
+    term: the covariance's information matrix), and a status: :data:`LOOP_OK`,
     :data:`LOOP_BAD_DT` (the DT was found non-finite where the fit sampled
     it) or :data:`LOOP_DIVERGED` (a non-finite step: the normal equations
     overflowed); with a bad status the rest is invalid.
@@ -192,6 +193,7 @@ def lm_loop(
     hess = np.zeros((n_params, n_params))
     grad = np.zeros(n_params)
     damped = np.zeros((n_params, n_params))
+    info = np.zeros((n_params, n_params))  # H of the state, without the Tikhonov term
     sw = np.zeros(n)
     samples = np.zeros(n)
     sampled = False  # samples holds the DT at `pose` (set by the accepted trial)
@@ -202,7 +204,8 @@ def lm_loop(
                 grad, sw, samples, sampled,
             )
             if status < 0:
-                return pose, iterations, converged, r, w, jac, LOOP_BAD_DT
+                return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT
+            info[:, :] = hess
             fresh = True
             if status == 0:
                 break
@@ -220,7 +223,7 @@ def lm_loop(
         step = solve_step(damped, grad, rcond)
         for a in range(n_params):
             if not math.isfinite(step[a]):
-                return pose, iterations, converged, r, w, jac, LOOP_DIVERGED
+                return pose, iterations, converged, r, w, jac, info, LOOP_DIVERGED
         for a in range(3):
             trial[a] = pose[a]
         for a in range(n_params):
@@ -233,7 +236,7 @@ def lm_loop(
             continue
         trial_cost = weighted_cost(dt, pts, pol, w, trial, pivot, samples)
         if not math.isfinite(trial_cost):
-            return pose, iterations, converged, r, w, jac, LOOP_BAD_DT
+            return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT
         if tikhonov_alpha > 0:
             trial_cost += t * ((trial[0] - dv0) ** 2 + (trial[1] - du0) ** 2)
         if trial_cost < cost:
@@ -253,7 +256,7 @@ def lm_loop(
                 break
     if not fresh:
         status = evaluate_state(
-            dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad,
+            dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, info, grad,
             sw, samples, sampled,
         )[0]
-    return pose, iterations, converged, r, w, jac, LOOP_BAD_DT if status < 0 else LOOP_OK
+    return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT if status < 0 else LOOP_OK
