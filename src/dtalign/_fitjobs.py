@@ -142,8 +142,8 @@ class Batch(NamedTuple):
     nrm: FloatArray
     sig: FloatArray
     starts: np.ndarray
-    pivots: list[tuple[float, float]]
-    distances: list[float]
+    pivots: FloatArray
+    distances: FloatArray
 
 
 def _plain(v: Any, n: Any, s: Any) -> bool:
@@ -201,32 +201,37 @@ def prepare(
     sig = check.readonly(np.concatenate(sigs) if sigs else empty[:, 0])
     n_ok, _, centroids = polylines_status(pts, nrm, sig, starts)
     bad = min(bad, int(n_ok))
-    pivots = [] if first is None else [first.pivot]
-    distances = [] if first is None else [first.distance]
-    rotating = lm.fit_rotation or lm.rotation != 0.0
-    for k, (c_v, c_u) in enumerate(centroids[len(pivots):bad].tolist(), start=len(pivots)):
-        pivot = (c_v, c_u) if shared.pivot_vu is None else shared.pivot_vu
-        distance = _distance(shared.products, pivot, lm.fit_rotation, shared.pivot_distance_px)
-        if rotating:  # the pivot-spread check of a rotating fit
-            try:
+    pivots = centroids[:bad]
+    if shared.pivot_vu is not None:
+        pivots[:] = shared.pivot_vu
+    elif first is not None:
+        pivots[0] = first.pivot
+    # Without rotation the distance is the same for every polyline (0, or
+    # the one given), and no pivot spread can overflow.
+    distances = np.full(bad, _distance(shared.products, (0.0, 0.0), False,
+                                       shared.pivot_distance_px))
+    if lm.fit_rotation or lm.rotation != 0.0:
+        for k, pivot in enumerate(map(tuple, pivots.tolist())):
+            distances[k] = _distance(shared.products, pivot, lm.fit_rotation,
+                                     shared.pivot_distance_px)
+            if k == 0 and first is not None:
+                continue  # checked by plan()
+            try:  # the pivot-spread check of a rotating fit
                 check.pose(pts[starts[k] : starts[k + 1]], fit_rotation=lm.fit_rotation,
-                           pivot_vu=pivot, pivot_distance_px=distance,
-                           initial_offset_vu=(0.0, 0.0), initial_rotation_rad=lm.rotation,
-                           centroid=(c_v, c_u))
+                           pivot_vu=pivot, pivot_distance_px=distances[k],
+                           initial_offset_vu=(0.0, 0.0), initial_rotation_rad=lm.rotation)
             except (TypeError, ValueError):
                 bad = k
                 break
-        pivots.append(pivot)
-        distances.append(distance)
     error: Exception | None = None
     if bad < len(parts):
         try:
             recheck(shared, *parts[bad])
         except Exception as exc:  # raised by the caller after the fits before it
             error = exc
-    n_fit = len(pivots)
-    end = int(starts[n_fit])
-    return Batch(n_fit, pts[:end], nrm[:end], sig[:end], starts[: n_fit + 1], pivots, distances), error
+    end = int(starts[bad])
+    return Batch(bad, pts[:end], nrm[:end], sig[:end], starts[: bad + 1], pivots[:bad],
+                 distances[:bad]), error
 
 
 #: lm_subpixel_refine keyword -> LMArgs field, for re-running plan() on a polyline.
@@ -304,8 +309,7 @@ def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
     first, last = int(batch.starts[lo]), int(batch.starts[hi])
     starts = batch.starts[lo : hi + 1] - first
     pts, nrm, sig = batch.pts[first:last], batch.nrm[first:last], batch.sig[first:last]
-    pivots = np.array(batch.pivots[lo:hi], dtype=np.float64)
-    distances = np.array(batch.distances[lo:hi], dtype=np.float64)
+    pivots, distances = batch.pivots[lo:hi], batch.distances[lo:hi]
     t0 = time.perf_counter()
     (done, error, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
      degenerate, r_all, w_all) = fit_polylines(
@@ -339,9 +343,10 @@ def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
     }
     timings = {**p.timings_s, "fit": elapsed / (hi - lo)}
     out = []
-    for j, (pose, (dv, du), sd, n_iter, conv, rms_j, raw_j, inl, deg) in enumerate(zip(
+    for j, (pose, (dv, du), sd, n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
         poses_l, coarse_l, sig_l, iterations.tolist(), converged.tolist(), rms.tolist(),
-        raw_rms.tolist(), inliers.tolist(), degenerate.tolist(), strict=True,
+        raw_rms.tolist(), inliers.tolist(), degenerate.tolist(), pivots.tolist(),
+        distances.tolist(), strict=True,
     )):
         s_j, e_j = bounds[j], bounds[j + 1]
         lm = object.__new__(LMRefineResult)
@@ -356,7 +361,7 @@ def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
             common, offset_vu=lm.offset_vu, rotation_rad=pose[2], sigma_vu=(sd[0], sd[1]),
             sigma_rotation_rad=sd[2] if fit_rotation else None, coarse_offset_vu=(dv, du),
             at_window_edge=(mv > 0 and abs(dv) >= mv) or (mu > 0 and abs(du) >= mu), lm=lm,
-            pivot_vu=batch.pivots[lo + j], pivot_distance_px=batch.distances[lo + j],
+            pivot_vu=(pv[0], pv[1]), pivot_distance_px=dist,
             vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], timings_s=dict(timings),
         )
         out.append(fit)
@@ -366,5 +371,6 @@ def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
 def _item(batch: Batch, k: int) -> Item:
     """Polyline ``k`` of a batch as an :class:`Item`."""
     a, b = int(batch.starts[k]), int(batch.starts[k + 1])
-    return Item(batch.pts[a:b], batch.nrm[a:b], batch.sig[a:b], batch.pivots[k],
-                batch.distances[k])
+    pv, pu = batch.pivots[k].tolist()
+    return Item(batch.pts[a:b], batch.nrm[a:b], batch.sig[a:b], (pv, pu),
+                float(batch.distances[k]))
