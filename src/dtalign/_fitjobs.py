@@ -48,8 +48,7 @@ class Plan(NamedTuple):
     w: int
     mv: int
     mu: int
-    edge_flat: np.ndarray
-    edge_words: np.ndarray
+    edge: np.ndarray
     lm: LMArgs
     pivot_vu: tuple[float, float] | None
     pivot_distance_px: float | None
@@ -91,8 +90,6 @@ def plan(
     (``use_polarity``, ``trust_region_px``, ...).
     """
     from ._args import check_lm_inputs
-    from .coarse import _flat_words
-
     if not isinstance(products, ImageProducts):
         raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
     verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
@@ -115,7 +112,7 @@ def plan(
     shared = Plan(
         products=products, window=window, h=h, w=w,
         mv=min(window[0], max(h - 1, 0)), mu=min(window[1], max(w - 1, 0)),
-        edge_flat=_flat_words(edge)[0], edge_words=_flat_words(edge)[1], lm=lm,
+        edge=edge, lm=lm,
         pivot_vu=None if pivot_vu is None else pivot, pivot_distance_px=pivot_distance_px,
     )
     return shared, Item(lm.vertices, lm.normals, lm.sigmas, pivot, distance)
@@ -261,8 +258,7 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
         dv, du = 0, 0
     else:
         sv, su = _kc.support_of_vertices(it.vertices, h, w)
-        dv, du = _kc.search_support(shared.edge_flat, shared.edge_words, sv, su, h, w,
-                                    shared.mv, shared.mu)
+        dv, du = _kc.search_support(shared.edge, sv, su, shared.mv, shared.mu)
     coarse = (int(dv), int(du))
     t2 = time.perf_counter()
     lm = _fit(shared.lm._replace(
@@ -313,7 +309,7 @@ def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
     t0 = time.perf_counter()
     (done, error, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
      degenerate, r_all, w_all) = fit_polylines(
-        shared.edge_flat, shared.edge_words, h, w, shared.mv, shared.mu, a.dt,
+        shared.edge, shared.mv, shared.mu, a.dt,
         a.gradient if a.gradient is not None else _NO_GRADIENT, pts, nrm, sig, starts,
         pivots, distances, a.rotation, a.use_polarity, a.fit_rotation, a.max_iterations,
         a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,

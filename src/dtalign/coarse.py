@@ -69,7 +69,7 @@ def coarse_ncc_search(edge_mask: Any, polyline_mask: Any, search_window_vu: Any)
     h, w = edge.shape
     if h == 0 or w == 0:
         return 0, 0
-    dv, du = _k.coarse_search(*_flat_words(edge), *_flat_words(poly), h, w, mv, mu)
+    dv, du = _k.coarse_search(edge, poly, mv, mu)
     return int(dv), int(du)
 
 
@@ -107,11 +107,5 @@ def coarse_search_vertices(
     if h == 0 or w == 0:
         return 0, 0
     pv, pu = _k.support_of_vertices(pts, h, w)
-    dv, du = _k.search_support(*_flat_words(edge), pv, pu, h, w, mv, mu)
+    dv, du = _k.search_support(edge, pv, pu, mv, mu)
     return int(dv), int(du)
-
-
-def _flat_words(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A C-contiguous bool mask as flat uint8 bytes and a uint64 view of its whole words."""
-    flat = mask.reshape(-1).view(np.uint8)
-    return flat, flat[: flat.size // 8 * 8].view(np.uint64)

@@ -210,7 +210,15 @@ def support_of_vertices(pts, h, w):  # pragma: no cover - compiled
 
 
 @kernel
-def search_support(edge_flat, edge_words, pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
+def flat_words(mask):  # pragma: no cover - compiled
+    """A C-contiguous bool mask as flat uint8 bytes and a uint64 view of its
+    whole words (views, made here: two arrays fewer to pass from Python)."""
+    flat = mask.reshape(-1).view(np.uint8)
+    return flat, flat[: flat.shape[0] // 8 * 8].view(np.uint64)
+
+
+@kernel
+def search_support(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
     """Best shift for a polyline support given as row-major ``(pv, pu)``.
 
     Only the edge pixels within the window around the polyline's bounding
@@ -218,6 +226,8 @@ def search_support(edge_flat, edge_words, pv, pu, h, w, mv, mu):  # pragma: no c
     """
     if pv.shape[0] == 0:
         return 0, 0
+    h, w = edge.shape
+    edge_flat, edge_words = flat_words(edge)
     e_rows, e_cols = nonzero_in_box(
         edge_flat, edge_words, w, max(pv[0] - mv, 0), min(pv[-1] + mv, h - 1),
         max(pu.min() - mu, 0), min(pu.max() + mu, w - 1),
@@ -227,10 +237,12 @@ def search_support(edge_flat, edge_words, pv, pu, h, w, mv, mu):  # pragma: no c
 
 
 @kernel
-def coarse_search(edge_flat, edge_words, poly_flat, poly_words, h, w, mv, mu):  # pragma: no cover
+def coarse_search(edge, poly, mv, mu):  # pragma: no cover
     """``(dv, du)`` of the best shift; ``(0, 0)`` when no pixel can stay inside.
 
-    Masks come flattened as uint8 plus a uint64 view of their whole words.
+    Masks are C-contiguous 2-D bool arrays of the same, non-empty shape.
     """
+    h, w = poly.shape
+    poly_flat, poly_words = flat_words(poly)
     pv, pu = nonzero_in_box(poly_flat, poly_words, w, 0, h - 1, 0, w - 1)
-    return search_support(edge_flat, edge_words, pv, pu, h, w, mv, mu)
+    return search_support(edge, pv, pu, mv, mu)

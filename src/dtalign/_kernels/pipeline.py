@@ -20,7 +20,7 @@ from .fit import OK, fit
 
 @kernel
 def fit_polylines(
-    edge_flat, edge_words, h, w, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
+    edge, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
     rotation0, use_polarity, fit_rotation, max_iterations, damping, step_tolerance, tukey_c,
     rcond, trust_region, tikhonov_alpha, ridge, ridge_half, ridge_sample_step,
     ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm,
@@ -51,8 +51,8 @@ def fit_polylines(
         a = starts[j]
         b = starts[j + 1]
         p = pts[a:b]
-        sv, su = support_of_vertices(p, h, w)
-        dv, du = search_support(edge_flat, edge_words, sv, su, h, w, mv, mu)
+        sv, su = support_of_vertices(p, edge.shape[0], edge.shape[1])
+        dv, du = search_support(edge, sv, su, mv, mu)
         # fresh writable arrays, as lm_subpixel_refine's wrapper passes them
         pose0 = np.empty(3)
         pose0[0] = float(dv)
