@@ -108,7 +108,8 @@ def overlap_and_counts(pv, pu, e_rows, e_cols, h, w, mv, mu):  # pragma: no cove
     only the edge pixels of that row within the column window are visited
     (found by binary search in the row's sorted columns). In-bounds counts
     are the polyline size when the window never pushes a pixel off the
-    image, else accumulated in a difference array.
+    image (then ``counts`` is returned empty), else accumulated in a
+    difference array.
     """
     nv = 2 * mv + 1
     nu = 2 * mu + 1
@@ -141,19 +142,26 @@ def overlap_and_counts(pv, pu, e_rows, e_cols, h, w, mv, mu):  # pragma: no cove
                 if col >= c + du_lo:
                     overlap[a, col - c + mu] += 1
                 j += 1
-    counts = np.full((nv, nu), pv.shape[0], dtype=np.int64)
-    if not inside:
-        for a in range(nv):
-            run = 0
-            for b in range(nu):
-                run += diff[a, b]
-                counts[a, b] = run
+    if inside:  # every shift keeps every pixel: best_shift needs no counts
+        return overlap, np.zeros((0, 0), dtype=np.int64)
+    counts = np.empty((nv, nu), dtype=np.int64)
+    for a in range(nv):
+        run = 0
+        for b in range(nu):
+            run += diff[a, b]
+            counts[a, b] = run
     return overlap, counts
 
 
 @kernel
 def best_shift(overlap, counts, mv, mu):  # pragma: no cover - compiled
-    """Highest ``overlap / n``; ties go to the smallest ``(|dv|+|du|, |dv|, dv, du)``."""
+    """Highest ``overlap / n``; ties go to the smallest ``(|dv|+|du|, |dv|, dv, du)``.
+
+    An empty ``counts`` means the same ``n > 0`` for every shift: the
+    overlap alone then orders the scores (dividing by one positive ``n`` keeps
+    their order and their ties), so no division is needed.
+    """
+    uniform = counts.shape[0] == 0
     found = False
     best_score = 0.0
     best_dv = 0
@@ -161,11 +169,11 @@ def best_shift(overlap, counts, mv, mu):  # pragma: no cover - compiled
     for a in range(2 * mv + 1):
         dv = a - mv
         for b in range(2 * mu + 1):
-            n = counts[a, b]
+            n = 1 if uniform else counts[a, b]
             if n == 0:
                 continue
             du = b - mu
-            score = overlap[a, b] / n
+            score = float(overlap[a, b]) if uniform else overlap[a, b] / n
             if not found or score > best_score:
                 better = True
             elif score < best_score:
