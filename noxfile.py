@@ -49,7 +49,7 @@ def bench(session: nox.Session) -> None:
     session.install(".[test]")
     session.run(
         "python", "-m", "dtalign.benchmarking", "--json", "benchmarks/results/latest.json",
-        "--rst", "docs/_generated/bench_table.rst",
+        "--rst", "docs/_generated/bench_table.rst", "--readme", "README.md",
         *session.posargs,
     )
 

@@ -15,7 +15,7 @@ import numpy as np
 from .._jit import kernel
 from .lm import EPS_R, step_norm
 from .robust import irls_weight, normal_equations, solve_step
-from .sampling import TILE, sample_magnitude, transform
+from .sampling import TILE, bilinear, fill_tiles, sample_magnitude, transform
 
 #: Status of :func:`ridge_loop`.
 RIDGE_OK = 0
@@ -81,11 +81,27 @@ def peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, dv, 
         n_rot[i, 0] = nv
         n_rot[i, 1] = nu
         v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, cos_t, sin_t, pivot[0], pivot[1])
+        # Rounding is monotonic, so every sample v + t[k] * nv lies between the
+        # two ends': when their box is inside the patch, its tiles are filled
+        # once and each sample is a plain bilinear read of the patch (what
+        # sample_magnitude would return, without its per-sample tile test).
+        va, vb = v + t[0] * nv, v + t[k_count - 1] * nv
+        ua, ub = u + t[0] * nu, u + t[k_count - 1] * nu
+        lo_v, hi_v = min(va, vb) - r0, max(va, vb) - r0
+        lo_u, hi_u = min(ua, ub) - c0, max(ua, ub) - c0
+        if (grad.shape[0] != 0 and 0.0 <= lo_v and hi_v < patch.shape[0] - 1
+                and 0.0 <= lo_u and hi_u < patch.shape[1] - 1):
+            fill_tiles(patch, tiles, grad, r0, c0, use_libm, int(lo_v), int(hi_v) + 1,
+                       int(lo_u), int(hi_u) + 1)
+            for k in range(k_count):
+                prof[k] = bilinear(patch, (v + t[k] * nv) - r0, (u + t[k] * nu) - c0)
+        else:
+            for k in range(k_count):
+                prof[k] = sample_magnitude(
+                    magnitude, patch, tiles, grad, r0, c0, use_libm, v + t[k] * nv, u + t[k] * nu
+                )
         k_star = 0
         for k in range(k_count):
-            prof[k] = sample_magnitude(
-                magnitude, patch, tiles, grad, r0, c0, use_libm, v + t[k] * nv, u + t[k] * nu
-            )
             if not math.isfinite(prof[k]):
                 return False
             if prof[k] > prof[k_star]:

@@ -72,11 +72,11 @@ TILE = 16
 
 
 @kernel
-def fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr, pc):  # pragma: no cover - compiled
-    """Form ``hypot(g_v, g_u)`` in every unfilled tile covering rows ``pr..pr+1``
-    and columns ``pc..pc+1`` of the patch (out of line: it runs once per tile)."""
-    for tr in range(pr // TILE, (pr + 1) // TILE + 1):
-        for tc in range(pc // TILE, (pc + 1) // TILE + 1):
+def fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr0, pr1, pc0, pc1):  # pragma: no cover
+    """Form ``hypot(g_v, g_u)`` in every unfilled tile covering rows ``pr0..pr1``
+    and columns ``pc0..pc1`` of the patch (out of line: it runs once per tile)."""
+    for tr in range(pr0 // TILE, pr1 // TILE + 1):
+        for tc in range(pc0 // TILE, pc1 // TILE + 1):
             if tiles[tr, tc]:
                 continue
             lo = tc * TILE
@@ -118,7 +118,7 @@ def sample_magnitude(magnitude, patch, tiles, grad, r0, c0, use_libm, v, u):  # 
         b = pc // TILE
         d = (pc + 1) // TILE
         if not (tiles[a, b] & tiles[a, d] & tiles[c, b] & tiles[c, d]):
-            fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr, pc)
+            fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr, pr + 1, pc, pc + 1)
         return bilinear(patch, pv, pu)
     return _bilinear_hypot(grad, v, u)
 

@@ -47,6 +47,7 @@ from .timing import (
     machine_info,
     measure_batch,
     measure_workloads,
+    replace_readme_table,
 )
 from .timing import alternate as alternate
 from .timing import peak_bytes as peak_bytes
@@ -162,6 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the JSON report here (nox -s bench: "
                         "benchmarks/results/latest.json)")
     p.add_argument("--rst", default=None, help="also write the table as RST to this path")
+    p.add_argument("--readme", default=None,
+                   help="also rewrite the table between the bench-table markers of this "
+                        "Markdown file (nox -s bench: README.md)")
     p.add_argument("--strict", action="store_true", help="exit 1 when a target is missed")
     p.add_argument("--list", action="store_true", help="list the workloads and exit")
     return p
@@ -201,5 +205,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         path = Path(args.rst)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(format_rst(report))
+        print(f"wrote {path}")
+    if args.readme:
+        path = Path(args.readme)
+        path.write_text(replace_readme_table(path.read_text(), report))
         print(f"wrote {path}")
     return 1 if args.strict and not report["all_passed"] else 0

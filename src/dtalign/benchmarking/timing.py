@@ -306,6 +306,44 @@ def format_rst(report: dict[str, Any]) -> str:
     return "\n".join(out) + "\n"
 
 
+#: The README section :func:`replace_readme_table` rewrites.
+README_START = "<!-- bench-table:start (python -m dtalign.benchmarking --readme README.md) -->"
+README_END = "<!-- bench-table:end -->"
+
+
+def format_markdown(report: dict[str, Any]) -> str:
+    """The table in Markdown, with the machine it was measured on."""
+    m = report["machine"]
+    rows = [HEADER, *(_cells(r) for r in report["rows"])]
+    out = [
+        f"Measured {report['created']} on {m['cpu_count']} CPU(s), Python {m['python']}, "
+        f"NumPy {m['numpy']}, Numba {m['numba']}; {report['settings']['mode']} run, medians "
+        f"of {report['settings']['repeats']} alternating samples; ratio = reference / dtalign "
+        "(batch rows: 1 thread / 2 threads).",
+        "",
+        "| " + " | ".join(rows[0]) + " |",
+        "|" + "---|" * len(rows[0]),
+    ]
+    out.extend("| " + " | ".join(c.replace("|", "/") for c in cells) + " |" for cells in rows[1:])
+    return "\n".join(out) + "\n"
+
+
+def replace_readme_table(text: str, report: dict[str, Any]) -> str:
+    """``text`` (a README) with the table between the bench-table markers replaced.
+
+    Raises
+    ------
+    ValueError
+        If the markers are missing or out of order.
+    """
+    start = text.find(README_START)
+    end = text.find(README_END)
+    if start < 0 or end < start:
+        raise ValueError(f"the README has no '{README_START}' ... '{README_END}' section")
+    head = text[: start + len(README_START)]
+    return head + "\n" + format_markdown(report) + text[end:]
+
+
 def machine_info() -> dict[str, Any]:
     """CPU count and the versions the numbers depend on."""
     import numba
