@@ -90,14 +90,27 @@ def plan(
     (``use_polarity``, ``trust_region_px``, ...).
     """
     from ._args import check_lm_inputs
+    from ._kernels.checks import OK, polyline_status
+
     if not isinstance(products, ImageProducts):
         raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
-    verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
-    norms = check.normals(normals_vu, verts.shape[0])
-    sig = check.sigmas(sigmas, verts.shape[0], "sigmas")
+    # The polyline's values in one compiled pass; on any fault, the NumPy
+    # checks in their order, which raise the pipeline's error.
+    try:
+        verts = check._vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
+        norms = check._normals_shape(normals_vu, verts.shape[0])
+        sig = check._sigmas_shape(sigmas, verts.shape[0], "sigmas")
+        status, c_v, c_u = polyline_status(verts, norms, sig)
+    except (TypeError, ValueError):
+        status = -1
+    if status != OK:
+        verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
+        norms = check.normals(normals_vu, verts.shape[0])
+        sig = check.sigmas(sigmas, verts.shape[0], "sigmas")
     window = check.search_window(search_window_vu)
     fit_rotation = bool(fit_rotation)
-    pivot = check.resolve_pivot(verts, pivot_vu)
+    # the centroid of polyline_status is bit-identical to resolve_pivot's mean
+    pivot = (c_v, c_u) if status == OK and pivot_vu is None else check.resolve_pivot(verts, pivot_vu)
     distance = _distance(products, pivot, fit_rotation, pivot_distance_px)
     edge = check.mask2d(products.edge_mask, "edge_mask")
     # The LM's own checks, as lm_subpixel_refine runs them; any finite
@@ -146,11 +159,13 @@ class Batch(NamedTuple):
 def _plain(v: Any, n: Any, s: Any) -> bool:
     """Whether a polyline is float64 arrays of the right shapes (no conversion
     needed; ``np.concatenate`` copies any layout)."""
+    if not (type(v) is np.ndarray and type(n) is np.ndarray and type(s) is np.ndarray):
+        return False
+    shape = v.shape
+    # native float64 is one dtype instance: identity, not equality (~4x faster)
     return (
-        type(v) is np.ndarray and type(n) is np.ndarray and type(s) is np.ndarray
-        and v.dtype == _F8 and n.dtype == _F8 and s.dtype == _F8
-        and v.ndim == 2 and v.shape[1] == 2 and v.shape[0] > 0
-        and n.shape == v.shape and s.shape == (v.shape[0],)
+        v.dtype is _F8 and n.dtype is _F8 and s.dtype is _F8 and len(shape) == 2
+        and shape[1] == 2 and shape[0] > 0 and n.shape == shape and s.shape == (shape[0],)
     )
 
 
