@@ -296,23 +296,23 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     )
 
 
-def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
-    """Fit the polylines of ``batch`` in one compiled call (GIL released).
+def fit_batch(shared: Plan, batch: Batch, lo: int = 0, hi: int | None = None,
+              lock: Any = None) -> list[PolylineFit]:
+    """Fit polylines ``lo:hi`` of ``batch`` in one compiled call (GIL released).
+
+    ``lock``, if given, is held while the results are wrapped.
 
     Each fit's ``timings_s`` has ``fit``: the call's wall time divided
     evenly among its polylines (the coarse search and LM run interleaved).
     Raises the error of the first polyline that fails, like the serial loop.
     """
     from ._kernels.pipeline import fit_polylines
-    from ._results import LMRefineResult
     from .image import _use_libm_hypot
     from .lm import _NO_GRADIENT, _RIDGE_HALF, _raise_for
-    from .pipeline import PolylineFit
 
-    lo, hi = 0, batch.n
+    hi = batch.n if hi is None else hi
     if hi <= lo:
         return []
-    p = shared.products
     h, w = shared.h, shared.w
     if h == 0 or w == 0:  # nothing to search: the one-by-one path handles it
         return [fit_one(shared, _item(batch, k)) for k in range(lo, hi)]
@@ -336,6 +336,25 @@ def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
     elapsed = time.perf_counter() - t0
     if done < hi - lo:
         _raise_for(int(error))
+    out = (coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
+           r_all, w_all)
+    if lock is None:
+        return _wrap(shared, starts, pts, nrm, pivots, distances, out, elapsed)
+    with lock:
+        return _wrap(shared, starts, pts, nrm, pivots, distances, out, elapsed)
+
+
+def _wrap(shared: Plan, starts: np.ndarray, pts: FloatArray,
+          nrm: FloatArray, pivots: FloatArray, distances: FloatArray, out: tuple[Any, ...],
+          elapsed: float) -> list[PolylineFit]:
+    """:class:`PolylineFit` objects of :func:`fit_batch`'s compiled results."""
+    from ._results import LMRefineResult
+    from .pipeline import PolylineFit
+
+    (coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate, r_all,
+     w_all) = out
+    p = shared.products
+    a = shared.lm
     # Per-fit values as Python scalars in bulk, and read-only arrays whose
     # slices each fit keeps: a few microseconds per fit under the GIL.
     for arr in (covs, r_all, w_all):
@@ -352,8 +371,8 @@ def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
         "search_window_vu": shared.window, "fit_rotation": fit_rotation,
         "noise_sigma": p.noise_sigma, "pinvh_rcond": a.pinvh_rcond, "tukey_c": a.tukey_c,
     }
-    timings = {**p.timings_s, "fit": elapsed / (hi - lo)}
-    out = []
+    timings = {**p.timings_s, "fit": elapsed / len(poses_l)}
+    fits = []
     for j, (pose, (dv, du), sd, n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
         poses_l, coarse_l, sig_l, iterations.tolist(), converged.tolist(), rms.tolist(),
         raw_rms.tolist(), inliers.tolist(), degenerate.tolist(), pivots.tolist(),
@@ -375,8 +394,8 @@ def fit_batch(shared: Plan, batch: Batch) -> list[PolylineFit]:
             pivot_vu=(pv[0], pv[1]), pivot_distance_px=dist,
             vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], timings_s=dict(timings),
         )
-        out.append(fit)
-    return out
+        fits.append(fit)
+    return fits
 
 
 def _item(batch: Batch, k: int) -> Item:

@@ -304,15 +304,16 @@ def _fit_parts(
     )
     n_chunks = 1 if workers == 1 else min(len(parts), _CHUNKS_PER_WORKER * workers)
     bounds = np.linspace(0, len(parts), n_chunks + 1).round().astype(int).tolist()
-    # The checks hold the GIL: one thread at a time, rather than two
-    # threads handing the GIL back and forth at every compiled call.
-    checking = threading.Lock()
+    # Checks and result wrapping hold the GIL: one thread at a time, rather
+    # than two threads handing the GIL back and forth; a thread's checks and
+    # wrapping overlap the other thread's compiled call.
+    gil_work = threading.Lock()
 
     def run(chunk: int) -> list[PolylineFit]:
         lo, hi = bounds[chunk], bounds[chunk + 1]
-        with checking:
+        with gil_work:
             batch, error = _fitjobs.prepare(shared, parts[lo:hi], first if lo == 0 else None)
-        fits = _fitjobs.fit_batch(shared, batch)
+        fits = _fitjobs.fit_batch(shared, batch, lock=gil_work)
         if error is not None:
             raise error
         return fits

@@ -100,10 +100,36 @@ def _first_at_least(cols, lo, hi, value):  # pragma: no cover - compiled
 
 
 @kernel
-def overlap_and_counts(pv, pu, e_rows, e_cols, h, w, mv, mu):  # pragma: no cover - compiled
+def row_starts(e_rows, h):  # pragma: no cover - compiled
+    """CSR row index of row-major pixels: row ``r`` is ``[starts[r], starts[r + 1])``."""
+    row_start = np.zeros(h + 1, dtype=np.int64)
+    for j in range(e_rows.shape[0]):
+        row_start[e_rows[j] + 1] += 1
+    for r in range(h):
+        row_start[r + 1] += row_start[r]
+    return row_start
+
+
+@kernel
+def edge_index(edge):  # pragma: no cover - compiled
+    """The edge pixels of the whole mask by row: ``(row_start, cols)`` (CSR).
+
+    What a batch of polylines against one edge mask shares: one scan of the
+    mask instead of one scan of a box per polyline.
+    """
+    h, w = edge.shape
+    flat, words = flat_words(edge)
+    e_rows, e_cols = nonzero_in_box(flat, words, w, 0, h - 1, 0, w - 1)
+    return row_starts(e_rows, h), e_cols
+
+
+@kernel
+def overlap_and_counts(pv, pu, row_start, e_cols, h, w, mv, mu):  # pragma: no cover - compiled
     """Edge overlap and in-bounds counts of every shift in the window.
 
-    Pixels come as row-major ``(rows, cols)``. Both sets are sparse, so the
+    The polyline pixels come as row-major ``(pv, pu)``, the edge pixels by
+    row (:func:`row_starts`; rows may hold pixels outside the window too:
+    they are skipped). Both sets are sparse, so the
     overlap is a sparse correlation: for each polyline pixel and row shift,
     only the edge pixels of that row within the column window are visited
     (found by binary search in the row's sorted columns). In-bounds counts
@@ -114,12 +140,6 @@ def overlap_and_counts(pv, pu, e_rows, e_cols, h, w, mv, mu):  # pragma: no cove
     nv = 2 * mv + 1
     nu = 2 * mu + 1
     overlap = np.zeros((nv, nu), dtype=np.int64)
-    # CSR index of the edge pixels by row
-    row_start = np.zeros(h + 1, dtype=np.int64)
-    for j in range(e_rows.shape[0]):
-        row_start[e_rows[j] + 1] += 1
-    for r in range(h):
-        row_start[r + 1] += row_start[r]
     inside = pv.min() >= mv and pv.max() + mv <= h - 1 and pu.min() >= mu and pu.max() + mu <= w - 1
     diff = np.zeros((nv, nu + 1), dtype=np.int64)
     for i in range(pv.shape[0]):
@@ -240,7 +260,15 @@ def search_support(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
         edge_flat, edge_words, w, max(pv[0] - mv, 0), min(pv[-1] + mv, h - 1),
         max(pu.min() - mu, 0), min(pu.max() + mu, w - 1),
     )
-    overlap, counts = overlap_and_counts(pv, pu, e_rows, e_cols, h, w, mv, mu)
+    return search_index(row_starts(e_rows, h), e_cols, pv, pu, h, w, mv, mu)
+
+
+@kernel
+def search_index(row_start, e_cols, pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
+    """Best shift for a polyline support against edge pixels indexed by row."""
+    if pv.shape[0] == 0:
+        return 0, 0
+    overlap, counts = overlap_and_counts(pv, pu, row_start, e_cols, h, w, mv, mu)
     return best_shift(overlap, counts, mv, mu)
 
 
