@@ -267,13 +267,10 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     from .pipeline import PolylineFit
 
     p = shared.products
-    h, w = shared.h, shared.w
     t1 = time.perf_counter()
-    if h == 0 or w == 0:
-        dv, du = 0, 0
-    else:
-        sv, su = _kc.support_of_vertices(it.vertices, h, w)
-        dv, du = _kc.search_support(shared.edge, sv, su, shared.mv, shared.mu)
+    # (plan() refused an empty image: the LM checks need a non-empty DT)
+    sv, su = _kc.support_of_vertices(it.vertices, shared.h, shared.w)
+    dv, du = _kc.search_support(shared.edge, sv, su, shared.mv, shared.mu)
     coarse = (int(dv), int(du))
     t2 = time.perf_counter()
     lm = _fit(shared.lm._replace(
@@ -296,9 +293,8 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     )
 
 
-def fit_batch(shared: Plan, batch: Batch, lo: int = 0, hi: int | None = None,
-              lock: Any = None) -> list[PolylineFit]:
-    """Fit polylines ``lo:hi`` of ``batch`` in one compiled call (GIL released).
+def fit_batch(shared: Plan, batch: Batch, lock: Any = None) -> list[PolylineFit]:
+    """Fit the polylines of ``batch`` in one compiled call (GIL released).
 
     ``lock``, if given, is held while the results are wrapped.
 
@@ -310,17 +306,11 @@ def fit_batch(shared: Plan, batch: Batch, lo: int = 0, hi: int | None = None,
     from .image import _use_libm_hypot
     from .lm import _NO_GRADIENT, _RIDGE_HALF, _raise_for
 
-    hi = batch.n if hi is None else hi
-    if hi <= lo:
+    if batch.n == 0:
         return []
-    h, w = shared.h, shared.w
-    if h == 0 or w == 0:  # nothing to search: the one-by-one path handles it
-        return [fit_one(shared, _item(batch, k)) for k in range(lo, hi)]
     a = shared.lm
-    first, last = int(batch.starts[lo]), int(batch.starts[hi])
-    starts = batch.starts[lo : hi + 1] - first
-    pts, nrm, sig = batch.pts[first:last], batch.nrm[first:last], batch.sig[first:last]
-    pivots, distances = batch.pivots[lo:hi], batch.distances[lo:hi]
+    starts, pts, nrm, sig = batch.starts, batch.pts, batch.nrm, batch.sig
+    pivots, distances = batch.pivots, batch.distances
     t0 = time.perf_counter()
     (done, error, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
      degenerate, r_all, w_all) = fit_polylines(
@@ -334,7 +324,7 @@ def fit_batch(shared: Plan, batch: Batch, lo: int = 0, hi: int | None = None,
         DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(),
     )
     elapsed = time.perf_counter() - t0
-    if done < hi - lo:
+    if done < batch.n:
         _raise_for(int(error))
     out = (coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
            r_all, w_all)
@@ -397,10 +387,3 @@ def _wrap(shared: Plan, starts: np.ndarray, pts: FloatArray,
         fits.append(fit)
     return fits
 
-
-def _item(batch: Batch, k: int) -> Item:
-    """Polyline ``k`` of a batch as an :class:`Item`."""
-    a, b = int(batch.starts[k]), int(batch.starts[k + 1])
-    pv, pu = batch.pivots[k].tolist()
-    return Item(batch.pts[a:b], batch.nrm[a:b], batch.sig[a:b], (pv, pu),
-                float(batch.distances[k]))

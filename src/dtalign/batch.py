@@ -71,8 +71,10 @@ _FIT_DEFAULTS = {
 
 #: Chunks per worker thread. One: each chunk is one compiled call, and its
 #: checks and result wrapping hold the GIL, so more, smaller chunks cost
-#: more than the load balance they buy (measured: 1.84x at 1 per worker,
-#: 1.74x at 2, 1.68x at 3 for 64 fits on 2 threads).
+#: more than the load balance they buy (measured for 64 fits on 2 threads:
+#: 1.78x at 1 chunk per worker, 1.71x at 2, 1.63x at 3, 1.60x at 4; a
+#: variant whose calling thread did all the GIL work while two pool threads
+#: ran the compiled calls reached 1.5x).
 _CHUNKS_PER_WORKER = 1
 
 _EXECUTORS = ("thread", "process")
@@ -287,10 +289,10 @@ def _fit_parts(
     """Fit polylines in chunks, each one compiled call with the GIL released.
 
     The first polyline is checked with everything the polylines share
-    (:func:`dtalign._fitjobs.plan`), the others in bulk before any thread
-    starts; the chunks then run on ``workers`` threads. The polylines
-    before the first bad one are fitted, and the first error in input
-    order is raised, as the serial loop would.
+    (:func:`dtalign._fitjobs.plan`); each of ``workers`` threads then
+    checks its chunk of the others in bulk (one thread at a time) and fits
+    it. The polylines before the first bad one are fitted, and the first
+    error in input order is raised, as the serial loop would.
     """
     from . import _fitjobs
 
