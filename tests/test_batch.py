@@ -301,7 +301,7 @@ def test_batch_fit_results_are_read_only_and_independent(products, polylines):
 
 
 def test_nested_map_ordered_does_not_deadlock(products, polylines):
-    # fn itself fans out on the same kept-alive pool: must finish, in order.
+    # fn itself fans out (nested map_ordered): must finish, in order.
     def inner(k):
         return fit_many(products, polylines[k : k + 3], search_window_vu=WINDOW, workers=2)
 

@@ -158,19 +158,12 @@ def _dtalign_modules():
             if (name == "dtalign" or name.startswith("dtalign.")) and mod is not None}
 
 
-#: Module-level containers allowed to change, and why: dtalign.batch keeps
-#: its helper threads alive between calls (starting a thread costs ~0.2 ms,
-#: a tenth of a small batch's time on two cores). The pool holds no data,
-#: so no result can depend on it.
-_ALLOWED = {("dtalign.batch", "_POOLS")}
-
-
 def _mutable_state():
     """Deep copies of every module-level list/dict/set/bytearray/ndarray of dtalign."""
     state = {}
     for mname, mod in _dtalign_modules().items():
         for attr, value in vars(mod).items():
-            if attr.startswith("__") or (mname, attr) in _ALLOWED:
+            if attr.startswith("__"):
                 continue
             if isinstance(value, (list, dict, set, bytearray)):
                 state[(mname, attr)] = copy.deepcopy(value)
