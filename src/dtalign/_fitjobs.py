@@ -293,10 +293,23 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     )
 
 
-def fit_batch(shared: Plan, batch: Batch, lock: Any = None) -> list[PolylineFit]:
+def edge_index(shared: Plan) -> tuple[np.ndarray, np.ndarray]:
+    """The edge mask's row index (CSR), for :func:`fit_batch` calls to share."""
+    from ._kernels.coarse import edge_index as _edge_index
+
+    return _edge_index(shared.edge)  # type: ignore[no-any-return]
+
+
+#: No shared index: fit_batch's compiled call builds its own.
+NO_INDEX = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+
+
+def fit_batch(shared: Plan, batch: Batch, lock: Any = None,
+              index: tuple[np.ndarray, np.ndarray] = NO_INDEX) -> list[PolylineFit]:
     """Fit the polylines of ``batch`` in one compiled call (GIL released).
 
-    ``lock``, if given, is held while the results are wrapped.
+    ``lock``, if given, is held while the results are wrapped; ``index`` is
+    :func:`edge_index`, or empty to build it in the call.
 
     Each fit's ``timings_s`` has ``fit``: the call's wall time divided
     evenly among its polylines (the coarse search and LM run interleaved).
@@ -314,7 +327,7 @@ def fit_batch(shared: Plan, batch: Batch, lock: Any = None) -> list[PolylineFit]
     t0 = time.perf_counter()
     (done, error, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
      degenerate, r_all, w_all) = fit_polylines(
-        shared.edge, shared.mv, shared.mu, a.dt,
+        shared.edge, index[0], index[1], shared.mv, shared.mu, a.dt,
         a.gradient if a.gradient is not None else _NO_GRADIENT, pts, nrm, sig, starts,
         pivots, distances, a.rotation, a.use_polarity, a.fit_rotation, a.max_iterations,
         a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,

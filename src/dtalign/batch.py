@@ -69,13 +69,14 @@ _FIT_DEFAULTS = {
     if name in _FIT_OPTIONS
 }
 
-#: Chunks per worker thread. One: each chunk is one compiled call, and its
-#: checks and result wrapping hold the GIL, so more, smaller chunks cost
-#: more than the load balance they buy (measured for 64 fits on 2 threads:
-#: 1.78x at 1 chunk per worker, 1.71x at 2, 1.63x at 3, 1.60x at 4; a
-#: variant whose calling thread did all the GIL work while two pool threads
-#: ran the compiled calls reached 1.5x).
-_CHUNKS_PER_WORKER = 1
+#: Chunks per worker thread, taken in turn from a shared counter. Each chunk
+#: is one compiled call whose checks and result objects hold the GIL, so
+#: small chunks cost time; but one thread often runs slower than the other
+#: on a shared machine (seen: a whole half-batch at 58 % speed), and two
+#: chunks each let the faster thread take over. 64 fits on 2 threads: with
+#: both cores at full speed, 1.78x at 1 chunk per worker and 1.71x at 2;
+#: with one core slowed, 1.0-1.4x at 1 and 1.5-1.7x at 2.
+_CHUNKS_PER_WORKER = 2
 
 _EXECUTORS = ("thread", "process")
 
@@ -287,6 +288,7 @@ def _fit_parts(
         lm_options=kw,
     )
     n_chunks = 1 if workers == 1 else min(len(parts), _CHUNKS_PER_WORKER * workers)
+    index = _fitjobs.NO_INDEX if n_chunks == 1 else _fitjobs.edge_index(shared)
     bounds = np.linspace(0, len(parts), n_chunks + 1).round().astype(int).tolist()
     # Checks and result wrapping hold the GIL: one thread at a time, rather
     # than two threads handing the GIL back and forth; a thread's checks and
@@ -297,7 +299,7 @@ def _fit_parts(
         lo, hi = bounds[chunk], bounds[chunk + 1]
         with gil_work:
             batch, error = _fitjobs.prepare(shared, parts[lo:hi], first if lo == 0 else None)
-        fits = _fitjobs.fit_batch(shared, batch, lock=gil_work)
+        fits = _fitjobs.fit_batch(shared, batch, lock=gil_work, index=index)
         if error is not None:
             raise error
         return fits

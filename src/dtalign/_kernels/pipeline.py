@@ -22,13 +22,15 @@ from .fit import OK, fit
 
 @kernel
 def fit_polylines(
-    edge, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
+    edge, index_rows, index_cols, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
     rotation0, use_polarity, fit_rotation, max_iterations, damping, step_tolerance, tukey_c,
     rcond, trust_region, tikhonov_alpha, ridge, ridge_half, ridge_sample_step,
     ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm,
 ):  # pragma: no cover - compiled
     """Fit polylines ``j = 0, 1, ...`` (rows ``starts[j]:starts[j+1]`` of the
-    concatenated ``pts, nrm, sig``) until one fails.
+    concatenated ``pts, nrm, sig``) until one fails. ``index_rows,
+    index_cols`` is :func:`~dtalign._kernels.coarse.edge_index` of ``edge``,
+    or empty to build it here.
 
     Returns ``(done, error, coarse, pose, iterations, converged, cov, rms,
     raw_rms, inliers, degenerate, r, w)``: ``done`` polylines have results
@@ -50,7 +52,10 @@ def fit_polylines(
     r_all = np.zeros(pts.shape[0])
     w_all = np.zeros(pts.shape[0])
     h, w = edge.shape
-    row_start, e_cols = edge_index(edge)  # one scan of the edge mask for all
+    if index_rows.shape[0] == 0:  # one scan of the edge mask for the whole chunk
+        row_start, e_cols = edge_index(edge)
+    else:  # or the caller's, shared by its chunks
+        row_start, e_cols = index_rows, index_cols
     for j in range(k):
         a = starts[j]
         b = starts[j + 1]
