@@ -6,10 +6,10 @@ fits truly in parallel. Two entry points:
 * :func:`fit_many` fits many polylines against one image's products
   (:func:`dtalign.pipeline.prepare_image`): the first polyline and the
   shared options are checked as :func:`~dtalign.pipeline.fit_polyline_products`
-  checks them, the others in bulk, and each worker's share of polylines
-  then runs as one compiled call (coarse search and LM of every polyline)
-  with the GIL released throughout, so the GIL-held Python per fit is a
-  few microseconds instead of a third of the fit;
+  checks them, the others in bulk, and the polylines then run in chunks
+  (two per worker thread), each one compiled call (coarse search and LM
+  of every polyline) with the GIL released throughout, so the GIL-held
+  Python per fit is a few microseconds instead of a third of the fit;
 * :func:`fit_images` prepares and fits many images, one image per task.
 
 Both return their results in input order, equal to what the serial calls
@@ -272,10 +272,11 @@ def _fit_parts(
     """Fit polylines in chunks, each one compiled call with the GIL released.
 
     The first polyline is checked with everything the polylines share
-    (:func:`dtalign._fitjobs.plan`); each of ``workers`` threads then
-    checks its chunk of the others in bulk (one thread at a time) and fits
-    it. The polylines before the first bad one are fitted, and the first
-    error in input order is raised, as the serial loop would.
+    (:func:`dtalign._fitjobs.plan`); ``workers`` threads then take the
+    chunks in turn, each checking its polylines in bulk (one thread at a
+    time) and fitting them against one shared index of the edge mask. The
+    polylines before the first bad one are fitted, and the first error in
+    input order is raised, as the serial loop would.
     """
     from . import _fitjobs
 
