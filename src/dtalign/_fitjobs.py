@@ -30,6 +30,7 @@ from ._constants import (
     DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
     DEFAULT_RIDGE_SAMPLE_STEP_PX,
 )
+from .observability import _sigmas_from_cov
 from .products import ImageProducts
 
 if TYPE_CHECKING:
@@ -255,9 +256,9 @@ _LM_OPTION_FIELDS = {
 }
 
 
-def _sigma(x: float) -> float:
-    """``_sigmas_from_cov`` of one diagonal entry: negatives give 0, NaN gives inf."""
-    return math.inf if math.isnan(x) else math.sqrt(max(x, 0.0))
+def _at_window_edge(dv: int, du: int, window: tuple[int, int]) -> bool:
+    """Whether the coarse seed lies on the boundary of a non-zero search margin."""
+    return (window[0] > 0 and abs(dv) >= window[0]) or (window[1] > 0 and abs(du) >= window[1])
 
 
 def fit_one(shared: Plan, it: Item) -> PolylineFit:
@@ -278,14 +279,12 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
         offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
     ))
     t3 = time.perf_counter()
-    cov = lm.covariance
+    sd = _sigmas_from_cov(np.asarray(lm.covariance)).tolist()
     fit_rotation = shared.lm.fit_rotation
     return PolylineFit(
-        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad,
-        sigma_vu=(_sigma(float(cov[0, 0])), _sigma(float(cov[1, 1]))),
-        sigma_rotation_rad=_sigma(float(cov[2, 2])) if fit_rotation else None,
-        coarse_offset_vu=coarse,
-        at_window_edge=any(m > 0 and abs(c) >= m for c, m in zip(coarse, shared.window, strict=True)),
+        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, sigma_vu=(sd[0], sd[1]),
+        sigma_rotation_rad=sd[2] if fit_rotation else None, coarse_offset_vu=coarse,
+        at_window_edge=_at_window_edge(coarse[0], coarse[1], shared.window),
         lm=lm, search_window_vu=shared.window, fit_rotation=fit_rotation, pivot_vu=it.pivot,
         pivot_distance_px=float(it.distance), noise_sigma=shared.products.noise_sigma,
         vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
@@ -362,14 +361,11 @@ def _wrap(shared: Plan, starts: np.ndarray, pts: FloatArray,
     # slices each fit keeps: a few microseconds per fit under the GIL.
     for arr in (covs, r_all, w_all):
         arr.flags.writeable = False
-    with np.errstate(invalid="ignore"):
-        diag = np.diagonal(covs, axis1=1, axis2=2)
-        sig_l = np.where(np.isnan(diag), np.inf, np.sqrt(np.maximum(diag, 0.0))).tolist()
+    sig_l = _sigmas_from_cov(covs).tolist()
     poses_l = poses.tolist()
     coarse_l = coarse.tolist()
     bounds = starts.tolist()
     fit_rotation = a.fit_rotation
-    mv, mu = shared.window
     common = {
         "search_window_vu": shared.window, "fit_rotation": fit_rotation,
         "noise_sigma": p.noise_sigma, "pinvh_rcond": a.pinvh_rcond, "tukey_c": a.tukey_c,
@@ -393,7 +389,7 @@ def _wrap(shared: Plan, starts: np.ndarray, pts: FloatArray,
         fit.__dict__.update(
             common, offset_vu=lm.offset_vu, rotation_rad=pose[2], sigma_vu=(sd[0], sd[1]),
             sigma_rotation_rad=sd[2] if fit_rotation else None, coarse_offset_vu=(dv, du),
-            at_window_edge=(mv > 0 and abs(dv) >= mv) or (mu > 0 and abs(du) >= mu), lm=lm,
+            at_window_edge=_at_window_edge(dv, du, shared.window), lm=lm,
             pivot_vu=(pv[0], pv[1]), pivot_distance_px=dist,
             vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], timings_s=dict(timings),
         )

@@ -297,7 +297,10 @@ def normal_information_covariance(
 
 
 def _sigmas_from_cov(cov: FloatArray) -> FloatArray:
-    """Square roots of the diagonal: negatives give 0, NaN gives ``inf``."""
-    diag = np.diag(cov).astype(np.float64, copy=True)
+    """Square roots of the diagonal: negatives give 0, NaN gives ``inf``.
+
+    For a stack of covariances ``(..., P, P)``, of each one's diagonal.
+    """
+    diag = np.diagonal(cov, axis1=-2, axis2=-1).astype(np.float64, copy=True)
     with np.errstate(invalid="ignore"):
         return np.where(np.isnan(diag), np.inf, np.sqrt(np.maximum(diag, 0.0)))

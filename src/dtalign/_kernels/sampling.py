@@ -28,43 +28,39 @@ def clamp(x, hi):
 
 
 @inline_kernel
-def bilinear(dt, v, u):  # pragma: no cover - compiled
-    """``dt`` sampled at ``(v, u)``, clamped to the image."""
-    h, w = dt.shape
+def cell(h, w, v, u):  # pragma: no cover - compiled
+    """Corner rows/columns ``v0, u0, v1, u1`` and fractions ``fv, fu`` of the
+    bilinear cell at ``(v, u)``, clamped to an ``h x w`` image."""
     v = clamp(v, h - 1.0)
     u = clamp(u, w - 1.0)
     v0 = int(math.floor(v))
     u0 = int(math.floor(u))
-    v1 = min(v0 + 1, h - 1)
-    u1 = min(u0 + 1, w - 1)
-    fv = v - v0
-    fu = u - u0
-    return (
-        dt[v0, u0] * (1 - fv) * (1 - fu)
-        + dt[v0, u1] * (1 - fv) * fu
-        + dt[v1, u0] * fv * (1 - fu)
-        + dt[v1, u1] * fv * fu
-    )
+    return v0, u0, min(v0 + 1, h - 1), min(u0 + 1, w - 1), v - v0, u - u0
+
+
+@inline_kernel
+def blend(a, b, c, d, fv, fu):  # pragma: no cover - compiled
+    """Corners ``a = (v0, u0)``, ``b = (v0, u1)``, ``c = (v1, u0)``,
+    ``d = (v1, u1)`` weighted in the order of SPEC section 2."""
+    return a * (1 - fv) * (1 - fu) + b * (1 - fv) * fu + c * fv * (1 - fu) + d * fv * fu
+
+
+@inline_kernel
+def bilinear(dt, v, u):  # pragma: no cover - compiled
+    """``dt`` sampled at ``(v, u)``, clamped to the image."""
+    v0, u0, v1, u1, fv, fu = cell(dt.shape[0], dt.shape[1], v, u)
+    return blend(dt[v0, u0], dt[v0, u1], dt[v1, u0], dt[v1, u1], fv, fu)
 
 
 @kernel
 def _bilinear_hypot(grad, v, u):  # pragma: no cover - compiled
     """:func:`bilinear` of ``hypot(g_v, g_u)`` straight from the gradient vectors."""
-    h = grad.shape[0]
-    w = grad.shape[1]
-    v = clamp(v, h - 1.0)
-    u = clamp(u, w - 1.0)
-    v0 = int(math.floor(v))
-    u0 = int(math.floor(u))
-    v1 = min(v0 + 1, h - 1)
-    u1 = min(u0 + 1, w - 1)
-    fv = v - v0
-    fu = u - u0
-    a = math.hypot(grad[v0, u0, 0], grad[v0, u0, 1])
-    b = math.hypot(grad[v0, u1, 0], grad[v0, u1, 1])
-    c = math.hypot(grad[v1, u0, 0], grad[v1, u0, 1])
-    d = math.hypot(grad[v1, u1, 0], grad[v1, u1, 1])
-    return a * (1 - fv) * (1 - fu) + b * (1 - fv) * fu + c * fv * (1 - fu) + d * fv * fu
+    v0, u0, v1, u1, fv, fu = cell(grad.shape[0], grad.shape[1], v, u)
+    return blend(
+        math.hypot(grad[v0, u0, 0], grad[v0, u0, 1]), math.hypot(grad[v0, u1, 0], grad[v0, u1, 1]),
+        math.hypot(grad[v1, u0, 0], grad[v1, u0, 1]), math.hypot(grad[v1, u1, 0], grad[v1, u1, 1]),
+        fv, fu,
+    )
 
 
 #: Side of the square tiles in which the ridge polish forms magnitudes.
