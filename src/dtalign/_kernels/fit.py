@@ -21,6 +21,7 @@ from .ridge import (
     ridge_loop,
 )
 from .robust import polarity, symmetric_pinvh
+from .simd import hsum, load4, positive_ones, splat
 
 #: The LM driver's polish samples its gradient vectors, not a magnitude image.
 _NO_MAGNITUDE = np.zeros((0, 0))
@@ -36,19 +37,33 @@ DIVERGED = 3  # a step or the normal equations overflowed to non-finite values
 def _failed(error, pose0, n, n_params):  # pragma: no cover - compiled
     """The tuple :func:`fit` returns with an error code (the rest is unused)."""
     empty = np.zeros(n)
-    return (error, pose0.copy(), 0, False, empty, empty.copy(), np.zeros((n, n_params)),
+    return (error, pose0.copy(), 0, False, empty, empty.copy(), np.zeros((n_params, n)),
             np.full((n_params, n_params), np.inf), math.inf, math.inf, 0, True)
 
 
 @kernel
-def _count(w):  # pragma: no cover - compiled
-    inliers = 0
-    total = 0.0
-    for i in range(w.shape[0]):
+def _summary(r, w):  # pragma: no cover - compiled
+    """``(inliers, sum(w), sum(w r^2), sum(r^2))``, summed lane-wise as the LM's sums."""
+    n = r.shape[0]
+    n4 = n - n % 4
+    zero = splat(0.0)
+    count4 = total4 = weighted4 = raw4 = zero
+    for i in range(0, n4, 4):
+        ri = load4(r, i)
+        wi = load4(w, i)
+        count4 += positive_ones(wi)
+        total4 += wi
+        weighted4 += wi * ri * ri
+        raw4 += ri * ri
+    inliers = int(hsum(count4))  # exact: a count below 2**53
+    total, weighted, raw = hsum(total4), hsum(weighted4), hsum(raw4)
+    for i in range(n4, n):
         if w[i] > 0.0:
             inliers += 1
         total += w[i]
-    return inliers, total
+        weighted += w[i] * r[i] * r[i]
+        raw += r[i] * r[i]
+    return inliers, total, weighted, raw
 
 
 @kernel
@@ -61,8 +76,8 @@ def fit(
     """SPEC section 3, steps 1-5.
 
     Returns ``(error, pose, iterations, converged, r, w, jac, covariance,
-    rms, raw_rms, inlier_count, degenerate)``; when ``error`` is not
-    :data:`OK` the other values are placeholders.
+    rms, raw_rms, inlier_count, degenerate)`` (``jac`` as columns, ``(P, N)``);
+    when ``error`` is not :data:`OK` the other values are placeholders.
     """
     n = pts.shape[0]
     n_params = 3 if fit_rotation else 2
@@ -80,7 +95,7 @@ def fit(
         return _failed(BAD_DT, pose0, n, n_params)
     if status == LOOP_DIVERGED:
         return _failed(DIVERGED, pose0, n, n_params)
-    inlier_count, total_weight = _count(w)
+    inlier_count, total_weight, weighted, raw = _summary(r, w)
     if ridge and inlier_count > 0:
         patch, tiles, r0, c0 = magnitude_patch(
             grad, pts, pose[0], pose[1], ridge_half * ridge_sample_step + PATCH_MARGIN
@@ -105,25 +120,20 @@ def fit(
             info = np.zeros((n_params, n_params))
             status = evaluate_state(
                 dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac,
-                info, np.zeros(n_params), np.zeros(n), np.zeros(n), False,
+                info, np.zeros(n_params), np.zeros(n), False,
             )[0]
             if status < 0:
                 return _failed(BAD_DT, pose0, n, n_params)
-            inlier_count, total_weight = _count(w)
+            inlier_count, total_weight, weighted, raw = _summary(r, w)
     degenerate = inlier_count == 0 or total_weight == 0.0
-    weighted = 0.0
-    raw = 0.0
-    for i in range(n):
-        weighted += w[i] * r[i] * r[i]
-        raw += r[i] * r[i]
     raw_rms = math.sqrt(raw / n)
     if degenerate:
         rms = math.inf
         cov = np.full((n_params, n_params), np.inf)
     else:
         rms = math.sqrt(weighted / total_weight)
-        # info: the final state's J^T W J, which evaluate_state summed exactly
-        # as normal_equations(jac, w, r) would (same products, same order)
+        # info: the final state's J^T W J as evaluate_state summed it (the
+        # products of normal_equations(jac.T, w, r), summed lane-wise)
         cov, ok = symmetric_pinvh(info, rcond)
         if not ok:
             return _failed(DIVERGED, pose0, n, n_params)

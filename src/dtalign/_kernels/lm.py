@@ -14,9 +14,32 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 from .robust import solve_step, tukey
 from .sampling import bilinear, transform
+from .simd import (
+    MAX_ELEMENTS,
+    all_finite,
+    any_greater,
+    hsum,
+    load4,
+    splat,
+    sqrt4,
+    store4,
+    tukey4,
+    where_nonzero,
+)
+from .simd_image import (
+    CELLS_PER_SLOT,
+    FRACS_PER_SLOT,
+    bilinear4,
+    central4,
+    finish_central,
+    finish_sample,
+    positions4,
+    stage_central,
+    stage_sample,
+)
 
 #: Mirrors of the constants in dtalign._constants, as compile-time literals.
 PENALTY = 1.0e6
@@ -25,35 +48,155 @@ EPS_R = 1.0e-3
 LAMBDA_MIN = 1.0e-12
 LAMBDA_MAX = 1.0e6
 
+#: Groups of four vertices whose cells are staged at a time (:mod:`.simd`):
+#: enough to overlap the groups' loads, few enough for the buffers (3 KiB)
+#: to stay in L1. 8 to 64 measured alike; 4 lost half the gain.
+BLOCK = 16
+
 #: Status of :func:`lm_loop`.
 LOOP_OK = 0
 LOOP_BAD_DT = 1  # a sample read a NaN or inf from the DT
 LOOP_DIVERGED = 2  # the normal equations or a step overflowed
 
 
+@inline_kernel
+def lanes_for(dt, n):  # pragma: no cover - compiled
+    """How many leading vertices are evaluated four at a time (:mod:`.simd`)."""
+    if dt.shape[0] < 2 or dt.shape[1] < 2 or dt.size > MAX_ELEMENTS:
+        return 0
+    return n - n % 4
+
+
+@kernel
+def _lane_samples(
+    dt, pts, pol, pose, pivot, fit_rotation, r, jac, samples, n4,
+):  # pragma: no cover - compiled
+    """Residuals (from ``samples``, the DT at the vertices) and Jacobian columns
+    of vertices ``0..n4``, four at a time; False if a sample read a NaN or inf."""
+    dv, du, theta = pose[0], pose[1], pose[2]
+    pv, pu = pivot[0], pivot[1]
+    c0, s0 = math.cos(theta), math.sin(theta)
+    tp, tm = theta + EPS_R, theta - EPS_R
+    cp, sp = math.cos(tp), math.sin(tp)
+    cm, sm = math.cos(tm), math.sin(tm)
+    two_eps_t = 2 * EPS_T
+    two_eps_r = splat(2 * EPS_R)
+    penalty = splat(PENALTY)
+    cells = np.empty(BLOCK * CELLS_PER_SLOT, np.int32)
+    fracs = np.empty(BLOCK * FRACS_PER_SLOT)
+    staged = np.empty(BLOCK, np.bool_)
+    for i in range(0, n4, 4):
+        g = (i >> 2) % BLOCK
+        if g == 0:  # stage the Jacobian cells of the next block of groups
+            for h in range(min(BLOCK, (n4 - i) >> 2)):
+                v, u = positions4(pts, i + 4 * h, dv, du, theta, c0, s0, pv, pu)
+                staged[h] = stage_central(dt, v, u, EPS_T, cells, fracs, h)
+        if staged[g]:
+            j_v, j_u = finish_central(dt, cells, fracs, g, two_eps_t)
+        else:
+            v, u = positions4(pts, i, dv, du, theta, c0, s0, pv, pu)
+            j_v, j_u = central4(dt, v, u, EPS_T, two_eps_t)
+        sample = load4(samples, i)
+        # inf - inf and nan propagate, so one test covers all five samples
+        if not all_finite(sample + j_v + j_u):
+            return False
+        store4(jac[0], i, j_v)
+        store4(jac[1], i, j_u)
+        if fit_rotation:
+            vp, up = positions4(pts, i, dv, du, tp, cp, sp, pv, pu)
+            vm, um = positions4(pts, i, dv, du, tm, cm, sm, pv, pu)
+            j_r = (bilinear4(dt, vp, up) - bilinear4(dt, vm, um)) / two_eps_r
+            if not all_finite(j_r):
+                return False
+            store4(jac[2], i, j_r)
+        store4(r, i, where_nonzero(load4(pol, i), sample, penalty))
+    return True
+
+
+@kernel
+def _lane_sums(r, jac, inv_var, sig, pol, w, tukey_c, n4):  # pragma: no cover - compiled
+    """IRLS weights of vertices ``0..n4`` into ``w``, and their lane-wise sums
+    ``(positive, cost, total, g0, g1, g2, h00, h01, h02, h11, h12, h22)``.
+
+    Zero weights add exact zeros (the Jacobian is finite), so unlike the
+    one-by-one sums no vertex is skipped. Translation and rotation have
+    loops of their own: the rotation's four extra accumulators would not
+    fit the registers of the translation loop.
+    """
+    zero = splat(0.0)
+    positive = False
+    cost4 = total4 = g0_4 = g1_4 = g2_4 = zero
+    h00_4 = h01_4 = h02_4 = h11_4 = h12_4 = h22_4 = zero
+    if jac.shape[0] == 2:
+        for i in range(0, n4, 4):
+            ri = load4(r, i)
+            p = load4(pol, i)
+            wi = load4(inv_var, i) * tukey4(ri / load4(sig, i), tukey_c) * p
+            store4(w, i, wi)
+            positive |= any_greater(wi, zero)
+            swi = sqrt4(wi)
+            cost4 += wi * ri * ri
+            total4 += wi
+            swr = swi * ri
+            a0 = swi * load4(jac[0], i)
+            a1 = swi * load4(jac[1], i)
+            g0_4 += a0 * swr
+            g1_4 += a1 * swr
+            h00_4 += a0 * a0
+            h01_4 += a0 * a1
+            h11_4 += a1 * a1
+    else:
+        for i in range(0, n4, 4):
+            ri = load4(r, i)
+            p = load4(pol, i)
+            wi = load4(inv_var, i) * tukey4(ri / load4(sig, i), tukey_c) * p
+            store4(w, i, wi)
+            positive |= any_greater(wi, zero)
+            swi = sqrt4(wi)
+            cost4 += wi * ri * ri
+            total4 += wi
+            swr = swi * ri
+            a0 = swi * load4(jac[0], i)
+            a1 = swi * load4(jac[1], i)
+            a2 = swi * load4(jac[2], i)
+            g0_4 += a0 * swr
+            g1_4 += a1 * swr
+            g2_4 += a2 * swr
+            h00_4 += a0 * a0
+            h01_4 += a0 * a1
+            h02_4 += a0 * a2
+            h11_4 += a1 * a1
+            h12_4 += a1 * a2
+            h22_4 += a2 * a2
+    return (positive, hsum(cost4), hsum(total4), hsum(g0_4), hsum(g1_4), hsum(g2_4),
+            hsum(h00_4), hsum(h01_4), hsum(h02_4), hsum(h11_4), hsum(h12_4), hsum(h22_4))
+
+
 @kernel
 def evaluate_state(
-    dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad, sw,
+    dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad,
     samples, sampled,
 ):  # pragma: no cover - compiled
     """State at ``pose``: residuals, IRLS weights and Jacobian into ``r, w, jac``,
     and ``H = A^T A``, ``g = A^T (sqrt(w) r)`` (``A = sqrt(w) J``) into
     ``hess, grad``.
 
-    Rejected-polarity vertices get the penalty residual; their Jacobian row
-    is still the DT's (it carries zero weight). ``inv_var`` is
-    ``1 / sigma^2``; ``sw`` is scratch for ``sqrt(w)``. With ``sampled``,
-    ``samples`` already holds the DT at every vertex at this pose (the trial
-    cost of the step that led here sampled it: :func:`weighted_cost`).
-    Returns ``(status, cost, total_weight)``: status 1 if any weight is
-    positive, 0 if none is, -1 if a sample read a NaN or inf from ``dt``
-    (the caller refuses the DT: the image is too large to scan on every
-    call, but no non-finite value reaches a result unnoticed).
+    ``jac`` holds the Jacobian's columns as rows, ``(P, N)``. Rejected-polarity
+    vertices get the penalty residual; their Jacobian entries are still the
+    DT's (they carry zero weight). ``inv_var`` is ``1 / sigma^2``. With
+    ``sampled``, ``samples`` already holds the DT at every vertex at this
+    pose (the trial cost of the step that led here sampled it:
+    :func:`weighted_cost`). Returns ``(status, cost, total_weight)``: status
+    1 if any weight is positive, 0 if none is, -1 if a sample read a NaN or
+    inf from ``dt`` (the caller refuses the DT: the image is too large to
+    scan on every call, but no non-finite value reaches a result unnoticed).
 
-    Three passes: the samples; the weights, branch-free so that LLVM
-    vectorises their two divisions and square root (a third of the time
-    when computed vertex by vertex); the sums, over the vertices in order
-    as SPEC's formulas read. Every value is computed exactly as in one pass.
+    Vertices are taken four at a time (:mod:`.simd`), the last ``n % 4``
+    one by one; every sample, weight and product is computed exactly as
+    the one-by-one code computes it. The sums are lane-wise: four partial
+    sums over every fourth vertex, combined as ``(s0 + s1) + (s2 + s3)``,
+    then the last vertices in order (:func:`weighted_cost` sums its cost
+    the same way, so a trial cost compares like with like).
     """
     dv, du, theta = pose[0], pose[1], pose[2]
     pv, pu = pivot[0], pivot[1]
@@ -64,51 +207,51 @@ def evaluate_state(
     two_eps_t = 2 * EPS_T
     two_eps_r = 2 * EPS_R
     n = pts.shape[0]
-    for i in range(n):
+    n4 = lanes_for(dt, n)
+    if not sampled:
+        sample_all(dt, pts, pose, pivot, samples)
+    if not _lane_samples(dt, pts, pol, pose, pivot, fit_rotation, r, jac, samples, n4):
+        return -1, 0.0, 0.0
+    for i in range(n4, n):
         v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pv, pu)
-        sample = samples[i] if sampled else bilinear(dt, v, u)
+        sample = samples[i]
         j0 = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / two_eps_t
         j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / two_eps_t
-        # inf - inf and nan propagate, so one test covers all five samples
         if not math.isfinite(sample + j0 + j1):
             return -1, 0.0, 0.0
-        jac[i, 0] = j0
-        jac[i, 1] = j1
+        jac[0, i] = j0
+        jac[1, i] = j1
         if fit_rotation:
             vp, up = transform(pts[i, 0], pts[i, 1], dv, du, tp, cp, sp, pv, pu)
             vm, um = transform(pts[i, 0], pts[i, 1], dv, du, tm, cm, sm, pv, pu)
             j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / two_eps_r
             if not math.isfinite(j2):
                 return -1, 0.0, 0.0
-            jac[i, 2] = j2
+            jac[2, i] = j2
         r[i] = sample if pol[i] != 0.0 else PENALTY
-    for i in range(n):
-        wi = inv_var[i] * tukey(r[i] / sig[i], tukey_c) * pol[i]
-        w[i] = wi
-        sw[i] = np.sqrt(wi)
-    status = 0
-    cost = 0.0
-    total = 0.0
-    # scalar accumulators (kept in registers) for H and g, P = 2 or 3
-    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-    g0 = g1 = g2 = 0.0
-    for i in range(n):
+    (positive, cost, total, g0, g1, g2, h00, h01, h02, h11, h12, h22) = _lane_sums(
+        r, jac, inv_var, sig, pol, w, tukey_c, n4
+    )
+    status = 1 if positive else 0
+    for i in range(n4, n):
         ri = r[i]
-        wi = w[i]
+        wi = inv_var[i] * tukey(ri / sig[i], tukey_c) * pol[i]
+        w[i] = wi
         cost += wi * ri * ri
         total += wi
         if wi > 0.0:
             status = 1
-            swr = sw[i] * ri
-            a0 = sw[i] * jac[i, 0]
-            a1 = sw[i] * jac[i, 1]
+            sw = np.sqrt(wi)
+            swr = sw * ri
+            a0 = sw * jac[0, i]
+            a1 = sw * jac[1, i]
             g0 += a0 * swr
             g1 += a1 * swr
             h00 += a0 * a0
             h01 += a0 * a1
             h11 += a1 * a1
             if fit_rotation:
-                a2 = sw[i] * jac[i, 2]
+                a2 = sw * jac[2, i]
                 g2 += a2 * swr
                 h02 += a0 * a2
                 h12 += a1 * a2
@@ -127,22 +270,53 @@ def evaluate_state(
 
 
 @kernel
+def sample_all(dt, pts, pose, pivot, samples):  # pragma: no cover - compiled
+    """``samples[i]``: the DT at every vertex at ``pose``, four at a time."""
+    dv, du, theta = pose[0], pose[1], pose[2]
+    c0, s0 = math.cos(theta), math.sin(theta)
+    n = pts.shape[0]
+    n4 = lanes_for(dt, n)
+    cells = np.empty(BLOCK * CELLS_PER_SLOT, np.int32)
+    fracs = np.empty(BLOCK * FRACS_PER_SLOT)
+    staged = np.empty(BLOCK, np.bool_)
+    for i in range(0, n4, 4):
+        g = (i >> 2) % BLOCK
+        if g == 0:  # stage the cells of the next block of groups
+            for h in range(min(BLOCK, (n4 - i) >> 2)):
+                v, u = positions4(pts, i + 4 * h, dv, du, theta, c0, s0, pivot[0], pivot[1])
+                staged[h] = stage_sample(dt, v, u, cells, fracs, h)
+        if staged[g]:
+            sample = finish_sample(dt, cells, fracs, g)
+        else:
+            v, u = positions4(pts, i, dv, du, theta, c0, s0, pivot[0], pivot[1])
+            sample = bilinear4(dt, v, u)
+        store4(samples, i, sample)
+    for i in range(n4, n):
+        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pivot[0], pivot[1])
+        samples[i] = bilinear(dt, v, u)
+
+
+@kernel
 def weighted_cost(dt, pts, pol, w, pose, pivot, samples):  # pragma: no cover - compiled
-    """``sum(w * r * r)`` with residuals at ``pose`` and fixed weights ``w``.
+    """``sum(w * r * r)`` with residuals at ``pose`` and fixed weights ``w``,
+    summed lane-wise as :func:`evaluate_state` sums its cost.
 
     Non-finite when a sample read a NaN or inf (``0 * inf`` is NaN too).
     The DT at every vertex (rejected-polarity ones included) is kept in
     ``samples``: if the step is accepted, :func:`evaluate_state` at this
     pose starts from them.
     """
-    dv, du, theta = pose[0], pose[1], pose[2]
-    c0, s0 = math.cos(theta), math.sin(theta)
-    total = 0.0
-    for i in range(pts.shape[0]):
-        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pivot[0], pivot[1])
-        sample = bilinear(dt, v, u)
-        samples[i] = sample
-        ri = sample if pol[i] != 0.0 else PENALTY
+    sample_all(dt, pts, pose, pivot, samples)
+    n = pts.shape[0]
+    n4 = n - n % 4
+    penalty = splat(PENALTY)
+    total4 = splat(0.0)
+    for i in range(0, n4, 4):
+        ri = where_nonzero(load4(pol, i), load4(samples, i), penalty)
+        total4 += load4(w, i) * ri * ri
+    total = hsum(total4)
+    for i in range(n4, n):
+        ri = samples[i] if pol[i] != 0.0 else PENALTY
         total += w[i] * ri * ri
     return total
 
@@ -176,7 +350,7 @@ def lm_loop(
     n_params = 3 if fit_rotation else 2
     r = np.zeros(n)
     w = np.zeros(n)
-    jac = np.zeros((n, n_params))
+    jac = np.zeros((n_params, n))  # the Jacobian's columns
     inv_var = np.empty(n)
     for i in range(n):
         inv_var[i] = 1.0 / (sig[i] * sig[i])
@@ -194,14 +368,13 @@ def lm_loop(
     grad = np.zeros(n_params)
     damped = np.zeros((n_params, n_params))
     info = np.zeros((n_params, n_params))  # H of the state, without the Tikhonov term
-    sw = np.zeros(n)
     samples = np.zeros(n)
     sampled = False  # samples holds the DT at `pose` (set by the accepted trial)
     while iterations < max_iterations:
         if not fresh:
             status, cost, total_w = evaluate_state(
                 dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess,
-                grad, sw, samples, sampled,
+                grad, samples, sampled,
             )
             if status < 0:
                 return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT
@@ -257,6 +430,6 @@ def lm_loop(
     if not fresh:
         status = evaluate_state(
             dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, info, grad,
-            sw, samples, sampled,
+            samples, sampled,
         )[0]
     return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT if status < 0 else LOOP_OK

@@ -7,6 +7,8 @@ import math
 import numpy as np
 
 from .._jit import inline_kernel, kernel
+from .simd import MAX_ELEMENTS, store4
+from .simd_image import polarity4
 
 
 @inline_kernel
@@ -39,12 +41,20 @@ def irls_weight(r, sigma, c, accepted):  # pragma: no cover - compiled
 def polarity(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
     """1.0 where the normal points up the gradient at the shifted pixel, else 0.0.
 
-    Also returns True if a gradient value it read was NaN or inf.
+    Also returns True if a gradient value it read was NaN or inf. Four
+    vertices at a time (:func:`.simd_image.polarity4`), the rest one by one.
     """
     h = grad.shape[0]
     w = grad.shape[1]
-    out = np.zeros(pts.shape[0])
-    for i in range(pts.shape[0]):
+    n = pts.shape[0]
+    out = np.zeros(n)
+    n4 = n - n % 4 if grad.size <= MAX_ELEMENTS else 0
+    for i in range(0, n4, 4):
+        flags, bad = polarity4(pts, nrm, grad, i, dv, du)
+        if bad:
+            return out, True
+        store4(out, i, flags)
+    for i in range(n4, n):
         iv = np.rint(pts[i, 0] + dv)
         iu = np.rint(pts[i, 1] + du)
         if iv >= 0 and iv < h and iu >= 0 and iu < w:

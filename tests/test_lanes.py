@@ -1,0 +1,293 @@
+"""The four-vertices-at-a-time kernels (``_kernels.simd``, ``_kernels.simd_image``)
+against the one-vertex-at-a-time code they replace in the LM's hot loops.
+
+Samples, Jacobians, residuals, weights and polarity flags must be
+bit-identical (same IEEE operations in the same order); only the sums over
+vertices are taken in a different order (lane-wise), so they are compared
+to the sequential sums with a relative tolerance of a few ulps times N.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pytest
+from numba import njit
+
+from dtalign._kernels import lm as klm
+from dtalign._kernels import robust as krob
+from dtalign._kernels.sampling import bilinear, sample_many
+from dtalign._kernels.simd import load4, splat, store4
+from dtalign._kernels.simd_image import (
+    CELLS_PER_SLOT,
+    FRACS_PER_SLOT,
+    bilinear4,
+    central4,
+    finish_central,
+    finish_sample,
+    positions4,
+    stage_central,
+    stage_sample,
+)
+
+EPS_T = klm.EPS_T
+
+
+@njit
+def _lanes_direct(dt, pts, dv, du, theta, out):  # pragma: no cover - compiled
+    """Per group of four: the sample and both central differences, unstaged."""
+    c, s = math.cos(theta), math.sin(theta)
+    for i in range(0, pts.shape[0] - pts.shape[0] % 4, 4):
+        v, u = positions4(pts, i, dv, du, theta, c, s, 1.5, -2.0)
+        store4(out[0], i, bilinear4(dt, v, u))
+        j_v, j_u = central4(dt, v, u, EPS_T, 2 * EPS_T)
+        store4(out[1], i, j_v)
+        store4(out[2], i, j_u)
+
+
+@njit
+def _lanes_staged(dt, pts, dv, du, theta, out):  # pragma: no cover - compiled
+    """The same through stage_* / finish_*, one slot per group (edge groups unstaged)."""
+    c, s = math.cos(theta), math.sin(theta)
+    n4 = pts.shape[0] - pts.shape[0] % 4
+    cells = np.empty((n4 // 4 + 1) * CELLS_PER_SLOT, np.int32)
+    fracs = np.empty((n4 // 4 + 1) * FRACS_PER_SLOT)
+    cells2 = np.empty_like(cells)
+    fracs2 = np.empty_like(fracs)
+    for i in range(0, n4, 4):
+        v, u = positions4(pts, i, dv, du, theta, c, s, 1.5, -2.0)
+        g = i // 4
+        if stage_sample(dt, v, u, cells, fracs, g):
+            store4(out[0], i, finish_sample(dt, cells, fracs, g))
+        else:
+            store4(out[0], i, bilinear4(dt, v, u))
+        if stage_central(dt, v, u, EPS_T, cells2, fracs2, g):
+            j_v, j_u = finish_central(dt, cells2, fracs2, g, 2 * EPS_T)
+        else:
+            j_v, j_u = central4(dt, v, u, EPS_T, 2 * EPS_T)
+        store4(out[1], i, j_v)
+        store4(out[2], i, j_u)
+
+
+def _scalar(dt, pts, dv, du, theta):
+    """The one-by-one code: transform, bilinear, central differences."""
+    c, s = math.cos(theta), math.sin(theta)
+    out = np.empty((3, pts.shape[0]))
+    for i in range(pts.shape[0]):
+        if theta == 0.0:
+            v, u = pts[i, 0] + dv, pts[i, 1] + du
+        else:
+            v = 1.5 + c * (pts[i, 0] - 1.5) - s * (pts[i, 1] + 2.0) + dv
+            u = -2.0 + s * (pts[i, 0] - 1.5) + c * (pts[i, 1] + 2.0) + du
+        out[0, i] = bilinear(dt, v, u)
+        out[1, i] = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / (2 * EPS_T)
+        out[2, i] = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / (2 * EPS_T)
+    return out
+
+
+def _positions(rng, n, h, w):
+    """Vertices inside, on and outside the image, exact integers, halves, NaN and inf."""
+    pts = rng.uniform(-3.0, max(h, w) + 3.0, size=(n, 2))
+    k = rng.random(n)
+    pts[k < 0.15] = np.floor(pts[k < 0.15])  # on grid lines: fractions exactly 0
+    pts[(k >= 0.15) & (k < 0.25), 0] = h - 1.0  # the last row: a clamped corner
+    pts[(k >= 0.25) & (k < 0.3), 1] = w - 1.0 + 0.25  # the +eps sample leaves the image
+    pts[(k >= 0.3) & (k < 0.33)] = np.nan
+    pts[(k >= 0.33) & (k < 0.35), 1] = np.inf
+    pts[(k >= 0.35) & (k < 0.37), 0] = -1e300
+    return pts
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (2, 7), (9, 2), (17, 23), (64, 64)])
+@pytest.mark.parametrize("theta", [0.0, 0.3])
+def test_lane_samples_are_bit_identical(shape, theta):
+    rng = np.random.default_rng(sum(shape) + int(theta * 10))
+    dt = rng.uniform(0.0, 20.0, size=shape)
+    for _ in range(20):
+        pts = _positions(rng, 4 * int(rng.integers(1, 40)), *shape)
+        dv, du = rng.uniform(-1.0, 1.0, 2)
+        want = _scalar(dt, pts, dv, du, theta)
+        for kernel in (_lanes_direct, _lanes_staged):
+            got = np.full_like(want, -7.0)
+            kernel(dt, pts, dv, du, theta, got)
+            np.testing.assert_array_equal(got, want)
+
+
+def test_lane_samples_read_non_finite_dt_values_as_the_scalar_code_does():
+    rng = np.random.default_rng(3)
+    dt = rng.uniform(0.0, 5.0, size=(12, 12))
+    dt[4, 6] = np.nan
+    dt[8, 2] = np.inf
+    dt[11, 11] = -np.inf  # the clamped corner
+    pts = _positions(rng, 400, 12, 12)
+    want = _scalar(dt, pts, 0.1, -0.2, 0.0)
+    for kernel in (_lanes_direct, _lanes_staged):
+        got = np.zeros_like(want)
+        kernel(dt, pts, 0.1, -0.2, 0.0, got)
+        np.testing.assert_array_equal(got, want)
+
+
+@njit
+def _polarity_scalar(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
+    """robust.polarity as it reads one vertex at a time."""
+    h, w = grad.shape[0], grad.shape[1]
+    out = np.zeros(pts.shape[0])
+    for i in range(pts.shape[0]):
+        iv = np.rint(pts[i, 0] + dv)
+        iu = np.rint(pts[i, 1] + du)
+        if iv >= 0 and iv < h and iu >= 0 and iu < w:
+            gv = grad[int(iv), int(iu), 0]
+            gu = grad[int(iv), int(iu), 1]
+            if not (math.isfinite(gv) and math.isfinite(gu)):
+                return out, True
+            if nrm[i, 0] * gv + nrm[i, 1] * gu > 0.0:
+                out[i] = 1.0
+    return out, False
+
+
+def test_polarity_lanes_match_the_scalar_test():
+    rng = np.random.default_rng(11)
+    for trial in range(300):
+        h, w = (int(x) for x in rng.integers(1, 30, 2))
+        grad = rng.normal(size=(h, w, 2))
+        if trial % 4 == 0:
+            grad[rng.integers(h), rng.integers(w), rng.integers(2)] = (np.nan, np.inf, -np.inf)[
+                trial % 3
+            ]
+        n = int(rng.integers(0, 30))
+        pts = rng.uniform(-4.0, max(h, w) + 4.0, size=(n, 2))
+        ties = rng.random((n, 2)) < 0.3
+        pts[ties] = np.floor(pts[ties]) + 0.5  # rint rounds half to even
+        pts[rng.random(n) < 0.1] = np.nan
+        nrm = rng.normal(size=(n, 2))
+        nrm[rng.random(n) < 0.1] = 0.0
+        dv, du = (float(x) for x in rng.uniform(-2.0, 2.0, 2))
+        want, want_bad = _polarity_scalar(pts, nrm, grad, dv, du)
+        got, got_bad = krob.polarity(pts, nrm, grad, dv, du)
+        assert got_bad == want_bad
+        if not want_bad:
+            np.testing.assert_array_equal(got, want)
+
+
+def _state_scalar(dt, pts, sig, pol, pose, fit_rotation, tukey_c):
+    """SPEC's state at ``pose``, vertex by vertex, with sequential sums."""
+    dv, du, theta = pose
+    p = 3 if fit_rotation else 2
+    n = pts.shape[0]
+    r, w, jac = np.empty(n), np.empty(n), np.empty((p, n))
+    c, s = math.cos(theta), math.sin(theta)
+    for i in range(n):
+        v, u = (pts[i, 0] + dv, pts[i, 1] + du) if theta == 0.0 else (
+            c * pts[i, 0] - s * pts[i, 1] + dv, s * pts[i, 0] + c * pts[i, 1] + du)
+        r[i] = bilinear(dt, v, u) if pol[i] != 0.0 else klm.PENALTY
+        jac[0, i] = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / (2 * EPS_T)
+        jac[1, i] = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / (2 * EPS_T)
+        if fit_rotation:
+            rot = []
+            for t in (theta + klm.EPS_R, theta - klm.EPS_R):
+                ct, st = math.cos(t), math.sin(t)
+                rot.append(bilinear(dt, ct * pts[i, 0] - st * pts[i, 1] + dv,
+                                    st * pts[i, 0] + ct * pts[i, 1] + du))
+            jac[2, i] = (rot[0] - rot[1]) / (2 * klm.EPS_R)
+        w[i] = (1.0 / (sig[i] * sig[i])) * krob.tukey_many(np.array([r[i] / sig[i]]), tukey_c)[0] * pol[i]
+    sw = np.sqrt(w)
+    a = sw[:, None] * jac.T
+    return r, w, jac, a.T @ a, a.T @ (sw * r), float(np.sum(w * r * r)), float(np.sum(w))
+
+
+@pytest.mark.parametrize("n", [0, 1, 3, 4, 5, 7, 8, 13, 64, 203])
+@pytest.mark.parametrize("fit_rotation", [False, True])
+def test_evaluate_state_lanes_and_tail(n, fit_rotation):
+    rng = np.random.default_rng(n + 100 * fit_rotation)
+    dt = rng.uniform(0.0, 6.0, size=(40, 50))
+    pts = rng.uniform(-2.0, 45.0, size=(n, 2))
+    sig = rng.uniform(0.5, 2.0, n)
+    pol = (rng.random(n) < 0.8).astype(float)
+    pose = np.array([0.3, -0.7, 0.02 if fit_rotation else 0.0])
+    p = 3 if fit_rotation else 2
+    want_r, want_w, want_jac, want_h, want_g, want_cost, want_total = _state_scalar(
+        dt, pts, sig, pol, pose, fit_rotation, 4.685)
+    for sampled in (False, True):
+        r, w, jac = np.zeros(n), np.zeros(n), np.zeros((p, n))
+        hess, grad = np.zeros((p, p)), np.zeros(p)
+        samples = np.zeros(n)
+        if sampled:
+            klm.sample_all(dt, pts, pose, np.zeros(2), samples)
+        status, cost, total = klm.evaluate_state(
+            dt, pts, 1.0 / (sig * sig), sig, pol, pose, np.zeros(2), fit_rotation, 4.685, r, w,
+            jac, hess, grad, samples, sampled)
+        assert status == (1 if (want_w > 0).any() else 0)
+        np.testing.assert_array_equal(r, want_r)
+        np.testing.assert_array_equal(w, want_w)
+        np.testing.assert_array_equal(jac, want_jac)
+        # the sums' order differs (lane-wise, BLAS): a few ulps of the terms' size
+        scale = max(1.0, float(np.abs(want_w * want_r * want_r).sum()))
+        assert abs(cost - want_cost) <= 1e-13 * scale
+        assert abs(total - want_total) <= 1e-13 * max(1.0, float(np.abs(want_w).sum()))
+        np.testing.assert_allclose(hess, want_h, rtol=1e-12, atol=1e-12 * (1 + np.abs(want_h).max()))
+        np.testing.assert_allclose(grad, want_g, rtol=1e-12, atol=1e-12 * (1 + np.abs(want_g).max()))
+
+
+@pytest.mark.parametrize("where", [0, 5, 10, 11])
+def test_evaluate_state_refuses_a_non_finite_dt_in_lanes_and_tail(where):
+    """A NaN read by vertex ``where`` (lanes: 0..7; tail: 8..10 of 11) is status -1."""
+    dt = np.ones((30, 30))
+    pts = np.column_stack([np.arange(11.0) + 5.0, np.full(11, 7.0)])
+    if where < 11:
+        dt[int(pts[where, 0]), 7] = np.nan
+    r, w, jac = np.zeros(11), np.zeros(11), np.zeros((2, 11))
+    status, _, _ = klm.evaluate_state(
+        dt, pts, np.ones(11), np.ones(11), np.ones(11), np.zeros(3), np.zeros(2), False, 4.685,
+        r, w, jac, np.zeros((2, 2)), np.zeros(2), np.zeros(11), False)
+    assert status == (-1 if where < 11 else 1)
+
+
+@pytest.mark.parametrize("n", [0, 3, 4, 9, 257])
+def test_weighted_cost_samples_and_sum(n):
+    rng = np.random.default_rng(n)
+    dt = rng.uniform(0.0, 6.0, size=(33, 31))
+    pts = rng.uniform(-1.0, 34.0, size=(n, 2))
+    pol = (rng.random(n) < 0.7).astype(float)
+    w = rng.uniform(0.0, 2.0, n)
+    pose = np.array([0.25, 0.5, 0.0])
+    samples = np.full(n, np.nan)
+    cost = klm.weighted_cost(dt, pts, pol, w, pose, np.zeros(2), samples)
+    want = sample_many(dt, pts + pose[:2])
+    np.testing.assert_array_equal(samples, want)
+    ri = np.where(pol != 0.0, want, klm.PENALTY)
+    assert abs(cost - float(np.sum(w * ri * ri))) <= 1e-13 * max(1.0, float(np.sum(w * ri * ri)))
+
+
+def test_tiny_images_take_the_one_by_one_path():
+    """A DT with a single row or column has no inside cells: lanes_for is 0."""
+    for shape in [(1, 9), (9, 1), (1, 1)]:
+        dt = np.arange(float(np.prod(shape))).reshape(shape)
+        pts = np.column_stack([np.linspace(-1, 9, 12), np.linspace(9, -1, 12)])
+        samples = np.zeros(12)
+        klm.weighted_cost(dt, pts, np.ones(12), np.ones(12), np.zeros(3), np.zeros(2), samples)
+        np.testing.assert_array_equal(samples, sample_many(dt, pts))
+
+
+@njit
+def _load_strided(a):  # pragma: no cover - compiled
+    return load4(a, 0)
+
+
+def test_vector_loads_refuse_non_contiguous_arrays_at_compile_time():
+    """A strided view must not be read as four consecutive elements."""
+    with pytest.raises(numba.core.errors.TypingError):
+        _load_strided(np.arange(16.0)[::2])
+
+
+@njit
+def _splat_sum(x):  # pragma: no cover - compiled
+    out = np.empty(4)
+    store4(out, 0, splat(x) + splat(x) * splat(2.0) - splat(1.0) / splat(4.0))
+    return out
+
+
+def test_vector_arithmetic_is_lane_wise_ieee():
+    x = 0.1
+    np.testing.assert_array_equal(_splat_sum(x), np.full(4, x + x * 2.0 - 1.0 / 4.0))
