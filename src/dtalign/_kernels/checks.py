@@ -26,26 +26,27 @@ def polyline_status(pts, nrm, sig):  # pragma: no cover - compiled
     N, bit-identical to ``pts.mean(axis=0)`` for an ``(N, 2)`` C array.
     """
     n = pts.shape[0]
-    # flags, not early exits: these loops vectorise (the sums below cannot)
-    ok = True
-    for i in range(n):
-        ok &= math.isfinite(pts[i, 0]) & math.isfinite(pts[i, 1])
-    if not ok:
-        return BAD_VERTICES, 0.0, 0.0
-    for i in range(n):
-        ok &= math.isfinite(nrm[i, 0]) & math.isfinite(nrm[i, 1])
-    if not ok:
-        return BAD_NORMALS, 0.0, 0.0
-    for i in range(n):
-        s = sig[i]
-        ok &= math.isfinite(s) & (s > 0.0) & math.isfinite(1.0 / (s * s))
-    if not ok:
-        return BAD_SIGMAS, 0.0, 0.0
+    # one pass: the centroid sums are a chain of dependent adds (they must
+    # stay sequential), and the checks, flags rather than early exits, run
+    # in its shadow
+    ok_v = ok_n = ok_s = True
     s0 = 0.0
     s1 = 0.0
     for i in range(n):
-        s0 += pts[i, 0]
-        s1 += pts[i, 1]
+        a = pts[i, 0]
+        b = pts[i, 1]
+        s0 += a
+        s1 += b
+        ok_v &= math.isfinite(a) & math.isfinite(b)
+        ok_n &= math.isfinite(nrm[i, 0]) & math.isfinite(nrm[i, 1])
+        s = sig[i]
+        ok_s &= math.isfinite(s) & (s > 0.0) & math.isfinite(1.0 / (s * s))
+    if not ok_v:
+        return BAD_VERTICES, 0.0, 0.0
+    if not ok_n:
+        return BAD_NORMALS, 0.0, 0.0
+    if not ok_s:
+        return BAD_SIGMAS, 0.0, 0.0
     c_v = s0 / n
     c_u = s1 / n
     if not (math.isfinite(c_v) and math.isfinite(c_u)):
