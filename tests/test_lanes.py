@@ -291,3 +291,32 @@ def _splat_sum(x):  # pragma: no cover - compiled
 def test_vector_arithmetic_is_lane_wise_ieee():
     x = 0.1
     np.testing.assert_array_equal(_splat_sum(x), np.full(4, x + x * 2.0 - 1.0 / 4.0))
+
+
+def _unaligned(a):
+    """A C-contiguous float64 copy of ``a`` at an address that is not 8-byte aligned."""
+    buf = bytearray(a.nbytes + 4)
+    out = np.frombuffer(buf, dtype=np.float64, count=a.size, offset=4).reshape(a.shape)
+    out[...] = a
+    assert not out.flags.aligned
+    return out
+
+
+def test_unaligned_inputs_give_the_same_state():
+    """Vector loads from unaligned views (of a byte buffer) assume no alignment."""
+    rng = np.random.default_rng(5)
+    dt = rng.uniform(0.0, 6.0, size=(40, 50))
+    pts = rng.uniform(-2.0, 45.0, size=(37, 2))
+    sig = rng.uniform(0.5, 2.0, 37)
+    pol = np.ones(37)
+    pose = np.array([0.3, -0.7, 0.0])
+    results = []
+    for d, p in ((dt, pts), (_unaligned(dt), _unaligned(pts))):
+        r, w, jac = np.zeros(37), np.zeros(37), np.zeros((2, 37))
+        hess, grad = np.zeros((2, 2)), np.zeros(2)
+        out = klm.evaluate_state(d, p, 1.0 / (sig * sig), sig, pol, pose, np.zeros(2), False,
+                                 4.685, r, w, jac, hess, grad, np.zeros(37), False)
+        results.append((out, r, w, jac, hess, grad))
+    assert results[0][0] == results[1][0]
+    for a, b in zip(results[0][1:], results[1][1:], strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -49,6 +49,16 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
     return out
 
 
+def _unaligned(arr: np.ndarray) -> np.ndarray:
+    """C-contiguous native float64 at an address that is not 8-byte aligned."""
+    a = np.asarray(arr, dtype=np.float64)
+    buf = bytearray(a.nbytes + 4)
+    out = np.frombuffer(buf, dtype=np.float64, count=a.size, offset=4).reshape(a.shape)
+    out[...] = a
+    assert not out.flags.aligned or a.size == 0
+    return out
+
+
 def _rounded(dtype):
     info = np.iinfo(dtype)
     return lambda a: np.clip(np.rint(a), info.min, info.max).astype(dtype)
@@ -65,6 +75,7 @@ VARIANTS = {
     "reversed": _reversed,
     "fortran": np.asfortranarray,
     "readonly": _readonly,
+    "unaligned": _unaligned,
     ">f8": lambda a: a.astype(">f8"),
     ">f4": lambda a: a.astype(">f4"),
     ">i2": lambda a: _rounded(np.int16)(a).astype(">i2"),
@@ -72,12 +83,13 @@ VARIANTS = {
     "list": lambda a: a.tolist(),
     "tuple": lambda a: tuple(map(tuple, a)) if a.ndim == 2 else tuple(a.tolist()),
 }
-GEOMETRY = ["float32", "strided", "reversed", "fortran", "readonly", ">f8", ">f4", "nasty", "list", "tuple"]
+GEOMETRY = ["float32", "strided", "reversed", "fortran", "readonly", "unaligned", ">f8", ">f4", "nasty", "list", "tuple"]
 VERTEX = [*GEOMETRY, "int32", ">i2"]
 SIGMA = [*GEOMETRY, "int64", "uint8"]
-FIELD = ["float32", "strided", "reversed", "fortran", "readonly", ">f8", ">f4", "nasty",
+FIELD = ["float32", "strided", "reversed", "fortran", "readonly", "unaligned", ">f8", ">f4", "nasty",
          "uint8", "uint16", "int32", ">i2"]
-GRADIENT = ["float32", "strided", "reversed", "fortran", "readonly", ">f8", ">f4", "nasty", "int32", ">i2"]
+GRADIENT = ["float32", "strided", "reversed", "fortran", "readonly", "unaligned", ">f8", ">f4", "nasty",
+            "int32", ">i2"]
 MASK = ["bool", "uint8", "int32", "float32", "strided", "reversed", "fortran", "readonly", ">f8",
         "nasty", "list"]
 IMAGE = [*FIELD, "bool", "int64", "list"]

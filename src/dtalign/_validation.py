@@ -40,10 +40,13 @@ def readonly(arr: np.ndarray) -> np.ndarray:
 def _as_float_array(value: Any, name: str) -> FloatArray:
     """Convert to a C-contiguous, native float64, read-only array (same ndim).
 
-    The common case (already such an array) is three attribute checks and a
-    view: this runs several times per fit.
+    The common case (already such an array) is four attribute checks and a
+    view: this runs several times per fit. An unaligned view (of a byte
+    buffer, say) is copied: kernels then see one kind of array, and are
+    compiled once for it.
     """
-    if type(value) is np.ndarray and value.dtype == _F8 and value.flags.c_contiguous:
+    if (type(value) is np.ndarray and value.dtype == _F8 and value.flags.c_contiguous
+            and value.flags.aligned):
         return readonly(value)
     if isinstance(value, np.ndarray):
         probe = value
@@ -56,7 +59,7 @@ def _as_float_array(value: Any, name: str) -> FloatArray:
         raise TypeError(f"{name} must be a real numeric array, got dtype {probe.dtype}")
     # asarray, not ascontiguousarray: the latter turns a 0-D scalar into 1-D
     arr = np.asarray(probe, dtype=np.float64)
-    if not arr.flags.c_contiguous:
+    if not (arr.flags.c_contiguous and arr.flags.aligned):
         arr = arr.copy(order="C")
     return readonly(arr)
 

@@ -72,6 +72,12 @@ def _contiguous(arr, ndim):  # type: ignore[no-untyped-def]
     )
 
 
+def _align(arrtype):  # type: ignore[no-untyped-def]
+    """The alignment a load from ``arrtype``'s data may assume: 8 bytes for
+    float64 arrays NumPy aligned, 1 for unaligned views (of a byte buffer)."""
+    return arrtype.dtype.bitwidth // 8 if arrtype.aligned else 1
+
+
 def _intrinsic_call(builder, name, vtype, *args):  # type: ignore[no-untyped-def]
     fn = cgutils.get_or_insert_function(
         builder.module, ir.FunctionType(vtype, [a.type for a in args]), name
@@ -139,7 +145,7 @@ def load4(typingctx, arr, i):  # type: ignore[no-untyped-def]
         a = context.make_array(signature.args[0])(context, builder, args[0])
         p = builder.gep(a.data, [args[1]], inbounds=True)
         ld = builder.load(builder.bitcast(p, _V4D.as_pointer()))
-        ld.align = 8
+        ld.align = _align(signature.args[0])
         return ld
 
     return float4(arr, types.int64), codegen
@@ -155,7 +161,7 @@ def store4(typingctx, arr, i, x):  # type: ignore[no-untyped-def]
         a = context.make_array(signature.args[0])(context, builder, args[0])
         p = builder.gep(a.data, [args[1]], inbounds=True)
         st = builder.store(args[2], builder.bitcast(p, _V4D.as_pointer()))
-        st.align = 8
+        st.align = _align(signature.args[0])
         return context.get_dummy_value()
 
     return types.none(arr, types.int64, float4), codegen

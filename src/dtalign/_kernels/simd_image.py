@@ -36,6 +36,7 @@ from .simd import (
     _V2D,
     _V4D,
     _V4I,
+    _align,
     _contiguous,
     _intrinsic_call,
     _k,
@@ -44,13 +45,13 @@ from .simd import (
 )
 
 
-def _pairs_at(b, base, lanes):  # type: ignore[no-untyped-def]
+def _pairs_at(b, base, lanes, align):  # type: ignore[no-untyped-def]
     """``(x[i], x[i + 1])`` at the four lane indices ``i`` of a float64 buffer,
     as two vectors, from four 16-byte loads."""
     loads = []
     for i in lanes:
         ld = b.load(b.bitcast(b.gep(base, [i], inbounds=True), _V2D.as_pointer()))
-        ld.align = 8
+        ld.align = align
         loads.append(ld)
     x = b.shuffle_vector(loads[0], loads[1], ir.Constant(_V4I, [0, 1, 2, 3]))
     y = b.shuffle_vector(loads[2], loads[3], ir.Constant(_V4I, [0, 1, 2, 3]))
@@ -63,7 +64,7 @@ def _lanes_of_pairs(context, b, arrtype, value, i):  # type: ignore[no-untyped-d
     a = context.make_array(arrtype)(context, b, value)
     p = b.gep(a.data, [b.mul(i, ir.Constant(_I64, 2))], inbounds=True)
     ld = b.load(b.bitcast(p, ir.VectorType(_F64, 8).as_pointer()))
-    ld.align = 8
+    ld.align = _align(arrtype)
     return (b.shuffle_vector(ld, ld, ir.Constant(_V4I, [0, 2, 4, 6])),
             b.shuffle_vector(ld, ld, ir.Constant(_V4I, [1, 3, 5, 7])))
 
@@ -76,6 +77,7 @@ class _Image:
         a = context.make_array(arrtype)(context, builder, value)
         h, w = cgutils.unpack_tuple(builder, a.shape, 2)
         self.data = a.data
+        self.align = _align(arrtype)
         self.data_below = builder.gep(a.data, [w], inbounds=True)  # one row down
         self.w = self._splat_i(builder.trunc(w, _I32))
         self.last_v = builder.sub(h, ir.Constant(_I64, 1))
@@ -128,7 +130,9 @@ class _Image:
         out = ir.Constant(_V4D, ir.Undefined)
         for k in range(4):
             i = b.zext(b.extract_element(idx, _k(k)), _I64)
-            out = b.insert_element(out, b.load(b.gep(self.data, [i], inbounds=True)), _k(k))
+            ld = b.load(b.gep(self.data, [i], inbounds=True))
+            ld.align = self.align
+            out = b.insert_element(out, ld, _k(k))
         return out
 
 
@@ -182,8 +186,8 @@ class _Image:
 
     def _inner(self, lanes, fv, gv, fu, gu):  # type: ignore[no-untyped-def]
         """A sample whose cell is inside the image, from its corner's flat indices."""
-        a, bb = _pairs_at(self.b, self.data, lanes)
-        c, d = _pairs_at(self.b, self.data_below, lanes)
+        a, bb = _pairs_at(self.b, self.data, lanes, self.align)
+        c, d = _pairs_at(self.b, self.data_below, lanes, self.align)
         return self._blend(a, bb, c, d, fv, gv, fu, gu)
 
     def stage(self, cells, cell_buf, frac_buf, slot):  # type: ignore[no-untyped-def]
@@ -418,7 +422,7 @@ def polarity4(typingctx, pts, nrm, grad, i, dv, du):  # type: ignore[no-untyped-
                       ir.Constant(_V4D, [2.0] * 4))
         idx = b.fptosi(flat, _V4I)
         lanes = [b.zext(b.extract_element(idx, _k(k)), _I64) for k in range(4)]
-        gv, gu = _pairs_at(b, g.data, lanes)
+        gv, gu = _pairs_at(b, g.data, lanes, _align(signature.args[2]))
         inf = ir.Constant(_V4D, [float("inf")] * 4)
         fabs = "llvm.fabs.v4f64"
         # |x| >= inf, or unordered: x is inf or NaN
