@@ -24,12 +24,10 @@ from dtalign._kernels.simd_image import (
     CELLS_PER_SLOT,
     FRACS_PER_SLOT,
     bilinear4,
-    central4,
-    finish_central,
-    finish_sample,
+    finish_state,
     positions4,
-    stage_central,
-    stage_sample,
+    stage_state,
+    state4,
 )
 
 EPS_T = klm.EPS_T
@@ -37,44 +35,43 @@ EPS_T = klm.EPS_T
 
 @njit
 def _lanes_direct(dt, pts, dv, du, theta, out):  # pragma: no cover - compiled
-    """Per group of four: the sample and both central differences, unstaged."""
+    """Per group of four: the sample and both central differences, unstaged;
+    row 3 is bilinear4 alone."""
     c, s = math.cos(theta), math.sin(theta)
     for i in range(0, pts.shape[0] - pts.shape[0] % 4, 4):
         v, u = positions4(pts, i, dv, du, theta, c, s, 1.5, -2.0)
-        store4(out[0], i, bilinear4(dt, v, u))
-        j_v, j_u = central4(dt, v, u, EPS_T, 2 * EPS_T)
+        sample, j_v, j_u = state4(dt, v, u, EPS_T, 2 * EPS_T)
+        store4(out[0], i, sample)
         store4(out[1], i, j_v)
         store4(out[2], i, j_u)
+        store4(out[3], i, bilinear4(dt, v, u))
 
 
 @njit
 def _lanes_staged(dt, pts, dv, du, theta, out):  # pragma: no cover - compiled
-    """The same through stage_* / finish_*, one slot per group (edge groups unstaged)."""
+    """The same through stage_state / finish_state, one slot per group (edge
+    groups unstaged, through state4)."""
     c, s = math.cos(theta), math.sin(theta)
     n4 = pts.shape[0] - pts.shape[0] % 4
     cells = np.empty((n4 // 4 + 1) * CELLS_PER_SLOT, np.int32)
     fracs = np.empty((n4 // 4 + 1) * FRACS_PER_SLOT)
-    cells2 = np.empty_like(cells)
-    fracs2 = np.empty_like(fracs)
     for i in range(0, n4, 4):
         v, u = positions4(pts, i, dv, du, theta, c, s, 1.5, -2.0)
         g = i // 4
-        if stage_sample(dt, v, u, cells, fracs, g):
-            store4(out[0], i, finish_sample(dt, cells, fracs, g))
+        if stage_state(dt, v, u, EPS_T, cells, fracs, g):
+            sample, j_v, j_u = finish_state(dt, cells, fracs, g, 2 * EPS_T)
         else:
-            store4(out[0], i, bilinear4(dt, v, u))
-        if stage_central(dt, v, u, EPS_T, cells2, fracs2, g):
-            j_v, j_u = finish_central(dt, cells2, fracs2, g, 2 * EPS_T)
-        else:
-            j_v, j_u = central4(dt, v, u, EPS_T, 2 * EPS_T)
+            sample, j_v, j_u = state4(dt, v, u, EPS_T, 2 * EPS_T)
+        store4(out[0], i, sample)
         store4(out[1], i, j_v)
         store4(out[2], i, j_u)
+        store4(out[3], i, sample)
 
 
 def _scalar(dt, pts, dv, du, theta):
     """The one-by-one code: transform, bilinear, central differences."""
     c, s = math.cos(theta), math.sin(theta)
-    out = np.empty((3, pts.shape[0]))
+    out = np.empty((4, pts.shape[0]))
     for i in range(pts.shape[0]):
         if theta == 0.0:
             v, u = pts[i, 0] + dv, pts[i, 1] + du
@@ -84,6 +81,7 @@ def _scalar(dt, pts, dv, du, theta):
         out[0, i] = bilinear(dt, v, u)
         out[1, i] = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / (2 * EPS_T)
         out[2, i] = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / (2 * EPS_T)
+        out[3, i] = out[0, i]
     return out
 
 
@@ -213,8 +211,8 @@ def test_evaluate_state_lanes_and_tail(n, fit_rotation):
         r, w, jac = np.zeros(n), np.zeros(n), np.zeros((p, n))
         hess, grad = np.zeros((p, p)), np.zeros(p)
         samples = np.zeros(n)
-        if sampled:
-            klm.sample_all(dt, pts, pose, np.zeros(2), samples)
+        if sampled:  # the state a trial step left: samples and Jacobian
+            assert klm.sample_state(dt, pts, pose, np.zeros(2), fit_rotation, samples, jac)
         status, cost, total = klm.evaluate_state(
             dt, pts, 1.0 / (sig * sig), sig, pol, pose, np.zeros(2), fit_rotation, 4.685, r, w,
             jac, hess, grad, samples, sampled)
@@ -245,19 +243,34 @@ def test_evaluate_state_refuses_a_non_finite_dt_in_lanes_and_tail(where):
 
 
 @pytest.mark.parametrize("n", [0, 3, 4, 9, 257])
-def test_weighted_cost_samples_and_sum(n):
+@pytest.mark.parametrize("fit_rotation", [False, True])
+def test_trial_cost_samples_jacobian_and_sum(n, fit_rotation):
     rng = np.random.default_rng(n)
     dt = rng.uniform(0.0, 6.0, size=(33, 31))
     pts = rng.uniform(-1.0, 34.0, size=(n, 2))
     pol = (rng.random(n) < 0.7).astype(float)
     w = rng.uniform(0.0, 2.0, n)
-    pose = np.array([0.25, 0.5, 0.0])
-    samples = np.full(n, np.nan)
-    cost = klm.weighted_cost(dt, pts, pol, w, pose, np.zeros(2), samples)
-    want = sample_many(dt, pts + pose[:2])
-    np.testing.assert_array_equal(samples, want)
-    ri = np.where(pol != 0.0, want, klm.PENALTY)
+    pose = np.array([0.25, 0.5, 0.01 if fit_rotation else 0.0])
+    p = 3 if fit_rotation else 2
+    samples, jac = np.full(n, np.nan), np.full((p, n), np.nan)
+    cost, ok = klm.trial_cost(dt, pts, pol, w, pose, np.zeros(2), fit_rotation, samples, jac)
+    want_r, _, want_jac, *_ = _state_scalar(dt, pts, np.ones(n), np.ones(n), pose, fit_rotation, 4.685)
+    assert ok
+    np.testing.assert_array_equal(samples, want_r)  # pol = 1 there: the samples themselves
+    np.testing.assert_array_equal(jac, want_jac)
+    ri = np.where(pol != 0.0, want_r, klm.PENALTY)
     assert abs(cost - float(np.sum(w * ri * ri))) <= 1e-13 * max(1.0, float(np.sum(w * ri * ri)))
+
+
+def test_trial_cost_reports_an_unreadable_jacobian_without_failing_the_cost():
+    """A NaN only the Jacobian samples reach leaves the cost finite and ok False."""
+    dt = np.ones((30, 30))
+    dt[10, 20] = np.nan
+    pts = np.array([[10.0, 18.9], [5.0, 5.0], [6.0, 6.0], [7.0, 7.0], [8.0, 8.0]])
+    for n in (4, 5):  # the vertex in the lanes, and with a tail behind it
+        cost, ok = klm.trial_cost(dt, pts[:n], np.ones(n), np.ones(n), np.zeros(3), np.zeros(2),
+                                  False, np.zeros(n), np.zeros((2, n)))
+        assert math.isfinite(cost) and not ok
 
 
 def test_tiny_images_take_the_one_by_one_path():
@@ -266,7 +279,8 @@ def test_tiny_images_take_the_one_by_one_path():
         dt = np.arange(float(np.prod(shape))).reshape(shape)
         pts = np.column_stack([np.linspace(-1, 9, 12), np.linspace(9, -1, 12)])
         samples = np.zeros(12)
-        klm.weighted_cost(dt, pts, np.ones(12), np.ones(12), np.zeros(3), np.zeros(2), samples)
+        klm.trial_cost(dt, pts, np.ones(12), np.ones(12), np.zeros(3), np.zeros(2), False,
+                       samples, np.zeros((2, 12)))
         np.testing.assert_array_equal(samples, sample_many(dt, pts))
 
 

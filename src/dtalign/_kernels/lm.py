@@ -2,10 +2,11 @@
 
 A pure-NumPy iteration spends most of its time in interpreter overhead on
 arrays of a few hundred vertices; compiling the whole loop removes that.
-A trial step costs one pass over the vertices for its cost (keeping the
-DT samples), and a 2x2 or 3x3 solve; an accepted step then costs the
-Jacobian's samples, the weights and the normal equations (no N x 5
-temporaries). The state arrays are allocated once per fit and overwritten.
+A step costs a 2x2 or 3x3 solve and one pass over the vertices at the
+trial pose: the DT and its central differences, and the trial cost. If
+the step is accepted, those samples are the new state's, and the weights
+and normal equations follow in one more pass (no N x 5 temporaries). The
+state arrays are allocated once per fit and overwritten.
 """
 
 from __future__ import annotations
@@ -33,12 +34,10 @@ from .simd_image import (
     CELLS_PER_SLOT,
     FRACS_PER_SLOT,
     bilinear4,
-    central4,
-    finish_central,
-    finish_sample,
+    finish_state,
     positions4,
-    stage_central,
-    stage_sample,
+    stage_state,
+    state4,
 )
 
 #: Mirrors of the constants in dtalign._constants, as compile-time literals.
@@ -68,11 +67,15 @@ def lanes_for(dt, n):  # pragma: no cover - compiled
 
 
 @kernel
-def _lane_samples(
-    dt, pts, pol, pose, pivot, fit_rotation, r, jac, samples, n4,
-):  # pragma: no cover - compiled
-    """Residuals (from ``samples``, the DT at the vertices) and Jacobian columns
-    of vertices ``0..n4``, four at a time; False if a sample read a NaN or inf."""
+def sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac):  # pragma: no cover - compiled
+    """The DT at every vertex at ``pose`` into ``samples`` and the Jacobian's
+    columns into ``jac`` (``(P, N)``): five samples per vertex (seven with
+    rotation). Returns False if a sample read a NaN or inf.
+
+    Vertices are taken four at a time (:mod:`.simd_image`), their cells
+    staged a block at a time; the last ``n % 4`` one by one. Every value is
+    bit-identical to the one-by-one code's.
+    """
     dv, du, theta = pose[0], pose[1], pose[2]
     pv, pu = pivot[0], pivot[1]
     c0, s0 = math.cos(theta), math.sin(theta)
@@ -80,42 +83,57 @@ def _lane_samples(
     cp, sp = math.cos(tp), math.sin(tp)
     cm, sm = math.cos(tm), math.sin(tm)
     two_eps_t = 2 * EPS_T
-    two_eps_r = splat(2 * EPS_R)
-    penalty = splat(PENALTY)
+    two_eps_r = 2 * EPS_R
+    n = pts.shape[0]
+    n4 = lanes_for(dt, n)
+    ok = True
     cells = np.empty(BLOCK * CELLS_PER_SLOT, np.int32)
     fracs = np.empty(BLOCK * FRACS_PER_SLOT)
     staged = np.empty(BLOCK, np.bool_)
     for i in range(0, n4, 4):
         g = (i >> 2) % BLOCK
-        if g == 0:  # stage the Jacobian cells of the next block of groups
+        if g == 0:  # stage the cells of the next block of groups
             for h in range(min(BLOCK, (n4 - i) >> 2)):
                 v, u = positions4(pts, i + 4 * h, dv, du, theta, c0, s0, pv, pu)
-                staged[h] = stage_central(dt, v, u, EPS_T, cells, fracs, h)
+                staged[h] = stage_state(dt, v, u, EPS_T, cells, fracs, h)
         if staged[g]:
-            j_v, j_u = finish_central(dt, cells, fracs, g, two_eps_t)
+            sample, j_v, j_u = finish_state(dt, cells, fracs, g, two_eps_t)
         else:
             v, u = positions4(pts, i, dv, du, theta, c0, s0, pv, pu)
-            j_v, j_u = central4(dt, v, u, EPS_T, two_eps_t)
-        sample = load4(samples, i)
+            sample, j_v, j_u = state4(dt, v, u, EPS_T, two_eps_t)
         # inf - inf and nan propagate, so one test covers all five samples
-        if not all_finite(sample + j_v + j_u):
-            return False
+        ok &= all_finite(sample + j_v + j_u)
+        store4(samples, i, sample)
         store4(jac[0], i, j_v)
         store4(jac[1], i, j_u)
         if fit_rotation:
             vp, up = positions4(pts, i, dv, du, tp, cp, sp, pv, pu)
             vm, um = positions4(pts, i, dv, du, tm, cm, sm, pv, pu)
-            j_r = (bilinear4(dt, vp, up) - bilinear4(dt, vm, um)) / two_eps_r
-            if not all_finite(j_r):
-                return False
+            j_r = (bilinear4(dt, vp, up) - bilinear4(dt, vm, um)) / splat(two_eps_r)
+            ok &= all_finite(j_r)
             store4(jac[2], i, j_r)
-        store4(r, i, where_nonzero(load4(pol, i), sample, penalty))
-    return True
+    for i in range(n4, n):
+        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pv, pu)
+        sample = bilinear(dt, v, u)
+        j0 = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / two_eps_t
+        j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / two_eps_t
+        ok &= math.isfinite(sample + j0 + j1)
+        samples[i] = sample
+        jac[0, i] = j0
+        jac[1, i] = j1
+        if fit_rotation:
+            vp, up = transform(pts[i, 0], pts[i, 1], dv, du, tp, cp, sp, pv, pu)
+            vm, um = transform(pts[i, 0], pts[i, 1], dv, du, tm, cm, sm, pv, pu)
+            j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / two_eps_r
+            ok &= math.isfinite(j2)
+            jac[2, i] = j2
+    return ok
 
 
 @kernel
-def _lane_sums(r, jac, inv_var, sig, pol, w, tukey_c, n4):  # pragma: no cover - compiled
-    """IRLS weights of vertices ``0..n4`` into ``w``, and their lane-wise sums
+def _lane_sums(samples, pol, jac, inv_var, sig, r, w, tukey_c, n4):  # pragma: no cover - compiled
+    """Residuals and IRLS weights of vertices ``0..n4`` into ``r`` and ``w``,
+    and their lane-wise sums
     ``(positive, cost, total, g0, g1, g2, h00, h01, h02, h11, h12, h22)``.
 
     Zero weights add exact zeros (the Jacobian is finite), so unlike the
@@ -124,13 +142,15 @@ def _lane_sums(r, jac, inv_var, sig, pol, w, tukey_c, n4):  # pragma: no cover -
     fit the registers of the translation loop.
     """
     zero = splat(0.0)
+    penalty = splat(PENALTY)
     positive = False
     cost4 = total4 = g0_4 = g1_4 = g2_4 = zero
     h00_4 = h01_4 = h02_4 = h11_4 = h12_4 = h22_4 = zero
     if jac.shape[0] == 2:
         for i in range(0, n4, 4):
-            ri = load4(r, i)
             p = load4(pol, i)
+            ri = where_nonzero(p, load4(samples, i), penalty)
+            store4(r, i, ri)
             wi = load4(inv_var, i) * tukey4(ri / load4(sig, i), tukey_c) * p
             store4(w, i, wi)
             positive |= any_greater(wi, zero)
@@ -147,8 +167,9 @@ def _lane_sums(r, jac, inv_var, sig, pol, w, tukey_c, n4):  # pragma: no cover -
             h11_4 += a1 * a1
     else:
         for i in range(0, n4, 4):
-            ri = load4(r, i)
             p = load4(pol, i)
+            ri = where_nonzero(p, load4(samples, i), penalty)
+            store4(r, i, ri)
             wi = load4(inv_var, i) * tukey4(ri / load4(sig, i), tukey_c) * p
             store4(w, i, wi)
             positive |= any_greater(wi, zero)
@@ -184,57 +205,31 @@ def evaluate_state(
     ``jac`` holds the Jacobian's columns as rows, ``(P, N)``. Rejected-polarity
     vertices get the penalty residual; their Jacobian entries are still the
     DT's (they carry zero weight). ``inv_var`` is ``1 / sigma^2``. With
-    ``sampled``, ``samples`` already holds the DT at every vertex at this
-    pose (the trial cost of the step that led here sampled it:
-    :func:`weighted_cost`). Returns ``(status, cost, total_weight)``: status
-    1 if any weight is positive, 0 if none is, -1 if a sample read a NaN or
-    inf from ``dt`` (the caller refuses the DT: the image is too large to
-    scan on every call, but no non-finite value reaches a result unnoticed).
+    ``sampled``, ``samples`` and ``jac`` already hold the DT and the
+    Jacobian at this pose, all finite (:func:`trial_cost` of the step that
+    led here took them); else :func:`sample_state` takes them. Returns
+    ``(status, cost, total_weight)``: status 1 if any weight is positive, 0
+    if none is, -1 if a sample read a NaN or inf from ``dt`` (the caller
+    refuses the DT: the image is too large to scan on every call, but no
+    non-finite value reaches a result unnoticed).
 
-    Vertices are taken four at a time (:mod:`.simd`), the last ``n % 4``
-    one by one; every sample, weight and product is computed exactly as
-    the one-by-one code computes it. The sums are lane-wise: four partial
-    sums over every fourth vertex, combined as ``(s0 + s1) + (s2 + s3)``,
-    then the last vertices in order (:func:`weighted_cost` sums its cost
-    the same way, so a trial cost compares like with like).
+    The sums are lane-wise: four partial sums over every fourth vertex,
+    combined as ``(s0 + s1) + (s2 + s3)``, then the last ``n % 4`` vertices
+    in order (:func:`trial_cost` sums its cost the same way, so a trial
+    cost compares like with like). Every residual, weight and product is
+    computed exactly as the one-by-one code computes it.
     """
-    dv, du, theta = pose[0], pose[1], pose[2]
-    pv, pu = pivot[0], pivot[1]
-    c0, s0 = math.cos(theta), math.sin(theta)
-    tp, tm = theta + EPS_R, theta - EPS_R
-    cp, sp = math.cos(tp), math.sin(tp)
-    cm, sm = math.cos(tm), math.sin(tm)
-    two_eps_t = 2 * EPS_T
-    two_eps_r = 2 * EPS_R
-    n = pts.shape[0]
-    n4 = lanes_for(dt, n)
-    if not sampled:
-        sample_all(dt, pts, pose, pivot, samples)
-    if not _lane_samples(dt, pts, pol, pose, pivot, fit_rotation, r, jac, samples, n4):
+    if not sampled and not sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac):
         return -1, 0.0, 0.0
-    for i in range(n4, n):
-        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pv, pu)
-        sample = samples[i]
-        j0 = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / two_eps_t
-        j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / two_eps_t
-        if not math.isfinite(sample + j0 + j1):
-            return -1, 0.0, 0.0
-        jac[0, i] = j0
-        jac[1, i] = j1
-        if fit_rotation:
-            vp, up = transform(pts[i, 0], pts[i, 1], dv, du, tp, cp, sp, pv, pu)
-            vm, um = transform(pts[i, 0], pts[i, 1], dv, du, tm, cm, sm, pv, pu)
-            j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / two_eps_r
-            if not math.isfinite(j2):
-                return -1, 0.0, 0.0
-            jac[2, i] = j2
-        r[i] = sample if pol[i] != 0.0 else PENALTY
+    n = pts.shape[0]
+    n4 = n - n % 4
     (positive, cost, total, g0, g1, g2, h00, h01, h02, h11, h12, h22) = _lane_sums(
-        r, jac, inv_var, sig, pol, w, tukey_c, n4
+        samples, pol, jac, inv_var, sig, r, w, tukey_c, n4
     )
     status = 1 if positive else 0
     for i in range(n4, n):
-        ri = r[i]
+        ri = samples[i] if pol[i] != 0.0 else PENALTY
+        r[i] = ri
         wi = inv_var[i] * tukey(ri / sig[i], tukey_c) * pol[i]
         w[i] = wi
         cost += wi * ri * ri
@@ -270,43 +265,21 @@ def evaluate_state(
 
 
 @kernel
-def sample_all(dt, pts, pose, pivot, samples):  # pragma: no cover - compiled
-    """``samples[i]``: the DT at every vertex at ``pose``, four at a time."""
-    dv, du, theta = pose[0], pose[1], pose[2]
-    c0, s0 = math.cos(theta), math.sin(theta)
-    n = pts.shape[0]
-    n4 = lanes_for(dt, n)
-    cells = np.empty(BLOCK * CELLS_PER_SLOT, np.int32)
-    fracs = np.empty(BLOCK * FRACS_PER_SLOT)
-    staged = np.empty(BLOCK, np.bool_)
-    for i in range(0, n4, 4):
-        g = (i >> 2) % BLOCK
-        if g == 0:  # stage the cells of the next block of groups
-            for h in range(min(BLOCK, (n4 - i) >> 2)):
-                v, u = positions4(pts, i + 4 * h, dv, du, theta, c0, s0, pivot[0], pivot[1])
-                staged[h] = stage_sample(dt, v, u, cells, fracs, h)
-        if staged[g]:
-            sample = finish_sample(dt, cells, fracs, g)
-        else:
-            v, u = positions4(pts, i, dv, du, theta, c0, s0, pivot[0], pivot[1])
-            sample = bilinear4(dt, v, u)
-        store4(samples, i, sample)
-    for i in range(n4, n):
-        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pivot[0], pivot[1])
-        samples[i] = bilinear(dt, v, u)
-
-
-@kernel
-def weighted_cost(dt, pts, pol, w, pose, pivot, samples):  # pragma: no cover - compiled
+def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac):  # pragma: no cover - compiled
     """``sum(w * r * r)`` with residuals at ``pose`` and fixed weights ``w``,
-    summed lane-wise as :func:`evaluate_state` sums its cost.
+    summed lane-wise as :func:`evaluate_state` sums its cost; and whether
+    the state at ``pose`` is readable.
 
-    Non-finite when a sample read a NaN or inf (``0 * inf`` is NaN too).
-    The DT at every vertex (rejected-polarity ones included) is kept in
-    ``samples``: if the step is accepted, :func:`evaluate_state` at this
-    pose starts from them.
+    Returns ``(cost, ok)``. The cost is non-finite when a residual's sample
+    read a NaN or inf (``0 * inf`` is NaN too). The samples and the
+    Jacobian at ``pose`` are taken too, into ``samples`` and ``jac``
+    (:func:`sample_state`): most trial steps are accepted, and then
+    :func:`evaluate_state` starts from them; taking all five samples of a
+    vertex in one pass costs less than the one for the cost now and the
+    four for the Jacobian after. ``ok`` is False if any of them read a NaN
+    or inf (an error only if the step is accepted).
     """
-    sample_all(dt, pts, pose, pivot, samples)
+    ok = sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac)
     n = pts.shape[0]
     n4 = n - n % 4
     penalty = splat(PENALTY)
@@ -318,7 +291,7 @@ def weighted_cost(dt, pts, pol, w, pose, pivot, samples):  # pragma: no cover - 
     for i in range(n4, n):
         ri = samples[i] if pol[i] != 0.0 else PENALTY
         total += w[i] * ri * ri
-    return total
+    return total, ok
 
 
 @kernel
@@ -369,7 +342,9 @@ def lm_loop(
     damped = np.zeros((n_params, n_params))
     info = np.zeros((n_params, n_params))  # H of the state, without the Tikhonov term
     samples = np.zeros(n)
-    sampled = False  # samples holds the DT at `pose` (set by the accepted trial)
+    sampled = False  # samples, jac hold the DT and Jacobian at `pose` (an accepted trial's)
+    trial_samples = np.zeros(n)  # the same at `trial`, swapped in when it is accepted
+    trial_jac = np.zeros((n_params, n))
     while iterations < max_iterations:
         if not fresh:
             status, cost, total_w = evaluate_state(
@@ -407,12 +382,18 @@ def lm_loop(
             if lam >= LAMBDA_MAX:
                 break
             continue
-        trial_cost = weighted_cost(dt, pts, pol, w, trial, pivot, samples)
-        if not math.isfinite(trial_cost):
+        cost_t, readable = trial_cost(
+            dt, pts, pol, w, trial, pivot, fit_rotation, trial_samples, trial_jac
+        )
+        if not math.isfinite(cost_t):
             return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT
         if tikhonov_alpha > 0:
-            trial_cost += t * ((trial[0] - dv0) ** 2 + (trial[1] - du0) ** 2)
-        if trial_cost < cost:
+            cost_t += t * ((trial[0] - dv0) ** 2 + (trial[1] - du0) ** 2)
+        if cost_t < cost:
+            if not readable:  # the new state's Jacobian read a NaN or inf
+                return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT
+            samples, trial_samples = trial_samples, samples
+            jac, trial_jac = trial_jac, jac
             for a in range(3):
                 pose[a] = trial[a]
             lam = max(lam / 2, LAMBDA_MIN)

@@ -1,16 +1,17 @@
 """Image reads four vertices at a time, on :mod:`.simd`'s vector type.
 
-* :func:`positions4`, :func:`bilinear4` and :func:`central4` are the pose
-  transform, :func:`dtalign._kernels.sampling.bilinear` and the central
-  differences of the translation Jacobian for four consecutive vertices.
+* :func:`positions4`, :func:`bilinear4` and :func:`state4` are the pose
+  transform, :func:`dtalign._kernels.sampling.bilinear`, and the sample
+  with the central differences of the translation Jacobian, for four
+  consecutive vertices.
   The four corners of a cell are read as two 16-byte loads (the corner
   pairs ``(v0, u0), (v0, u0 + 1)`` and the row below are adjacent in a
   C-contiguous array): half the loads, and no per-corner index work. That
   needs every cell of the four vertices to lie inside the image (no
   clamped corner); otherwise the samples are read corner by corner, with
   the clamped indices, as the scalar code reads them.
-* :func:`stage_sample` / :func:`finish_sample` and :func:`stage_central` /
-  :func:`finish_central` split the same work in two (see below).
+* :func:`stage_state` / :func:`finish_state` split :func:`state4` in two
+  (see below).
 * :func:`polarity4` is :func:`dtalign._kernels.robust.polarity` of four
   vertices.
 
@@ -110,14 +111,15 @@ class _Image:
             i1 = b.mul(i1, scale)
         return i0, i1, frac, b.fsub(ir.Constant(_V4D, [1.0] * 4), frac)
 
-    def central_cells(self, v, u, eps):  # type: ignore[no-untyped-def]
-        """Cells of ``(v + e, u), (v - e, u), (v, u + e), (v, u - e)``: six axes, not eight."""
+    def state_cells(self, v, u, eps):  # type: ignore[no-untyped-def]
+        """Cells of ``(v, u), (v + e, u), (v - e, u), (v, u + e), (v, u - e)``:
+        six axes for five samples, not ten."""
         b = self.b
         e = _vector(b, [eps] * 4, _V4D)
         row, col = self.rows(v), self.cols(u)
         up, down = self.rows(b.fadd(v, e)), self.rows(b.fsub(v, e))
         right, left = self.cols(b.fadd(u, e)), self.cols(b.fsub(u, e))
-        return [(up, col), (down, col), (row, right), (row, left)]
+        return [(row, col), (up, col), (down, col), (row, right), (row, left)]
 
     def rows(self, v):  # type: ignore[no-untyped-def]
         return self.axis(v, self.last_v, self.w)
@@ -192,7 +194,7 @@ class _Image:
 
     def stage(self, cells, cell_buf, frac_buf, slot):  # type: ignore[no-untyped-def]
         """Store the cells' corner indices and fractions in slot ``slot`` of the
-        buffers (:func:`stage_sample`); returns whether all are inside."""
+        buffers (:func:`stage_state`); returns whether all are inside."""
         b = self.b
         for c, (rw, cl) in enumerate(cells):
             at = b.add(b.mul(slot, ir.Constant(_I64, CELLS_PER_SLOT)), ir.Constant(_I64, 4 * c))
@@ -272,30 +274,29 @@ def bilinear4(typingctx, dt, v, u):  # type: ignore[no-untyped-def]
 
 
 @intrinsic
-def central4(typingctx, dt, v, u, eps, two_eps):  # type: ignore[no-untyped-def]
-    """Central differences of the DT along v and u, four lanes each:
-    ``(B(v + e, u) - B(v - e, u)) / (2e)`` and ``(B(v, u + e) - B(v, u - e)) / (2e)``.
-
-    The four samples share the clamping of their common coordinates.
-    """
+def state4(typingctx, dt, v, u, eps, two_eps):  # type: ignore[no-untyped-def]
+    """The DT and its central differences at four lanes ``(v, u)``:
+    ``B(v, u)``, ``(B(v + e, u) - B(v - e, u)) / (2e)`` and
+    ``(B(v, u + e) - B(v, u - e)) / (2e)``, the five samples sharing the
+    clamping of their common coordinates."""
     if not (_contiguous(dt, 2) and v is float4 and u is float4):
         return None
-    sig = types.UniTuple(float4, 2)(dt, float4, float4, types.float64, types.float64)
+    sig = types.UniTuple(float4, 3)(dt, float4, float4, types.float64, types.float64)
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         img = _Image(context, builder, signature.args[0], args[0])
-        samples = img.samples(img.central_cells(args[1], args[2], args[3]))
-        return _differences(context, builder, signature.return_type, samples, args[4])
+        samples = img.samples(img.state_cells(args[1], args[2], args[3]))
+        return _with_differences(context, builder, signature.return_type, samples, args[4])
 
     return sig, codegen
 
 
-def _differences(context, builder, tuple_type, samples, two_eps):  # type: ignore[no-untyped-def]
-    """``((s0 - s1) / 2e, (s2 - s3) / 2e)`` as a tuple of two vectors."""
+def _with_differences(context, builder, tuple_type, samples, two_eps):  # type: ignore[no-untyped-def]
+    """``(s0, (s1 - s2) / 2e, (s3 - s4) / 2e)`` as a tuple of three vectors."""
     two_e = _vector(builder, [two_eps] * 4, _V4D)
-    j_v = builder.fdiv(builder.fsub(samples[0], samples[1]), two_e)
-    j_u = builder.fdiv(builder.fsub(samples[2], samples[3]), two_e)
-    return context.make_tuple(builder, tuple_type, [j_v, j_u])
+    j_v = builder.fdiv(builder.fsub(samples[1], samples[2]), two_e)
+    j_u = builder.fdiv(builder.fsub(samples[3], samples[4]), two_e)
+    return context.make_tuple(builder, tuple_type, [samples[0], j_v, j_u])
 
 
 # -- the same in two stages ------------------------------------------------------------
@@ -307,11 +308,11 @@ def _differences(context, builder, tuple_type, samples, two_eps):  # type: ignor
 # and fractions stored to a small buffer) and sampling them after
 # (finish_*: loads and blends only) overlaps the groups again. A group
 # whose cells are not all inside the image is not staged: stage_* returns
-# False and the caller samples it with bilinear4 / central4.
+# False and the caller samples it with state4.
 
-#: int32 corner indices and float64 fractions per staged group (four cells).
-CELLS_PER_SLOT = 16
-FRACS_PER_SLOT = 32
+#: int32 corner indices and float64 fractions per staged group (five cells).
+CELLS_PER_SLOT = 20
+FRACS_PER_SLOT = 40
 
 
 def _buffers(context, builder, sig_args, args):  # type: ignore[no-untyped-def]
@@ -328,24 +329,8 @@ def _staging_buffers(cells, fracs):  # type: ignore[no-untyped-def]
 
 
 @intrinsic
-def stage_sample(typingctx, dt, v, u, cells, fracs, slot):  # type: ignore[no-untyped-def]
-    """Stage :func:`bilinear4` at ``(v, u)`` in ``slot``; False if not staged."""
-    if not (_contiguous(dt, 2) and v is float4 and u is float4 and _staging_buffers(cells, fracs)):
-        return None
-    sig = types.boolean(dt, float4, float4, cells, fracs, types.int64)
-
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        img = _Image(context, builder, signature.args[0], args[0])
-        cell_buf, frac_buf = _buffers(context, builder, signature.args[3:5], args[3:5])
-        cells_ = [(img.rows(args[1]), img.cols(args[2]))]
-        return img.stage(cells_, cell_buf, frac_buf, args[5])
-
-    return sig, codegen
-
-
-@intrinsic
-def stage_central(typingctx, dt, v, u, eps, cells, fracs, slot):  # type: ignore[no-untyped-def]
-    """Stage :func:`central4` at ``(v, u)`` in ``slot``; False if not staged."""
+def stage_state(typingctx, dt, v, u, eps, cells, fracs, slot):  # type: ignore[no-untyped-def]
+    """Stage :func:`state4` at ``(v, u)`` in ``slot``; False if not staged."""
     if not (_contiguous(dt, 2) and v is float4 and u is float4 and _staging_buffers(cells, fracs)):
         return None
     sig = types.boolean(dt, float4, float4, types.float64, cells, fracs, types.int64)
@@ -353,37 +338,23 @@ def stage_central(typingctx, dt, v, u, eps, cells, fracs, slot):  # type: ignore
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         img = _Image(context, builder, signature.args[0], args[0])
         cell_buf, frac_buf = _buffers(context, builder, signature.args[4:6], args[4:6])
-        return img.stage(img.central_cells(args[1], args[2], args[3]), cell_buf, frac_buf, args[6])
+        return img.stage(img.state_cells(args[1], args[2], args[3]), cell_buf, frac_buf, args[6])
 
     return sig, codegen
 
 
 @intrinsic
-def finish_sample(typingctx, dt, cells, fracs, slot):  # type: ignore[no-untyped-def]
-    """:func:`bilinear4` of the group staged in ``slot``."""
+def finish_state(typingctx, dt, cells, fracs, slot, two_eps):  # type: ignore[no-untyped-def]
+    """:func:`state4` of the group staged in ``slot``."""
     if not (_contiguous(dt, 2) and _staging_buffers(cells, fracs)):
         return None
+    sig = types.UniTuple(float4, 3)(dt, cells, fracs, types.int64, types.float64)
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         img = _Image(context, builder, signature.args[0], args[0])
         cell_buf, frac_buf = _buffers(context, builder, signature.args[1:3], args[1:3])
-        return img.finish(1, cell_buf, frac_buf, args[3])[0]
-
-    return float4(dt, cells, fracs, types.int64), codegen
-
-
-@intrinsic
-def finish_central(typingctx, dt, cells, fracs, slot, two_eps):  # type: ignore[no-untyped-def]
-    """:func:`central4` of the group staged in ``slot``."""
-    if not (_contiguous(dt, 2) and _staging_buffers(cells, fracs)):
-        return None
-    sig = types.UniTuple(float4, 2)(dt, cells, fracs, types.int64, types.float64)
-
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        img = _Image(context, builder, signature.args[0], args[0])
-        cell_buf, frac_buf = _buffers(context, builder, signature.args[1:3], args[1:3])
-        samples = img.finish(4, cell_buf, frac_buf, args[3])
-        return _differences(context, builder, signature.return_type, samples, args[4])
+        samples = img.finish(5, cell_buf, frac_buf, args[3])
+        return _with_differences(context, builder, signature.return_type, samples, args[4])
 
     return sig, codegen
 
