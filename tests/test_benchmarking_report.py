@@ -38,6 +38,13 @@ def test_readme_table_replaces_only_its_section():
     assert timing.replace_readme_table(out, REPORT) == out
 
 
+def test_batch_row_shows_both_controls():
+    row = {**REPORT["rows"][1], "kernel_control_ratio": 1.15, "ratio": 1.5, "passed": False}
+    out = timing.replace_readme_table(
+        f"{timing.README_START}\n{timing.README_END}\n", {**REPORT, "rows": [row]})
+    assert "| 1.50x | >= 1.8x | FAIL (control 1.93x, fit kernel alone 1.15x) |" in out
+
+
 @pytest.mark.parametrize("text", ["no markers", f"{timing.README_END}\n{timing.README_START}"])
 def test_readme_table_needs_its_markers(text):
     with pytest.raises(ValueError, match="bench-table"):

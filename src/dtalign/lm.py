@@ -114,10 +114,10 @@ def lm_subpixel_refine(
     return _fit(a)
 
 
-def _fit(a: LMArgs) -> LMRefineResult:
+def _kernel_args(a: LMArgs) -> tuple[Any, ...]:
+    """The arguments of the compiled fit (:func:`dtalign._kernels.fit.fit`)."""
     grad = a.gradient if a.gradient is not None else _NO_GRADIENT
-    (error, pose, iterations, converged, r, w, _jac, cov, rms, raw_rms, inliers,
-     degenerate) = _k.fit(
+    return (
         a.dt, grad, a.vertices, a.normals, a.sigmas, a.use_polarity,
         np.array([a.offset[0], a.offset[1], a.rotation]), np.array(a.pivot),
         a.fit_rotation, a.pivot_distance, a.max_iterations, a.damping, a.step_tolerance,
@@ -126,6 +126,11 @@ def _fit(a: LMArgs) -> LMRefineResult:
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
         DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(),
     )
+
+
+def _fit(a: LMArgs) -> LMRefineResult:
+    (error, pose, iterations, converged, r, w, _jac, cov, rms, raw_rms, inliers,
+     degenerate) = _k.fit(*_kernel_args(a))
     if error != _k.OK:
         _raise_for(int(error))
     return LMRefineResult._from_kernel(
