@@ -127,24 +127,6 @@ def test_lane_samples_read_non_finite_dt_values_as_the_scalar_code_does():
         np.testing.assert_array_equal(got, want)
 
 
-@njit
-def _polarity_scalar(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
-    """robust.polarity as it reads one vertex at a time."""
-    h, w = grad.shape[0], grad.shape[1]
-    out = np.zeros(pts.shape[0])
-    for i in range(pts.shape[0]):
-        iv = np.rint(pts[i, 0] + dv)
-        iu = np.rint(pts[i, 1] + du)
-        if iv >= 0 and iv < h and iu >= 0 and iu < w:
-            gv = grad[int(iv), int(iu), 0]
-            gu = grad[int(iv), int(iu), 1]
-            if not (math.isfinite(gv) and math.isfinite(gu)):
-                return out, True
-            if nrm[i, 0] * gv + nrm[i, 1] * gu > 0.0:
-                out[i] = 1.0
-    return out, False
-
-
 def test_polarity_lanes_match_the_scalar_test():
     rng = np.random.default_rng(11)
     for trial in range(300):
@@ -162,7 +144,7 @@ def test_polarity_lanes_match_the_scalar_test():
         nrm = rng.normal(size=(n, 2))
         nrm[rng.random(n) < 0.1] = 0.0
         dv, du = (float(x) for x in rng.uniform(-2.0, 2.0, 2))
-        want, want_bad = _polarity_scalar(pts, nrm, grad, dv, du)
+        want, want_bad = krob.polarity_one_by_one(pts, nrm, grad, dv, du)
         got, got_bad = krob.polarity(pts, nrm, grad, dv, du)
         assert got_bad == want_bad
         if not want_bad:

@@ -37,6 +37,33 @@ def irls_weight(r, sigma, c, accepted):  # pragma: no cover - compiled
     return (1.0 / (sigma * sigma)) * tukey(r / sigma, c) * accepted
 
 
+@inline_kernel
+def _polarity_at(pts, nrm, grad, i, dv, du):  # pragma: no cover - compiled
+    """Vertex ``i``'s polarity flag (1.0 or 0.0), and whether the gradient
+    vector it read is not finite."""
+    iv = np.rint(pts[i, 0] + dv)
+    iu = np.rint(pts[i, 1] + du)
+    if iv >= 0 and iv < grad.shape[0] and iu >= 0 and iu < grad.shape[1]:
+        gv = grad[int(iv), int(iu), 0]
+        gu = grad[int(iv), int(iu), 1]
+        if not (math.isfinite(gv) and math.isfinite(gu)):
+            return 0.0, True
+        if nrm[i, 0] * gv + nrm[i, 1] * gu > 0.0:
+            return 1.0, False
+    return 0.0, False
+
+
+@kernel
+def polarity_one_by_one(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
+    """:func:`polarity`, vertex by vertex (what its four-vertex lanes must match)."""
+    out = np.zeros(pts.shape[0])
+    for i in range(pts.shape[0]):
+        out[i], bad = _polarity_at(pts, nrm, grad, i, dv, du)
+        if bad:
+            return out, True
+    return out, False
+
+
 @kernel
 def polarity(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
     """1.0 where the normal points up the gradient at the shifted pixel, else 0.0.
@@ -44,8 +71,6 @@ def polarity(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
     Also returns True if a gradient value it read was NaN or inf. Four
     vertices at a time (:func:`.simd_image.polarity4`), the rest one by one.
     """
-    h = grad.shape[0]
-    w = grad.shape[1]
     n = pts.shape[0]
     out = np.zeros(n)
     n4 = n - n % 4 if grad.size <= MAX_ELEMENTS else 0
@@ -55,15 +80,9 @@ def polarity(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
             return out, True
         store4(out, i, flags)
     for i in range(n4, n):
-        iv = np.rint(pts[i, 0] + dv)
-        iu = np.rint(pts[i, 1] + du)
-        if iv >= 0 and iv < h and iu >= 0 and iu < w:
-            gv = grad[int(iv), int(iu), 0]
-            gu = grad[int(iv), int(iu), 1]
-            if not (math.isfinite(gv) and math.isfinite(gu)):
-                return out, True
-            if nrm[i, 0] * gv + nrm[i, 1] * gu > 0.0:
-                out[i] = 1.0
+        out[i], bad = _polarity_at(pts, nrm, grad, i, dv, du)
+        if bad:
+            return out, True
     return out, False
 
 

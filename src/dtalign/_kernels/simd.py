@@ -168,18 +168,6 @@ def store4(typingctx, arr, i, x):  # type: ignore[no-untyped-def]
 
 
 @intrinsic
-def lane(typingctx, x, k):  # type: ignore[no-untyped-def]
-    """Lane ``k`` of ``x``."""
-    if x is not float4:
-        return None
-
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        return builder.extract_element(args[0], builder.trunc(args[1], _I32))
-
-    return types.float64(float4, types.int64), codegen
-
-
-@intrinsic
 def hsum(typingctx, x):  # type: ignore[no-untyped-def]
     """``(x0 + x1) + (x2 + x3)``: the lanes of a lane-wise sum, combined."""
     if x is not float4:
