@@ -137,7 +137,6 @@ class _Image:
             out = b.insert_element(out, ld, _k(k))
         return out
 
-
     def _blend(self, a, bb, c, d, fv, gv, fu, gu):  # type: ignore[no-untyped-def]
         """``sampling.blend``: the corners weighted in the order of SPEC section 2
         (``gv = 1 - fv``, ``gu = 1 - fu``)."""
