@@ -7,8 +7,8 @@ arrays, the window, the pivot, then every LM option and the products'
 arrays, in that order): that fixes which error a bad call raises. What it
 validated holds for every further polyline of the call, which then only
 needs its own arrays checked (one compiled pass) and, when rotating, its
-pivot spread. A chunk of polylines then runs as one compiled call with the
-GIL released (:mod:`dtalign._kernels.pipeline`).
+pivot spread. The polylines then run in one compiled loop with the GIL
+released (:mod:`dtalign._kernels.pipeline`), in as many threads as asked.
 
 The kernels are imported on first use: importing :mod:`dtalign.pipeline`
 must not import Numba.
@@ -292,58 +292,70 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     )
 
 
-def edge_index(shared: Plan) -> tuple[np.ndarray, np.ndarray]:
-    """The edge mask's row index (CSR), for :func:`fit_batch` calls to share."""
-    from ._kernels.coarse import edge_index as _edge_index
-
-    return _edge_index(shared.edge)  # type: ignore[no-any-return]
+#: No shared edge index: each compiled loop builds its own.
+_NO_INDEX = np.zeros(0, dtype=np.int64)
 
 
-#: No shared index: fit_batch's compiled call builds its own.
-NO_INDEX = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]:
+    """Fit the polylines of ``batch`` with ``workers`` threads running one
+    compiled loop over them (GIL released throughout).
 
+    Each thread takes the next polyline from a shared counter
+    (:func:`dtalign._kernels.pipeline.fit_polylines`), so the threads stay
+    busy until the list is done, whatever their relative speed. Each
+    thread indexes the edge mask itself (0.1 ms, while another thread
+    starts or fits), rather than one index built before any starts.
 
-def fit_batch(shared: Plan, batch: Batch, lock: Any = None,
-              index: tuple[np.ndarray, np.ndarray] = NO_INDEX) -> list[PolylineFit]:
-    """Fit the polylines of ``batch`` in one compiled call (GIL released).
-
-    ``lock``, if given, is held while the results are wrapped; ``index`` is
-    :func:`edge_index`, or empty to build it in the call.
-
-    Each fit's ``timings_s`` has ``fit``: the call's wall time divided
-    evenly among its polylines (the coarse search and LM run interleaved).
+    Each fit's ``timings_s`` has ``fit``: the threads' compiled time divided
+    evenly among the polylines (the coarse search and LM run interleaved).
     Raises the error of the first polyline that fails, like the serial loop.
     """
     from ._kernels.pipeline import fit_polylines
+    from .batch import _run_threads
     from .image import _use_libm_hypot
     from .lm import _NO_GRADIENT, _RIDGE_HALF, _raise_for
 
-    if batch.n == 0:
+    k = batch.n
+    if k == 0:
         return []
     a = shared.lm
-    starts, pts, nrm, sig = batch.starts, batch.pts, batch.nrm, batch.sig
-    pivots, distances = batch.pivots, batch.distances
-    t0 = time.perf_counter()
-    (done, error, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
-     degenerate, r_all, w_all) = fit_polylines(
-        shared.edge, index[0], index[1], shared.mv, shared.mu, a.dt,
-        a.gradient if a.gradient is not None else _NO_GRADIENT, pts, nrm, sig, starts,
-        pivots, distances, a.rotation, a.use_polarity, a.fit_rotation, a.max_iterations,
-        a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,
+    n_params = 3 if a.fit_rotation else 2
+    n_pts = batch.pts.shape[0]
+    tickets = np.array([0, k], dtype=np.int64)
+    errors = np.zeros(k, dtype=np.int64)
+    out = (np.zeros((k, 2), dtype=np.int64), np.zeros((k, 3)), np.zeros(k, dtype=np.int64),
+           np.zeros(k, dtype=np.bool_), np.zeros((k, n_params, n_params)), np.zeros(k),
+           np.zeros(k), np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.bool_),
+           np.zeros(n_pts), np.zeros(n_pts))
+    args = (
+        shared.edge, _NO_INDEX, _NO_INDEX, shared.mv, shared.mu, a.dt,
+        a.gradient if a.gradient is not None else _NO_GRADIENT, batch.pts, batch.nrm, batch.sig,
+        batch.starts, batch.pivots, batch.distances, a.rotation, a.use_polarity, a.fit_rotation,
+        a.max_iterations, a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,
         -1.0 if a.trust_region_px is None else a.trust_region_px, a.tikhonov_alpha,
         a.final_gradient_ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
-        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(),
+        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(), tickets, errors, *out,
     )
-    elapsed = time.perf_counter() - t0
-    if done < batch.n:
-        _raise_for(int(error))
-    out = (coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
-           r_all, w_all)
-    if lock is None:
-        return _wrap(shared, starts, pts, nrm, pivots, distances, out, elapsed)
-    with lock:
-        return _wrap(shared, starts, pts, nrm, pivots, distances, out, elapsed)
+    busy: list[float] = []
+    failures: list[BaseException] = []
+
+    def run() -> None:
+        t0 = time.perf_counter()
+        try:
+            fit_polylines(*args)
+        except BaseException as exc:  # re-raised below, after every thread has stopped
+            failures.append(exc)
+        busy.append(time.perf_counter() - t0)  # list.append is atomic under the GIL
+
+    _run_threads(run, min(workers, k))
+    if failures:
+        raise failures[0]
+    first_error = int(tickets[1])
+    if first_error < k:
+        _raise_for(int(errors[first_error]))
+    return _wrap(shared, batch.starts, batch.pts, batch.nrm, batch.pivots, batch.distances, out,
+                 sum(busy))
 
 
 def _wrap(shared: Plan, starts: np.ndarray, pts: FloatArray,

@@ -6,10 +6,11 @@ fits truly in parallel. Two entry points:
 * :func:`fit_many` fits many polylines against one image's products
   (:func:`dtalign.pipeline.prepare_image`): the first polyline and the
   shared options are checked as :func:`~dtalign.pipeline.fit_polyline_products`
-  checks them, the others in bulk, and the polylines then run in chunks
-  (two per worker thread), each one compiled call (coarse search and LM
-  of every polyline) with the GIL released throughout, so the GIL-held
-  Python per fit is a few microseconds instead of a third of the fit;
+  checks them, the others in bulk, and the worker threads then run one
+  compiled loop (coarse search and LM of every polyline) over them with
+  the GIL released throughout, each taking the next polyline from a shared
+  counter; the GIL-held Python per fit is a few microseconds instead of a
+  third of the fit;
 * :func:`fit_images` prepares and fits many images, one image per task.
 
 Both return their results in input order, equal to what the serial calls
@@ -70,15 +71,6 @@ _FIT_DEFAULTS = {
     if name in _FIT_OPTIONS
 }
 
-#: Chunks per worker thread, taken in turn from a shared counter. Each chunk
-#: is one compiled call whose checks and result objects hold the GIL, so
-#: small chunks cost time; but one thread often runs slower than the other
-#: on a shared machine (seen: a whole half-batch at 58 % speed), and two
-#: chunks each let the faster thread take over. 64 fits on 2 threads: with
-#: both cores at full speed, 1.78x at 1 chunk per worker and 1.71x at 2;
-#: with one core slowed, 1.0-1.4x at 1 and 1.5-1.7x at 2.
-_CHUNKS_PER_WORKER = 2
-
 _EXECUTORS = ("thread", "process")
 
 
@@ -109,6 +101,36 @@ def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
         f"polylines[{index}] must have vertices_vu, normals_vu and sigmas attributes "
         f"or be a (vertices_vu, normals_vu, sigmas) sequence, got {type(item).__name__}"
     )
+
+
+def _run_threads(fn: Callable[[], None], n: int) -> None:
+    """Run ``fn()`` in ``n`` threads at once, the calling thread one of them;
+    return when all have finished. ``fn`` must not raise.
+
+    The helpers are new threads: a kept-alive pool thread, woken by this
+    one, was often placed on this thread's core and ran at half speed for
+    milliseconds (1.65x instead of 1.74x for 64 fits on 2 cores, and single
+    runs at 1.2x); a new thread goes to an idle core. They are started with
+    _thread, which does not wait for the new thread to run
+    (threading.Thread.start does: 0.1 to 0.4 ms here, with this thread
+    idle); each releases a held lock on exit.
+    """
+
+    def helper(done: threading.Lock) -> None:
+        try:
+            fn()
+        finally:
+            done.release()
+
+    finished = []
+    for _ in range(n - 1):
+        done = threading.Lock()
+        done.acquire()
+        _thread.start_new_thread(helper, (done,))
+        finished.append(done)
+    fn()
+    for done in finished:
+        done.acquire()
 
 
 def map_ordered(
@@ -161,28 +183,7 @@ def map_ordered(
                 errors[i] = exc
                 return
 
-    def helper(done: threading.Lock) -> None:
-        try:
-            worker()
-        finally:
-            done.release()
-
-    # The calling thread is one of the workers. The helpers are new threads:
-    # a kept-alive pool thread, woken by this one, was often placed on this
-    # thread's core and ran at half speed for milliseconds (1.65x instead of
-    # 1.74x for 64 fits on 2 cores, and single runs at 1.2x); a new thread
-    # goes to an idle core. They are started with _thread, which does not
-    # wait for the new thread to run (threading.Thread.start does: 0.1 to
-    # 0.4 ms here, with this thread idle); each releases a held lock on exit.
-    finished = []
-    for _ in range(min(n, len(todo)) - 1):
-        done = threading.Lock()
-        done.acquire()
-        _thread.start_new_thread(helper, (done,))
-        finished.append(done)
-    worker()
-    for done in finished:
-        done.acquire()
+    _run_threads(worker, min(n, len(todo)))
     if errors:
         raise errors[min(errors)]
     return results
@@ -280,59 +281,30 @@ def _fit_parts(
     options: dict[str, Any],
     workers: int,
 ) -> list[PolylineFit]:
-    """Fit polylines in chunks, each one compiled call with the GIL released.
+    """Fit polylines with ``workers`` threads running one compiled loop over them.
 
     The first polyline is checked with everything the polylines share
-    (:func:`dtalign._fitjobs.plan`); ``workers`` threads then take the
-    chunks in turn, each checking its polylines in bulk (one thread at a
-    time) and fitting them against one shared index of the edge mask. The
-    polylines before the first bad one are fitted, and the first error in
-    input order is raised, as the serial loop would.
+    (:func:`dtalign._fitjobs.plan`), the others in bulk; the threads then
+    take the polylines one at a time from a shared counter, with the GIL
+    released, so a thread on a slower core fits fewer. The polylines before
+    the first bad one are fitted, and the first error in input order is
+    raised, as the serial loop would.
     """
     from . import _fitjobs
 
     if not parts:
         return []
     kw = {**_FIT_DEFAULTS, **options}
-    n_chunks = 1 if workers == 1 else min(len(parts), _CHUNKS_PER_WORKER * workers)
-    bounds = np.linspace(0, len(parts), n_chunks + 1).round().astype(int).tolist()
-
-    def setup() -> tuple[Any, Any, Any]:
-        shared, first = _fitjobs.plan(
-            products, *parts[0], search_window_vu=window, fit_rotation=kw.pop("fit_rotation"),
-            pivot_vu=kw.pop("pivot_vu"), pivot_distance_px=kw.pop("pivot_distance_px"),
-            lm_options=kw,
-        )
-        index = _fitjobs.NO_INDEX if n_chunks == 1 else _fitjobs.edge_index(shared)
-        return shared, first, index
-
-    # Checks and result wrapping hold the GIL: one thread at a time, rather
-    # than two threads handing the GIL back and forth; a thread's checks and
-    # wrapping overlap the other thread's compiled call. The first thread to
-    # get here checks what the polylines share and indexes the edge mask
-    # (the others wait on the lock): a helper thread takes ~0.4 ms to start,
-    # and that now overlaps this work instead of following it.
-    gil_work = threading.Lock()
-    plan: list[Any] = []  # [(shared, first, index)] or [exception]
-
-    def run(chunk: int) -> list[PolylineFit]:
-        lo, hi = bounds[chunk], bounds[chunk + 1]
-        with gil_work:
-            if not plan:
-                try:
-                    plan.append(setup())
-                except BaseException as exc:  # every chunk raises it; the first is reported
-                    plan.append(exc)
-            if isinstance(plan[0], BaseException):
-                raise plan[0]
-            shared, first, index = plan[0]
-            batch, error = _fitjobs.prepare(shared, parts[lo:hi], first if lo == 0 else None)
-        fits = _fitjobs.fit_batch(shared, batch, lock=gil_work, index=index)
-        if error is not None:
-            raise error
-        return fits
-
-    return [fit for chunk in map_ordered(run, range(n_chunks), workers=workers) for fit in chunk]
+    shared, first = _fitjobs.plan(
+        products, *parts[0], search_window_vu=window, fit_rotation=kw.pop("fit_rotation"),
+        pivot_vu=kw.pop("pivot_vu"), pivot_distance_px=kw.pop("pivot_distance_px"),
+        lm_options=kw,
+    )
+    batch, error = _fitjobs.prepare(shared, parts, first)
+    fits = _fitjobs.fit_batch(shared, batch, workers=workers)
+    if error is not None:
+        raise error
+    return fits
 
 
 def _image_parts(item: Any, index: int) -> tuple[Any, float | None, list[tuple[Any, Any, Any]]]:

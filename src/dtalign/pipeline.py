@@ -118,7 +118,7 @@ class PolylineFit:
         Wall time of each stage in seconds (``noise``, ``derivatives`` when
         the products were computed here, ``coarse``, ``lm``). Fits of
         :func:`dtalign.batch.fit_many` have ``fit`` instead of ``coarse`` and
-        ``lm``: their chunk's compiled call time divided by its fits.
+        ``lm``: the threads' compiled time divided by the call's fits.
 
     Instances compare by identity; compare fields to compare fits.
     """

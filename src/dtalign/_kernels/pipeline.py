@@ -1,14 +1,16 @@
-"""Many polylines against one image in one compiled call: coarse search, then LM.
+"""Many polylines against one image in one compiled loop: coarse search, then LM.
 
 A pipeline fit is ~0.2 ms of compiled work; the Python around each call
 (argument unboxing, result tuples) holds the GIL, which is what stops two
-threads from fitting twice as fast. Here a whole chunk of polylines runs
-with the GIL released. The LM is exactly the kernel, with exactly the
-argument types, that :func:`dtalign.lm_subpixel_refine` calls; the coarse
-search scores the same pixel pairs as
+threads from fitting twice as fast. Here a whole list of polylines runs
+with the GIL released, and several threads can run the same loop over
+the same list: each takes the next polyline from a shared counter, so a
+thread on a slower core simply fits fewer. The LM is exactly the kernel,
+with exactly the argument types, that :func:`dtalign.lm_subpixel_refine`
+calls; the coarse search scores the same pixel pairs as
 :func:`dtalign.coarse.coarse_search_vertices`, from one index of the edge
-mask for the whole chunk instead of a scan of a box per polyline. Results
-are bit-identical to fitting the polylines one by one.
+mask instead of a scan of a box per polyline. Results are bit-identical to
+fitting the polylines one by one.
 """
 
 from __future__ import annotations
@@ -16,8 +18,14 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import kernel
+from .atomics import fetch_add, fetch_min, load
 from .coarse import edge_index, search_index, support_of_vertices
 from .fit import OK, fit
+
+#: ``tickets[NEXT]``: the next polyline to take; ``tickets[FIRST_ERROR]``:
+#: the first polyline that failed (the count while none has).
+NEXT = 0
+FIRST_ERROR = 1
 
 
 @kernel
@@ -25,38 +33,32 @@ def fit_polylines(
     edge, index_rows, index_cols, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
     rotation0, use_polarity, fit_rotation, max_iterations, damping, step_tolerance, tukey_c,
     rcond, trust_region, tikhonov_alpha, ridge, ridge_half, ridge_sample_step,
-    ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm,
+    ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm, tickets,
+    errors, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
+    r_all, w_all,
 ):  # pragma: no cover - compiled
-    """Fit polylines ``j = 0, 1, ...`` (rows ``starts[j]:starts[j+1]`` of the
-    concatenated ``pts, nrm, sig``) until one fails. ``index_rows,
-    index_cols`` is :func:`~dtalign._kernels.coarse.edge_index` of ``edge``,
-    or empty to build it here.
+    """Fit polylines ``j`` (rows ``starts[j]:starts[j+1]`` of the concatenated
+    ``pts, nrm, sig``) taken in turn from ``tickets`` (:data:`NEXT`), writing
+    row ``j`` of the outputs, until none is left or one before it has failed.
 
-    Returns ``(done, error, coarse, pose, iterations, converged, cov, rms,
-    raw_rms, inliers, degenerate, r, w)``: ``done`` polylines have results
-    (per-polyline rows; ``r, w`` concatenated like ``pts``); ``error`` is
-    :data:`dtalign._kernels.fit.OK`, or the error code of polyline ``done``,
-    which stopped the loop (as the serial loop stops at a raised error).
+    ``index_rows, index_cols`` is :func:`~dtalign._kernels.coarse.edge_index`
+    of ``edge``, or empty to build it here. A failing polyline gets its error
+    code in ``errors[j]`` and lowers ``tickets[FIRST_ERROR]`` to ``j``; no
+    thread then takes a polyline after it, and every polyline before it is
+    fitted (each was taken before it), as the serial loop stops at the first
+    raised error. Returns the number of polylines this call fitted.
     """
     k = starts.shape[0] - 1
-    n_params = 3 if fit_rotation else 2
-    coarse = np.zeros((k, 2), dtype=np.int64)
-    poses = np.zeros((k, 3))
-    iterations = np.zeros(k, dtype=np.int64)
-    converged = np.zeros(k, dtype=np.bool_)
-    covs = np.zeros((k, n_params, n_params))
-    rms = np.zeros(k)
-    raw_rms = np.zeros(k)
-    inliers = np.zeros(k, dtype=np.int64)
-    degenerate = np.zeros(k, dtype=np.bool_)
-    r_all = np.zeros(pts.shape[0])
-    w_all = np.zeros(pts.shape[0])
     h, w = edge.shape
-    if index_rows.shape[0] == 0:  # one scan of the edge mask for the whole chunk
+    if index_rows.shape[0] == 0:  # one scan of the edge mask for the whole list
         row_start, e_cols = edge_index(edge)
-    else:  # or the caller's, shared by its chunks
+    else:  # or the caller's, shared by its threads
         row_start, e_cols = index_rows, index_cols
-    for j in range(k):
+    done = 0
+    while True:
+        j = fetch_add(tickets, NEXT, 1)
+        if j >= k or j > load(tickets, FIRST_ERROR):
+            return done
         a = starts[j]
         b = starts[j + 1]
         p = pts[a:b]
@@ -76,9 +78,11 @@ def fit_polylines(
             tikhonov_alpha, ridge, ridge_half, ridge_sample_step, ridge_max_iterations,
             ridge_step_tolerance, ridge_max_displacement, use_libm,
         )
+        done += 1
         if error != OK:
-            return (j, error, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
-                    degenerate, r_all, w_all)
+            errors[j] = error
+            fetch_min(tickets, FIRST_ERROR, j)
+            continue
         coarse[j, 0] = dv
         coarse[j, 1] = du
         poses[j, :] = pose
@@ -91,5 +95,3 @@ def fit_polylines(
         degenerate[j] = deg
         r_all[a:b] = r
         w_all[a:b] = wt
-    return (k, OK, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
-            r_all, w_all)

@@ -1,0 +1,59 @@
+"""Atomic operations on int64 array elements, for threads sharing one work list.
+
+:func:`dtalign.batch.fit_many` runs the same compiled loop in several
+threads over one list of polylines: each thread takes the next index with
+:func:`fetch_add` (so a faster thread simply takes more), and the first
+failing index is kept with :func:`fetch_min`. Sequentially consistent
+LLVM ``atomicrmw`` and atomic loads; the arrays are C-contiguous int64.
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
+
+_I64 = ir.IntType(64)
+
+
+def _int64_vector(arr):  # type: ignore[no-untyped-def]
+    return isinstance(arr, types.Array) and arr.ndim == 1 and arr.dtype == types.int64
+
+
+def _element(context, builder, arrtype, arr, i):  # type: ignore[no-untyped-def]
+    a = context.make_array(arrtype)(context, builder, arr)
+    return builder.gep(a.data, [i], inbounds=True)
+
+
+def _rmw(op):  # type: ignore[no-untyped-def]
+    @intrinsic
+    def impl(typingctx, arr, i, value):  # type: ignore[no-untyped-def]
+        if not _int64_vector(arr):
+            return None
+
+        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            ptr = _element(context, builder, signature.args[0], args[0], args[1])
+            return builder.atomic_rmw(op, ptr, args[2], "seq_cst")
+
+        return types.int64(arr, types.int64, types.int64), codegen
+
+    return impl
+
+
+#: ``arr[i] += value`` atomically; returns the old ``arr[i]``.
+fetch_add = _rmw("add")
+#: ``arr[i] = min(arr[i], value)`` atomically (signed); returns the old ``arr[i]``.
+fetch_min = _rmw("min")
+
+
+@intrinsic
+def load(typingctx, arr, i):  # type: ignore[no-untyped-def]
+    """``arr[i]``, read atomically (never cached in a register across a loop)."""
+    if not _int64_vector(arr):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        ptr = _element(context, builder, signature.args[0], args[0], args[1])
+        return builder.load_atomic(ptr, "seq_cst", 8)
+
+    return types.int64(arr, types.int64), codegen
