@@ -292,19 +292,13 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     )
 
 
-#: No shared edge index: each compiled loop builds its own.
-_NO_INDEX = np.zeros(0, dtype=np.int64)
-
-
 def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]:
     """Fit the polylines of ``batch`` with ``workers`` threads running one
     compiled loop over them (GIL released throughout).
 
     Each thread takes the next polyline from a shared counter
     (:func:`dtalign._kernels.pipeline.fit_polylines`), so the threads stay
-    busy until the list is done, whatever their relative speed. Each
-    thread indexes the edge mask itself (0.1 ms, while another thread
-    starts or fits), rather than one index built before any starts.
+    busy until the list is done, whatever their relative speed.
 
     Each fit's ``timings_s`` has ``fit``: the threads' compiled time divided
     evenly among the polylines (the coarse search and LM run interleaved).
@@ -328,7 +322,7 @@ def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]
            np.zeros(k), np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.bool_),
            np.zeros(n_pts), np.zeros(n_pts))
     args = (
-        shared.edge, _NO_INDEX, _NO_INDEX, shared.mv, shared.mu, a.dt,
+        shared.edge, shared.mv, shared.mu, a.dt,
         a.gradient if a.gradient is not None else _NO_GRADIENT, batch.pts, batch.nrm, batch.sig,
         batch.starts, batch.pivots, batch.distances, a.rotation, a.use_polarity, a.fit_rotation,
         a.max_iterations, a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,

@@ -1,19 +1,21 @@
 """Coarse integer search over the sparse polyline support (SPEC section 2).
 
 Instead of gathering edge pixels once per shift (what the reference does),
-each polyline pixel scatters its contribution into the whole score table,
-visiting only the edge pixels that can meet it: the work is proportional
-to the pixel pairs within the window, not to the window area times the
-polyline length. Masks are scanned a word at a time (:mod:`.bits`). Scores are the same
-integer ratios as the reference, and the argmax uses the same total
-order, so the result is identical.
+each polyline pixel scatters its contribution into the whole score table.
+For windows up to :data:`DENSE_MAX_COLUMNS` shifts wide, it adds the edge
+row under its window to a row of counters, 16 columns per vector add
+(:func:`overlap_dense`); for wider ones it visits only the edge pixels that
+can meet it (:func:`overlap_sparse`: work proportional to the pixel pairs
+within the window). Masks are scanned a word at a time (:mod:`.bits`).
+Scores are the same integer ratios as the reference, and the argmax uses
+the same total order, so the result is identical.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 from .bits import fill
 
 
@@ -124,23 +126,17 @@ def edge_index(edge):  # pragma: no cover - compiled
 
 
 @kernel
-def overlap_and_counts(pv, pu, row_start, e_cols, h, w, mv, mu):  # pragma: no cover - compiled
-    """Edge overlap and in-bounds counts of every shift in the window.
+def in_image_counts(pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
+    """How many polyline pixels each shift keeps inside the image, ``(nv, nu)``;
+    empty when the window never pushes a pixel off it (every shift keeps all).
 
-    The polyline pixels come as row-major ``(pv, pu)``, the edge pixels by
-    row (:func:`row_starts`; rows may hold pixels outside the window too:
-    they are skipped). Both sets are sparse, so the
-    overlap is a sparse correlation: for each polyline pixel and row shift,
-    only the edge pixels of that row within the column window are visited
-    (found by binary search in the row's sorted columns). In-bounds counts
-    are the polyline size when the window never pushes a pixel off the
-    image (then ``counts`` is returned empty), else accumulated in a
-    difference array.
+    Accumulated in a difference array: per pixel and row shift, one range of
+    column shifts.
     """
     nv = 2 * mv + 1
     nu = 2 * mu + 1
-    overlap = np.zeros((nv, nu), dtype=np.int64)
-    inside = pv.min() >= mv and pv.max() + mv <= h - 1 and pu.min() >= mu and pu.max() + mu <= w - 1
+    if pv.min() >= mv and pv.max() + mv <= h - 1 and pu.min() >= mu and pu.max() + mu <= w - 1:
+        return np.zeros((0, 0), dtype=np.int64)
     diff = np.zeros((nv, nu + 1), dtype=np.int64)
     for i in range(pv.shape[0]):
         r = pv[i]
@@ -148,10 +144,38 @@ def overlap_and_counts(pv, pu, row_start, e_cols, h, w, mv, mu):  # pragma: no c
         du_lo = max(-mu, -c)
         du_hi = min(mu, w - 1 - c)
         for dv in range(max(-mv, -r), min(mv, h - 1 - r) + 1):
+            diff[dv + mv, du_lo + mu] += 1
+            diff[dv + mv, du_hi + mu + 1] -= 1
+    counts = np.empty((nv, nu), dtype=np.int64)
+    for a in range(nv):
+        run = 0
+        for b in range(nu):
+            run += diff[a, b]
+            counts[a, b] = run
+    return counts
+
+
+@kernel
+def overlap_sparse(pv, pu, row_start, e_cols, h, w, mv, mu):  # pragma: no cover - compiled
+    """Edge overlap of every shift in the window, ``(nv, nu)``.
+
+    The polyline pixels come as row-major ``(pv, pu)``, the edge pixels by
+    row (:func:`row_starts`; rows may hold pixels outside the window too:
+    they are skipped). Both sets are sparse, so the overlap is a sparse
+    correlation: for each polyline pixel and row shift, only the edge pixels
+    of that row within the column window are visited (found by binary search
+    in the row's sorted columns).
+    """
+    nv = 2 * mv + 1
+    nu = 2 * mu + 1
+    overlap = np.zeros((nv, nu), dtype=np.int64)
+    for i in range(pv.shape[0]):
+        r = pv[i]
+        c = pu[i]
+        du_lo = max(-mu, -c)
+        du_hi = min(mu, w - 1 - c)
+        for dv in range(max(-mv, -r), min(mv, h - 1 - r) + 1):
             a = dv + mv
-            if not inside:
-                diff[a, du_lo + mu] += 1
-                diff[a, du_hi + mu + 1] -= 1
             lo = row_start[r + dv]
             hi = row_start[r + dv + 1]
             j = _first_at_least(e_cols, lo, hi, c + du_lo) if hi - lo > 8 else lo
@@ -162,15 +186,63 @@ def overlap_and_counts(pv, pu, row_start, e_cols, h, w, mv, mu):  # pragma: no c
                 if col >= c + du_lo:
                     overlap[a, col - c + mu] += 1
                 j += 1
-    if inside:  # every shift keeps every pixel: best_shift needs no counts
-        return overlap, np.zeros((0, 0), dtype=np.int64)
-    counts = np.empty((nv, nu), dtype=np.int64)
+    return overlap
+
+
+#: Column shifts one vector add covers in :func:`overlap_dense` (int16 lanes
+#: of a 256-bit register); its window rows are padded to a multiple of this.
+LANES16 = 16
+#: :func:`overlap_dense` serves windows up to this many column shifts, and
+#: polylines of at most this many pixels (int16 counts cannot overflow).
+DENSE_MAX_COLUMNS = 128
+DENSE_MAX_PIXELS = 32767
+
+
+@inline_kernel
+def dense_ok(n_pixels, mu):  # pragma: no cover - compiled
+    """Whether :func:`overlap_dense` serves this search (else :func:`overlap_sparse`).
+
+    Measured on the SPEC disc limb (200 pixels, 1024^2 edge mask): +-30 px,
+    dense 31 us against 65 us for the sparse correlation plus 20 us for its
+    edge scan; +-50 px, 97 us against 99 + 20 us. Wider windows cost the
+    dense path in proportion to their width, the sparse one to the edge
+    pixels within.
+    """
+    return n_pixels <= DENSE_MAX_PIXELS and 2 * mu + 1 <= DENSE_MAX_COLUMNS
+
+
+@kernel
+def overlap_dense(pv, pu, flat, h, w, mv, mu):  # pragma: no cover - compiled
+    """:func:`overlap_sparse` computed from the edge mask's bytes ``flat``.
+
+    For each polyline pixel and row shift, the edge row under the window
+    (one byte per column shift) is added to that row of int16 counters, 16
+    at a time: no branch per edge pixel, no index of the edge mask. A pixel
+    whose padded window would leave its image row is added column by column
+    over its in-image shifts instead.
+    """
+    nv = 2 * mv + 1
+    nu = 2 * mu + 1
+    width = (nu + LANES16 - 1) // LANES16 * LANES16
+    acc = np.zeros(nv * width, dtype=np.int16)
+    for i in range(pv.shape[0]):
+        r = pv[i]
+        c = pu[i]
+        left = c - mu
+        for dv in range(max(-mv, -r), min(mv, h - 1 - r) + 1):
+            row = np.uint64((dv + mv) * width)
+            if left >= 0 and left + width <= w:  # the padded window lies in the row
+                src = np.uint64((r + dv) * w + left)
+                for k in range(np.uint64(width)):
+                    acc[row + k] = np.int16(acc[row + k] + np.int16(flat[src + k]))
+            else:
+                for b in range(max(-mu, -c) + mu, min(mu, w - 1 - c) + mu + 1):
+                    acc[row + np.uint64(b)] += flat[(r + dv) * w + left + b]
+    overlap = np.empty((nv, nu), dtype=np.int64)
     for a in range(nv):
-        run = 0
         for b in range(nu):
-            run += diff[a, b]
-            counts[a, b] = run
-    return overlap, counts
+            overlap[a, b] = acc[a * width + b]
+    return overlap
 
 
 @kernel
@@ -249,13 +321,17 @@ def flat_words(mask):  # pragma: no cover - compiled
 def search_support(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
     """Best shift for a polyline support given as row-major ``(pv, pu)``.
 
-    Only the edge pixels within the window around the polyline's bounding
-    box can score, so only that box of the edge mask is scanned.
+    Dense correlation (:func:`overlap_dense`) where it serves; else only the
+    edge pixels within the window around the polyline's bounding box can
+    score, so only that box of the edge mask is scanned.
     """
     if pv.shape[0] == 0:
         return 0, 0
     h, w = edge.shape
     edge_flat, edge_words = flat_words(edge)
+    if dense_ok(pv.shape[0], mu):
+        overlap = overlap_dense(pv, pu, edge_flat, h, w, mv, mu)
+        return best_shift(overlap, in_image_counts(pv, pu, h, w, mv, mu), mv, mu)
     e_rows, e_cols = nonzero_in_box(
         edge_flat, edge_words, w, max(pv[0] - mv, 0), min(pv[-1] + mv, h - 1),
         max(pu.min() - mu, 0), min(pu.max() + mu, w - 1),
@@ -268,8 +344,8 @@ def search_index(row_start, e_cols, pv, pu, h, w, mv, mu):  # pragma: no cover -
     """Best shift for a polyline support against edge pixels indexed by row."""
     if pv.shape[0] == 0:
         return 0, 0
-    overlap, counts = overlap_and_counts(pv, pu, row_start, e_cols, h, w, mv, mu)
-    return best_shift(overlap, counts, mv, mu)
+    overlap = overlap_sparse(pv, pu, row_start, e_cols, h, w, mv, mu)
+    return best_shift(overlap, in_image_counts(pv, pu, h, w, mv, mu), mv, mu)
 
 
 @kernel

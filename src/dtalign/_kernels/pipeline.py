@@ -9,8 +9,8 @@ thread on a slower core simply fits fewer. The LM is exactly the kernel,
 with exactly the argument types, that :func:`dtalign.lm_subpixel_refine`
 calls; the coarse search scores the same pixel pairs as
 :func:`dtalign.coarse.coarse_search_vertices`, from one index of the edge
-mask instead of a scan of a box per polyline. Results are bit-identical to
-fitting the polylines one by one.
+mask (where the sparse search serves) instead of a scan of a box per
+polyline. Results are bit-identical to fitting the polylines one by one.
 """
 
 from __future__ import annotations
@@ -19,7 +19,16 @@ import numpy as np
 
 from .._jit import kernel
 from .atomics import fetch_add, fetch_min, load
-from .coarse import edge_index, search_index, support_of_vertices
+from .coarse import (
+    best_shift,
+    dense_ok,
+    edge_index,
+    flat_words,
+    in_image_counts,
+    overlap_dense,
+    search_index,
+    support_of_vertices,
+)
 from .fit import OK, fit
 
 #: ``tickets[NEXT]``: the next polyline to take; ``tickets[FIRST_ERROR]``:
@@ -30,7 +39,7 @@ FIRST_ERROR = 1
 
 @kernel
 def fit_polylines(
-    edge, index_rows, index_cols, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
+    edge, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
     rotation0, use_polarity, fit_rotation, max_iterations, damping, step_tolerance, tukey_c,
     rcond, trust_region, tikhonov_alpha, ridge, ridge_half, ridge_sample_step,
     ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm, tickets,
@@ -41,8 +50,9 @@ def fit_polylines(
     ``pts, nrm, sig``) taken in turn from ``tickets`` (:data:`NEXT`), writing
     row ``j`` of the outputs, until none is left or one before it has failed.
 
-    ``index_rows, index_cols`` is :func:`~dtalign._kernels.coarse.edge_index`
-    of ``edge``, or empty to build it here. A failing polyline gets its error
+    The coarse search is :func:`~dtalign._kernels.coarse.search_support`'s:
+    dense where it serves, else against an index of the edge mask built on
+    first need. A failing polyline gets its error
     code in ``errors[j]`` and lowers ``tickets[FIRST_ERROR]`` to ``j``; no
     thread then takes a polyline after it, and every polyline before it is
     fitted (each was taken before it), as the serial loop stops at the first
@@ -50,10 +60,9 @@ def fit_polylines(
     """
     k = starts.shape[0] - 1
     h, w = edge.shape
-    if index_rows.shape[0] == 0:  # one scan of the edge mask for the whole list
-        row_start, e_cols = edge_index(edge)
-    else:  # or the caller's, shared by its threads
-        row_start, e_cols = index_rows, index_cols
+    edge_flat, _ = flat_words(edge)
+    row_start = e_cols = np.zeros(0, dtype=np.int64)
+    indexed = False
     done = 0
     while True:
         j = fetch_add(tickets, NEXT, 1)
@@ -63,7 +72,14 @@ def fit_polylines(
         b = starts[j + 1]
         p = pts[a:b]
         sv, su = support_of_vertices(p, h, w)
-        dv, du = search_index(row_start, e_cols, sv, su, h, w, mv, mu)
+        if sv.shape[0] > 0 and dense_ok(sv.shape[0], mu):
+            overlap = overlap_dense(sv, su, edge_flat, h, w, mv, mu)
+            dv, du = best_shift(overlap, in_image_counts(sv, su, h, w, mv, mu), mv, mu)
+        else:
+            if not indexed:  # one scan of the edge mask for this thread's polylines
+                row_start, e_cols = edge_index(edge)
+                indexed = True
+            dv, du = search_index(row_start, e_cols, sv, su, h, w, mv, mu)
         # fresh writable arrays, as lm_subpixel_refine's wrapper passes them
         pose0 = np.empty(3)
         pose0[0] = float(dv)
