@@ -125,6 +125,13 @@ def edge_index(edge):  # pragma: no cover - compiled
     return row_starts(e_rows, h), e_cols
 
 
+@inline_kernel
+def shifts_inside(r, c, h, w, mv, mu):  # pragma: no cover - compiled
+    """The shifts that keep pixel ``(r, c)`` in an ``h x w`` image:
+    ``(dv_lo, dv_hi, du_lo, du_hi)``, inclusive, within the window."""
+    return max(-mv, -r), min(mv, h - 1 - r), max(-mu, -c), min(mu, w - 1 - c)
+
+
 @kernel
 def in_image_counts(pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
     """How many polyline pixels each shift keeps inside the image, ``(nv, nu)``;
@@ -139,11 +146,8 @@ def in_image_counts(pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
         return np.zeros((0, 0), dtype=np.int64)
     diff = np.zeros((nv, nu + 1), dtype=np.int64)
     for i in range(pv.shape[0]):
-        r = pv[i]
-        c = pu[i]
-        du_lo = max(-mu, -c)
-        du_hi = min(mu, w - 1 - c)
-        for dv in range(max(-mv, -r), min(mv, h - 1 - r) + 1):
+        dv_lo, dv_hi, du_lo, du_hi = shifts_inside(pv[i], pu[i], h, w, mv, mu)
+        for dv in range(dv_lo, dv_hi + 1):
             diff[dv + mv, du_lo + mu] += 1
             diff[dv + mv, du_hi + mu + 1] -= 1
     counts = np.empty((nv, nu), dtype=np.int64)
@@ -172,9 +176,8 @@ def overlap_sparse(pv, pu, row_start, e_cols, h, w, mv, mu):  # pragma: no cover
     for i in range(pv.shape[0]):
         r = pv[i]
         c = pu[i]
-        du_lo = max(-mu, -c)
-        du_hi = min(mu, w - 1 - c)
-        for dv in range(max(-mv, -r), min(mv, h - 1 - r) + 1):
+        dv_lo, dv_hi, du_lo, du_hi = shifts_inside(r, c, h, w, mv, mu)
+        for dv in range(dv_lo, dv_hi + 1):
             a = dv + mv
             lo = row_start[r + dv]
             hi = row_start[r + dv + 1]
@@ -229,14 +232,15 @@ def overlap_dense(pv, pu, flat, h, w, mv, mu):  # pragma: no cover - compiled
         r = pv[i]
         c = pu[i]
         left = c - mu
-        for dv in range(max(-mv, -r), min(mv, h - 1 - r) + 1):
+        dv_lo, dv_hi, du_lo, du_hi = shifts_inside(r, c, h, w, mv, mu)
+        for dv in range(dv_lo, dv_hi + 1):
             row = np.uint64((dv + mv) * width)
             if left >= 0 and left + width <= w:  # the padded window lies in the row
                 src = np.uint64((r + dv) * w + left)
                 for k in range(np.uint64(width)):
                     acc[row + k] = np.int16(acc[row + k] + np.int16(flat[src + k]))
             else:
-                for b in range(max(-mu, -c) + mu, min(mu, w - 1 - c) + mu + 1):
+                for b in range(du_lo + mu, du_hi + mu + 1):
                     acc[row + np.uint64(b)] += flat[(r + dv) * w + left + b]
     overlap = np.empty((nv, nu), dtype=np.int64)
     for a in range(nv):
