@@ -14,8 +14,8 @@ The bar (issue #2):
 * covariances with the identical ``inf`` pattern and, where finite, within
   1e-9 relative (``max|C - C_ref| / max|C_ref|``).
 
-The two paths sum the normal equations in different orders (BLAS versus a
-sequential loop), so a long or chaotic fit may end a few 1e-9 px apart:
+The two paths sum the normal equations in different orders (BLAS versus
+four lane-wise partial sums), so a long or chaotic fit may end a few 1e-9 px apart:
 that is what the 99 % clause allows. A covariance evaluated at two poses
 that far apart differs by more than 1e-9 relative on an ill-conditioned
 fit, so the covariance-vs-reference bar is asserted where the poses agree
