@@ -194,10 +194,11 @@ def test_evaluate_state_lanes_and_tail(n, fit_rotation):
         hess, grad = np.zeros((p, p)), np.zeros(p)
         samples = np.zeros(n)
         if sampled:  # the state a trial step left: samples and Jacobian
-            assert klm.sample_state(dt, pts, pose, np.zeros(2), fit_rotation, samples, jac)
+            assert klm.sample_state(dt, pts, pose, np.zeros(2), fit_rotation, samples, jac,
+                                    klm.staging_buffers())
         status, cost, total = klm.evaluate_state(
             dt, pts, 1.0 / (sig * sig), sig, pol, pose, np.zeros(2), fit_rotation, 4.685, r, w,
-            jac, hess, grad, samples, sampled)
+            jac, hess, grad, samples, sampled, klm.staging_buffers())
         assert status == (1 if (want_w > 0).any() else 0)
         np.testing.assert_array_equal(r, want_r)
         np.testing.assert_array_equal(w, want_w)
@@ -220,7 +221,7 @@ def test_evaluate_state_refuses_a_non_finite_dt_in_lanes_and_tail(where):
     r, w, jac = np.zeros(11), np.zeros(11), np.zeros((2, 11))
     status, _, _ = klm.evaluate_state(
         dt, pts, np.ones(11), np.ones(11), np.ones(11), np.zeros(3), np.zeros(2), False, 4.685,
-        r, w, jac, np.zeros((2, 2)), np.zeros(2), np.zeros(11), False)
+        r, w, jac, np.zeros((2, 2)), np.zeros(2), np.zeros(11), False, klm.staging_buffers())
     assert status == (-1 if where < 11 else 1)
 
 
@@ -235,7 +236,8 @@ def test_trial_cost_samples_jacobian_and_sum(n, fit_rotation):
     pose = np.array([0.25, 0.5, 0.01 if fit_rotation else 0.0])
     p = 3 if fit_rotation else 2
     samples, jac = np.full(n, np.nan), np.full((p, n), np.nan)
-    cost, ok = klm.trial_cost(dt, pts, pol, w, pose, np.zeros(2), fit_rotation, samples, jac)
+    cost, ok = klm.trial_cost(dt, pts, pol, w, pose, np.zeros(2), fit_rotation, samples, jac,
+                              klm.staging_buffers())
     want_r, _, want_jac, *_ = _state_scalar(dt, pts, np.ones(n), np.ones(n), pose, fit_rotation, 4.685)
     assert ok
     np.testing.assert_array_equal(samples, want_r)  # pol = 1 there: the samples themselves
@@ -251,7 +253,7 @@ def test_trial_cost_reports_an_unreadable_jacobian_without_failing_the_cost():
     pts = np.array([[10.0, 18.9], [5.0, 5.0], [6.0, 6.0], [7.0, 7.0], [8.0, 8.0]])
     for n in (4, 5):  # the vertex in the lanes, and with a tail behind it
         cost, ok = klm.trial_cost(dt, pts[:n], np.ones(n), np.ones(n), np.zeros(3), np.zeros(2),
-                                  False, np.zeros(n), np.zeros((2, n)))
+                                  False, np.zeros(n), np.zeros((2, n)), klm.staging_buffers())
         assert math.isfinite(cost) and not ok
 
 
@@ -262,7 +264,7 @@ def test_tiny_images_take_the_one_by_one_path():
         pts = np.column_stack([np.linspace(-1, 9, 12), np.linspace(9, -1, 12)])
         samples = np.zeros(12)
         klm.trial_cost(dt, pts, np.ones(12), np.ones(12), np.zeros(3), np.zeros(2), False,
-                       samples, np.zeros((2, 12)))
+                       samples, np.zeros((2, 12)), klm.staging_buffers())
         np.testing.assert_array_equal(samples, sample_many(dt, pts))
 
 
@@ -311,7 +313,8 @@ def test_unaligned_inputs_give_the_same_state():
         r, w, jac = np.zeros(37), np.zeros(37), np.zeros((2, 37))
         hess, grad = np.zeros((2, 2)), np.zeros(2)
         out = klm.evaluate_state(d, p, 1.0 / (sig * sig), sig, pol, pose, np.zeros(2), False,
-                                 4.685, r, w, jac, hess, grad, np.zeros(37), False)
+                                 4.685, r, w, jac, hess, grad, np.zeros(37), False,
+                                 klm.staging_buffers())
         results.append((out, r, w, jac, hess, grad))
     assert results[0][0] == results[1][0]
     for a, b in zip(results[0][1:], results[1][1:], strict=True):

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .._jit import kernel
-from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop
+from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop, staging_buffers
 from .ridge import (
     PATCH_MARGIN,
     RIDGE_BAD_FIELD,
@@ -120,7 +120,7 @@ def fit(
             info = np.zeros((n_params, n_params))
             status = evaluate_state(
                 dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac,
-                info, np.zeros(n_params), np.zeros(n), False,
+                info, np.zeros(n_params), np.zeros(n), False, staging_buffers(),
             )[0]
             if status < 0:
                 return _failed(BAD_DT, pose0, n, n_params)

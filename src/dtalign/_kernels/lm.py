@@ -68,14 +68,22 @@ def lanes_for(dt, n):  # pragma: no cover - compiled
 
 
 @kernel
-def sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac):  # pragma: no cover - compiled
+def staging_buffers():  # pragma: no cover - compiled
+    """Scratch for :func:`sample_state`'s staged cells, allocated once per fit."""
+    return (np.empty(BLOCK * CELLS_PER_SLOT, np.int32), np.empty(BLOCK * FRACS_PER_SLOT),
+            np.empty(BLOCK, np.bool_))
+
+
+@kernel
+def sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac, staging):  # pragma: no cover - compiled
     """The DT at every vertex at ``pose`` into ``samples`` and the Jacobian's
     columns into ``jac`` (``(P, N)``): five samples per vertex (seven with
     rotation). Returns False if a sample read a NaN or inf.
 
     Vertices are taken four at a time (:mod:`.simd_image`), their cells
-    staged a block at a time; the last ``n % 4`` one by one. Every value is
-    bit-identical to the one-by-one code's.
+    staged a block at a time in ``staging`` (:func:`staging_buffers`); the
+    last ``n % 4`` one by one. Every value is bit-identical to the
+    one-by-one code's.
     """
     dv, du, theta = pose[0], pose[1], pose[2]
     pv, pu = pivot[0], pivot[1]
@@ -88,9 +96,7 @@ def sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac):  # pragma: n
     n = pts.shape[0]
     n4 = lanes_for(dt, n)
     ok = True
-    cells = np.empty(BLOCK * CELLS_PER_SLOT, np.int32)
-    fracs = np.empty(BLOCK * FRACS_PER_SLOT)
-    staged = np.empty(BLOCK, np.bool_)
+    cells, fracs, staged = staging
     for i in range(0, n4, 4):
         g = (i >> 2) % BLOCK
         if g == 0:  # stage the cells of the next block of groups
@@ -178,7 +184,7 @@ def _lane_sums(samples, pol, jac, inv_var, sig, r, w, tukey_c, n4):  # pragma: n
 @kernel
 def evaluate_state(
     dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad,
-    samples, sampled,
+    samples, sampled, staging,
 ):  # pragma: no cover - compiled
     """State at ``pose``: residuals, IRLS weights and Jacobian into ``r, w, jac``,
     and ``H = A^T A``, ``g = A^T (sqrt(w) r)`` (``A = sqrt(w) J``) into
@@ -201,7 +207,8 @@ def evaluate_state(
     cost compares like with like). Every residual, weight and product is
     computed exactly as the one-by-one code computes it.
     """
-    if not sampled and not sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac):
+    if not sampled and not sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac,
+                                        staging):
         return -1, 0.0, 0.0
     n = pts.shape[0]
     n4 = n - n % 4
@@ -247,7 +254,7 @@ def evaluate_state(
 
 
 @kernel
-def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac):  # pragma: no cover - compiled
+def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging):  # pragma: no cover - compiled
     """``sum(w * r * r)`` with residuals at ``pose`` and fixed weights ``w``,
     summed lane-wise as :func:`evaluate_state` sums its cost; and whether
     the state at ``pose`` is readable.
@@ -261,7 +268,7 @@ def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac):  # pra
     four for the Jacobian after. ``ok`` is False if any of them read a NaN
     or inf (an error only if the step is accepted).
     """
-    ok = sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac)
+    ok = sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac, staging)
     n = pts.shape[0]
     n4 = n - n % 4
     penalty = splat(PENALTY)
@@ -327,11 +334,12 @@ def lm_loop(
     sampled = False  # samples, jac hold the DT and Jacobian at `pose` (an accepted trial's)
     trial_samples = np.zeros(n)  # the same at `trial`, swapped in when it is accepted
     trial_jac = np.zeros((n_params, n))
+    staging = staging_buffers()
     while iterations < max_iterations:
         if not fresh:
             status, cost, total_w = evaluate_state(
                 dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess,
-                grad, samples, sampled,
+                grad, samples, sampled, staging,
             )
             if status < 0:
                 return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT
@@ -365,7 +373,7 @@ def lm_loop(
                 break
             continue
         cost_t, readable = trial_cost(
-            dt, pts, pol, w, trial, pivot, fit_rotation, trial_samples, trial_jac
+            dt, pts, pol, w, trial, pivot, fit_rotation, trial_samples, trial_jac, staging
         )
         if not math.isfinite(cost_t):
             return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT
@@ -393,6 +401,6 @@ def lm_loop(
     if not fresh:
         status = evaluate_state(
             dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, info, grad,
-            samples, sampled,
+            samples, sampled, staging,
         )[0]
     return pose, iterations, converged, r, w, jac, info, LOOP_BAD_DT if status < 0 else LOOP_OK

@@ -6,7 +6,7 @@ from functools import partial
 from typing import Any
 
 from .timing import _mib, peak_bytes
-from .workloads import DERIVATIVE_TEMPORARIES_TARGET
+from .workloads import DERIVATIVE_TEMPORARIES_TARGET, lm_keywords
 
 
 def measure_memory() -> dict[str, Any]:
@@ -28,15 +28,7 @@ def measure_memory() -> dict[str, Any]:
     for size in (512, 2048):
         s = scenes.disc_scene(shape=(size, size))
         _, dt, grad = dtalign.compute_all_image_derivatives(s.image, s.noise_sigma)
-        p = s.polyline
-        kw = {
-            "vertices_vu": p.vertices_vu,
-            "normals_vu": p.normals_vu,
-            "sigma_normal_per_vertex_px": p.sigmas,
-            "image_edge_dt": dt,
-            "image_gradient_vu": grad,
-            "initial_offset_vu": (7.0, -5.0),
-        }
+        kw = lm_keywords(s.polyline, dt, grad, (7.0, -5.0))
         for label, api in apis:
             api.lm_subpixel_refine(**kw)
             out[f"lm_{size}_{label}_peak_bytes"] = peak_bytes(partial(api.lm_subpixel_refine, **kw))

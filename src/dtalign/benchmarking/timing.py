@@ -171,11 +171,11 @@ def _fit_kernel_call(products: Any, polyline: Any) -> Callable[[], Any]:
     ``polyline`` against ``products``, its arguments checked once here."""
     from .. import lm
     from .._args import check_lm_inputs
+    from .workloads import lm_keywords
 
     kw = {name: p.default for name, p in inspect.signature(lm.lm_subpixel_refine).parameters.items()}
-    kw.update(vertices_vu=polyline.vertices_vu, normals_vu=polyline.normals_vu,
-              sigma_normal_per_vertex_px=polyline.sigmas, image_edge_dt=products.edge_dt,
-              image_gradient_vu=products.gradient_vu, trust_region_px=1.0)
+    kw.update(lm_keywords(polyline, products.edge_dt, products.gradient_vu, (0.0, 0.0),
+                          trust_region_px=1.0))
     a = check_lm_inputs(kw)
     args = lm._kernel_args(a)
     return lambda: lm._k.fit(*args)

@@ -69,6 +69,20 @@ class Inputs:
     navigation: Any
 
 
+def lm_keywords(polyline: Any, dt: Any, grad: Any, offset: tuple[float, float],
+                **extra: Any) -> dict[str, Any]:
+    """``lm_subpixel_refine`` keywords fitting ``polyline`` (a scene polyline)."""
+    return {
+        "vertices_vu": polyline.vertices_vu,
+        "normals_vu": polyline.normals_vu,
+        "sigma_normal_per_vertex_px": polyline.sigmas,
+        "image_edge_dt": dt,
+        "image_gradient_vu": grad,
+        "initial_offset_vu": offset,
+        **extra,
+    }
+
+
 def build_inputs() -> Inputs:
     """Scenes of SPEC section 7 and their derivatives, computed once.
 
@@ -97,15 +111,7 @@ def build_inputs() -> Inputs:
             raise RuntimeError(f"{name}: the scene image differs from the base disc")
         p = scene.polyline
         seed = ref.coarse_ncc_search(edge, ref.build_polyline_mask(p.vertices_vu, dt.shape), (30, 30))
-        kw = {
-            "vertices_vu": p.vertices_vu,
-            "normals_vu": p.normals_vu,
-            "sigma_normal_per_vertex_px": p.sigmas,
-            "image_edge_dt": dt,
-            "image_gradient_vu": grad,
-            "initial_offset_vu": (float(seed[0]), float(seed[1])),
-            **extra,
-        }
+        kw = lm_keywords(p, dt, grad, (float(seed[0]), float(seed[1])), **extra)
         if extra.get("fit_rotation"):
             kw["pivot_distance_px"] = scene.pivot_distance_px
         lm[name] = kw
