@@ -291,10 +291,13 @@ def test_fit_many_converts_layouts_like_the_serial_calls(products, polylines):
 
 
 def test_batch_fit_results_are_read_only_and_independent(products, polylines):
-    fits = fit_many(products, polylines[:4], search_window_vu=WINDOW, workers=2)
+    fits = fit_many(products, polylines, search_window_vu=WINDOW, workers=2)
     for f in fits:
         for arr in (f.vertices_vu, f.normals_vu, f.lm.residuals_px, f.lm.weights, f.lm.covariance):
             assert not arr.flags.writeable
+        for arr in (f.lm.residuals_px, f.lm.weights, f.lm.covariance):
+            with pytest.raises(ValueError):  # shared output rows, locked at their base
+                arr.flags.writeable = True
         assert set(f.timings_s) >= {"fit"}
     fits[0].timings_s["fit"] = -1.0
     assert fits[1].timings_s["fit"] >= 0.0
@@ -309,3 +312,39 @@ def test_nested_map_ordered_does_not_deadlock(products, polylines):
         got = guard.submit(map_ordered, inner, range(4), workers=2).result(timeout=120)
     for k, fits in enumerate(got):
         assert results_equal(fits, _serial(products, polylines[k : k + 3]))
+
+
+@pytest.mark.parametrize("wrap_every", [1, 3, 50])
+def test_fit_many_wrapping_between_rounds_changes_nothing(products, polylines, nav,
+                                                          monkeypatch, wrap_every):
+    # With 2 workers the calling thread fits WRAP_EVERY polylines at a time and
+    # wraps the finished results in between: every round size gives the serial
+    # results, in order, and a kernel failure in the middle still raises the
+    # serial loop's error.
+    from dtalign import _fitjobs
+
+    monkeypatch.setattr(_fitjobs, "WRAP_EVERY", wrap_every)
+    expected = _serial(products, polylines, trust_region_px=1.0)
+    got = fit_many(products, polylines, search_window_vu=WINDOW, workers=2, trust_region_px=1.0)
+    assert results_equal(got, expected)
+    assert len({f.timings_s["fit"] for f in got}) == 1
+
+    dt = np.array(products.edge_dt)
+    iv, iu = np.rint(polylines[7].vertices_vu[0]).astype(int)
+    dt[max(iv - 20, 0) : iv + 20, max(iu - 20, 0) : iu + 20] = np.nan
+    import dataclasses
+
+    broken = dataclasses.replace(products, edge_dt=dt)
+    items = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines]
+    expected_error = _serial_error(broken, items)
+    assert expected_error is not None and "image_edge_dt" in str(expected_error)
+    with pytest.raises(ValueError) as info:
+        fit_many(broken, items, search_window_vu=WINDOW, workers=2)
+    assert str(info.value) == str(expected_error)
+
+
+def test_finished_until_reads_the_longest_finished_run():
+    from dtalign._kernels.pipeline import finished_until
+
+    flags = np.array([1, 1, 0, 1, 1, 1, 0], dtype=np.int64)
+    assert [finished_until(flags, j) for j in range(8)] == [2, 2, 2, 6, 6, 6, 6, 7]

@@ -292,19 +292,32 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     )
 
 
+#: Polylines the calling thread fits between two rounds of wrapping
+#: finished results while other threads go on fitting. Re-entering the
+#: compiled loop costs ~3 us, wrapping a result ~6 us, a 200-vertex fit
+#: ~110 us: with 4, the re-entries cost under 1 us per fit, and the last
+#: round leaves about 8 results to wrap, in the time the other thread takes
+#: for its last fit. Without it the ~0.4 ms of wrapping 64 results came
+#: after the fits, with one thread busy.
+WRAP_EVERY = 4
+
+
 def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]:
     """Fit the polylines of ``batch`` with ``workers`` threads running one
     compiled loop over them (GIL released throughout).
 
     Each thread takes the next polyline from a shared counter
     (:func:`dtalign._kernels.pipeline.fit_polylines`), so the threads stay
-    busy until the list is done, whatever their relative speed.
+    busy until the list is done, whatever their relative speed. With more
+    than one thread, the calling thread fits :data:`WRAP_EVERY` polylines at
+    a time and, in between, wraps the results finished so far (in order)
+    while the others go on fitting.
 
     Each fit's ``timings_s`` has ``fit``: the threads' compiled time divided
     evenly among the polylines (the coarse search and LM run interleaved).
     Raises the error of the first polyline that fails, like the serial loop.
     """
-    from ._kernels.pipeline import fit_polylines
+    from ._kernels.pipeline import finished_until, fit_polylines
     from .batch import _run_threads
     from .image import _use_libm_hypot
     from .lm import _NO_GRADIENT, _RIDGE_HALF, _raise_for
@@ -317,6 +330,7 @@ def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]
     n_pts = batch.pts.shape[0]
     tickets = np.array([0, k], dtype=np.int64)
     errors = np.zeros(k, dtype=np.int64)
+    finished = np.zeros(k, dtype=np.int64)
     out = (np.zeros((k, 2), dtype=np.int64), np.zeros((k, 3)), np.zeros(k, dtype=np.int64),
            np.zeros(k, dtype=np.bool_), np.zeros((k, n_params, n_params)), np.zeros(k),
            np.zeros(k), np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.bool_),
@@ -329,64 +343,95 @@ def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]
         -1.0 if a.trust_region_px is None else a.trust_region_px, a.tikhonov_alpha,
         a.final_gradient_ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
-        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(), tickets, errors, *out,
+        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(), tickets, errors, finished,
     )
+    # The fits keep read-only views of the outputs, which the kernels go on
+    # writing (other rows) while the calling thread wraps.
+    views = tuple(_readonly_view(arr) for arr in out)
+    fits: list[PolylineFit] = []
     busy: list[float] = []
     failures: list[BaseException] = []
 
     def run() -> None:
         t0 = time.perf_counter()
         try:
-            fit_polylines(*args)
+            fit_polylines(*args, k, *out)
         except BaseException as exc:  # re-raised below, after every thread has stopped
             failures.append(exc)
         busy.append(time.perf_counter() - t0)  # list.append is atomic under the GIL
 
-    _run_threads(run, min(workers, k))
+    def fit_and_wrap() -> None:
+        spent = 0.0
+        try:
+            while True:
+                t0 = time.perf_counter()
+                n = fit_polylines(*args, WRAP_EVERY, *out)
+                spent += time.perf_counter() - t0
+                fits.extend(_wrap(shared, batch, views, len(fits),
+                                  finished_until(finished, len(fits))))
+                if n < WRAP_EVERY:  # none left (or one failed)
+                    break
+        except BaseException as exc:
+            failures.append(exc)
+        busy.append(spent)
+
+    threads = min(workers, k)
+    _run_threads(run, threads, fit_and_wrap if threads > 1 else None)
+    for arr in out:
+        arr.flags.writeable = False
     if failures:
         raise failures[0]
     first_error = int(tickets[1])
     if first_error < k:
         _raise_for(int(errors[first_error]))
-    return _wrap(shared, batch.starts, batch.pts, batch.nrm, batch.pivots, batch.distances, out,
-                 sum(busy))
+    fits.extend(_wrap(shared, batch, views, len(fits), k))
+    per_fit = sum(busy) / k
+    for fit in fits:
+        fit.timings_s["fit"] = per_fit
+    return fits
 
 
-def _wrap(shared: Plan, starts: np.ndarray, pts: FloatArray,
-          nrm: FloatArray, pivots: FloatArray, distances: FloatArray, out: tuple[Any, ...],
-          elapsed: float) -> list[PolylineFit]:
-    """:class:`PolylineFit` objects of :func:`fit_batch`'s compiled results."""
+def _readonly_view(arr: np.ndarray) -> np.ndarray:
+    view = arr.view()
+    view.flags.writeable = False
+    return view
+
+
+def _wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int,
+          hi: int) -> list[PolylineFit]:
+    """:class:`PolylineFit` objects of :func:`fit_batch`'s compiled results
+    ``lo:hi`` (``timings_s`` without ``fit``, which the caller adds)."""
     from ._results import LMRefineResult
     from .pipeline import PolylineFit
 
+    if hi <= lo:
+        return []
     (coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate, r_all,
      w_all) = out
     p = shared.products
     a = shared.lm
+    pts, nrm = batch.pts, batch.nrm
     # Per-fit values as Python scalars in bulk, and read-only arrays whose
     # slices each fit keeps: a few microseconds per fit under the GIL.
-    for arr in (covs, r_all, w_all):
-        arr.flags.writeable = False
-    sig_l = _sigmas_from_cov(covs).tolist()
-    poses_l = poses.tolist()
-    coarse_l = coarse.tolist()
-    bounds = starts.tolist()
+    sig_l = _sigmas_from_cov(covs[lo:hi]).tolist()
+    bounds = batch.starts[lo : hi + 1].tolist()
     fit_rotation = a.fit_rotation
     common = {
         "search_window_vu": shared.window, "fit_rotation": fit_rotation,
         "noise_sigma": p.noise_sigma, "pinvh_rcond": a.pinvh_rcond, "tukey_c": a.tukey_c,
     }
-    timings = {**p.timings_s, "fit": elapsed / len(poses_l)}
+    timings = p.timings_s
     fits = []
     for j, (pose, (dv, du), sd, n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
-        poses_l, coarse_l, sig_l, iterations.tolist(), converged.tolist(), rms.tolist(),
-        raw_rms.tolist(), inliers.tolist(), degenerate.tolist(), pivots.tolist(),
-        distances.tolist(), strict=True,
+        poses[lo:hi].tolist(), coarse[lo:hi].tolist(), sig_l, iterations[lo:hi].tolist(),
+        converged[lo:hi].tolist(), rms[lo:hi].tolist(), raw_rms[lo:hi].tolist(),
+        inliers[lo:hi].tolist(), degenerate[lo:hi].tolist(), batch.pivots[lo:hi].tolist(),
+        batch.distances[lo:hi].tolist(), strict=True,
     )):
         s_j, e_j = bounds[j], bounds[j + 1]
         lm = object.__new__(LMRefineResult)
         lm.__dict__.update(
-            offset_vu=(pose[0], pose[1]), rotation_rad=pose[2], covariance=covs[j],
+            offset_vu=(pose[0], pose[1]), rotation_rad=pose[2], covariance=covs[lo + j],
             residuals_px=r_all[s_j:e_j], weights=w_all[s_j:e_j],
             rms_px=rms_j, raw_rms_px=raw_j, iterations=n_iter, converged=conv,
             inlier_count=inl, degenerate=deg,
@@ -401,4 +446,3 @@ def _wrap(shared: Plan, starts: np.ndarray, pts: FloatArray,
         )
         fits.append(fit)
     return fits
-

@@ -3,8 +3,10 @@
 :func:`dtalign.batch.fit_many` runs the same compiled loop in several
 threads over one list of polylines: each thread takes the next index with
 :func:`fetch_add` (so a faster thread simply takes more), and the first
-failing index is kept with :func:`fetch_min`. Sequentially consistent
-LLVM ``atomicrmw`` and atomic loads; the arrays are C-contiguous int64.
+failing index is kept with :func:`fetch_min`; a finished polyline is flagged
+with :func:`store`, which the wrapping thread reads with :func:`load`.
+Sequentially consistent LLVM ``atomicrmw``, atomic loads and stores; the
+arrays are C-contiguous int64.
 """
 
 from __future__ import annotations
@@ -57,3 +59,18 @@ def load(typingctx, arr, i):  # type: ignore[no-untyped-def]
         return builder.load_atomic(ptr, "seq_cst", 8)
 
     return types.int64(arr, types.int64), codegen
+
+
+@intrinsic
+def store(typingctx, arr, i, value):  # type: ignore[no-untyped-def]
+    """``arr[i] = value``, written atomically: every write this thread made
+    before it is visible to a thread that then :func:`load` s the value."""
+    if not _int64_vector(arr):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        ptr = _element(context, builder, signature.args[0], args[0], args[1])
+        builder.store_atomic(args[2], ptr, "seq_cst", 8)
+        return context.get_dummy_value()
+
+    return types.none(arr, types.int64, types.int64), codegen

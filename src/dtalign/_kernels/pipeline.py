@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import kernel
-from .atomics import fetch_add, fetch_min, load
+from .atomics import fetch_add, fetch_min, load, store
 from .coarse import (
     best_shift,
     dense_ok,
@@ -43,8 +43,8 @@ def fit_polylines(
     rotation0, use_polarity, fit_rotation, max_iterations, damping, step_tolerance, tukey_c,
     rcond, trust_region, tikhonov_alpha, ridge, ridge_half, ridge_sample_step,
     ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm, tickets,
-    errors, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
-    r_all, w_all,
+    errors, finished, budget, coarse, poses, iterations, converged, covs, rms, raw_rms,
+    inliers, degenerate, r_all, w_all,
 ):  # pragma: no cover - compiled
     """Fit polylines ``j`` (rows ``starts[j]:starts[j+1]`` of the concatenated
     ``pts, nrm, sig``) taken in turn from ``tickets`` (:data:`NEXT`), writing
@@ -56,7 +56,9 @@ def fit_polylines(
     code in ``errors[j]`` and lowers ``tickets[FIRST_ERROR]`` to ``j``; no
     thread then takes a polyline after it, and every polyline before it is
     fitted (each was taken before it), as the serial loop stops at the first
-    raised error. Returns the number of polylines this call fitted.
+    raised error. A fitted polyline's ``finished[j]`` is set to 1 after its
+    rows are written (see :func:`finished_until`). The call returns after
+    ``budget`` polylines, or when none is left: the number it fitted.
     """
     k = starts.shape[0] - 1
     h, w = edge.shape
@@ -64,7 +66,7 @@ def fit_polylines(
     row_start = e_cols = np.zeros(0, dtype=np.int64)
     indexed = False
     done = 0
-    while True:
+    while done < budget:
         j = fetch_add(tickets, NEXT, 1)
         if j >= k or j > load(tickets, FIRST_ERROR):
             return done
@@ -111,3 +113,16 @@ def fit_polylines(
         degenerate[j] = deg
         r_all[a:b] = r
         w_all[a:b] = wt
+        store(finished, j, 1)
+    return done
+
+
+@kernel
+def finished_until(finished, start):  # pragma: no cover - compiled
+    """The first ``j >= start`` whose ``finished[j]`` is not set: rows
+    ``start:j`` of :func:`fit_polylines`' outputs are written and may be read
+    while other threads still fit."""
+    j = start
+    while j < finished.shape[0] and load(finished, j) != 0:
+        j += 1
+    return j
