@@ -314,18 +314,14 @@ def test_nested_map_ordered_does_not_deadlock(products, polylines):
         assert results_equal(fits, _serial(products, polylines[k : k + 3]))
 
 
-@pytest.mark.parametrize("wrap_every", [1, 3, 50])
-def test_fit_many_wrapping_between_rounds_changes_nothing(products, polylines, nav,
-                                                          monkeypatch, wrap_every):
-    # With 2 workers the calling thread fits WRAP_EVERY polylines at a time and
-    # wraps the finished results in between: every round size gives the serial
-    # results, in order, and a kernel failure in the middle still raises the
-    # serial loop's error.
-    from dtalign import _fitjobs
-
-    monkeypatch.setattr(_fitjobs, "WRAP_EVERY", wrap_every)
+@pytest.mark.parametrize("workers", [2, 3])
+def test_fit_many_wrapping_while_others_fit_changes_nothing(products, polylines, workers):
+    # The calling thread wraps the finished results while the others finish
+    # their last fits: still the serial results in order, and a kernel
+    # failure in the middle still raises the serial loop's error.
     expected = _serial(products, polylines, trust_region_px=1.0)
-    got = fit_many(products, polylines, search_window_vu=WINDOW, workers=2, trust_region_px=1.0)
+    got = fit_many(products, polylines, search_window_vu=WINDOW, workers=workers,
+                   trust_region_px=1.0)
     assert results_equal(got, expected)
     assert len({f.timings_s["fit"] for f in got}) == 1
 
@@ -339,7 +335,7 @@ def test_fit_many_wrapping_between_rounds_changes_nothing(products, polylines, n
     expected_error = _serial_error(broken, items)
     assert expected_error is not None and "image_edge_dt" in str(expected_error)
     with pytest.raises(ValueError) as info:
-        fit_many(broken, items, search_window_vu=WINDOW, workers=2)
+        fit_many(broken, items, search_window_vu=WINDOW, workers=workers)
     assert str(info.value) == str(expected_error)
 
 

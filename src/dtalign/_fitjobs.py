@@ -292,26 +292,16 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     )
 
 
-#: Polylines the calling thread fits between two rounds of wrapping
-#: finished results while other threads go on fitting. Re-entering the
-#: compiled loop costs ~3 us, wrapping a result ~6 us, a 200-vertex fit
-#: ~110 us: with 4, the re-entries cost under 1 us per fit, and the last
-#: round leaves about 8 results to wrap, in the time the other thread takes
-#: for its last fit. Without it the ~0.4 ms of wrapping 64 results came
-#: after the fits, with one thread busy.
-WRAP_EVERY = 4
-
-
 def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]:
     """Fit the polylines of ``batch`` with ``workers`` threads running one
     compiled loop over them (GIL released throughout).
 
     Each thread takes the next polyline from a shared counter
     (:func:`dtalign._kernels.pipeline.fit_polylines`), so the threads stay
-    busy until the list is done, whatever their relative speed. With more
-    than one thread, the calling thread fits :data:`WRAP_EVERY` polylines at
-    a time and, in between, wraps the results finished so far (in order)
-    while the others go on fitting.
+    busy until the list is done, whatever their relative speed. When none
+    is left to take, the calling thread wraps the results finished so far
+    while the others finish their last fits (~0.3 ms of wrapping 64 results
+    overlaps them), then the rest.
 
     Each fit's ``timings_s`` has ``fit``: the threads' compiled time divided
     evenly among the polylines (the coarse search and LM run interleaved).
@@ -344,9 +334,10 @@ def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]
         a.final_gradient_ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
         DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(), tickets, errors, finished,
+        *out,
     )
-    # The fits keep read-only views of the outputs, which the kernels go on
-    # writing (other rows) while the calling thread wraps.
+    # The fits keep read-only views of the outputs, which other threads may
+    # still be writing (other rows) while the calling thread wraps.
     views = tuple(_readonly_view(arr) for arr in out)
     fits: list[PolylineFit] = []
     busy: list[float] = []
@@ -355,28 +346,21 @@ def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]
     def run() -> None:
         t0 = time.perf_counter()
         try:
-            fit_polylines(*args, k, *out)
+            fit_polylines(*args)
         except BaseException as exc:  # re-raised below, after every thread has stopped
             failures.append(exc)
         busy.append(time.perf_counter() - t0)  # list.append is atomic under the GIL
 
-    def fit_and_wrap() -> None:
-        spent = 0.0
+    def run_then_wrap() -> None:
+        run()
         try:
-            while True:
-                t0 = time.perf_counter()
-                n = fit_polylines(*args, WRAP_EVERY, *out)
-                spent += time.perf_counter() - t0
-                fits.extend(_wrap(shared, batch, views, len(fits),
-                                  finished_until(finished, len(fits))))
-                if n < WRAP_EVERY:  # none left (or one failed)
-                    break
-        except BaseException as exc:
+            if not failures:
+                fits.extend(_wrap(shared, batch, views, 0, finished_until(finished, 0)))
+        except BaseException as exc:  # the helpers must still be waited for
             failures.append(exc)
-        busy.append(spent)
 
     threads = min(workers, k)
-    _run_threads(run, threads, fit_and_wrap if threads > 1 else None)
+    _run_threads(run, threads, run_then_wrap if threads > 1 else None)
     for arr in out:
         arr.flags.writeable = False
     if failures:
