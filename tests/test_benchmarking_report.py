@@ -39,10 +39,10 @@ def test_readme_table_replaces_only_its_section():
 
 
 def test_batch_row_shows_both_controls():
-    row = {**REPORT["rows"][1], "kernel_control_ratio": 1.15, "ratio": 1.5, "passed": False}
+    row = {**REPORT["rows"][1], "loop_control_ratio": 1.15, "ratio": 1.5, "passed": False}
     out = timing.replace_readme_table(
         f"{timing.README_START}\n{timing.README_END}\n", {**REPORT, "rows": [row]})
-    assert "| 1.50x | >= 1.8x | FAIL (control 1.93x, fit kernel alone 1.15x) |" in out
+    assert "| 1.50x | >= 1.8x | FAIL (control 1.93x, compiled loop alone 1.15x) |" in out
 
 
 @pytest.mark.parametrize("text", ["no markers", f"{timing.README_END}\n{timing.README_START}"])

@@ -292,29 +292,16 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
     )
 
 
-def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]:
-    """Fit the polylines of ``batch`` with ``workers`` threads running one
-    compiled loop over them (GIL released throughout).
-
-    Each thread takes the next polyline from a shared counter
-    (:func:`dtalign._kernels.pipeline.fit_polylines`), so the threads stay
-    busy until the list is done, whatever their relative speed. When none
-    is left to take, the calling thread wraps the results finished so far
-    while the others finish their last fits (~0.3 ms of wrapping 64 results
-    overlaps them), then the rest.
-
-    Each fit's ``timings_s`` has ``fit``: the threads' compiled time divided
-    evenly among the polylines (the coarse search and LM run interleaved).
-    Raises the error of the first polyline that fails, like the serial loop.
-    """
-    from ._kernels.pipeline import finished_until, fit_polylines
-    from .batch import _run_threads
+def loop_inputs(
+    shared: Plan, batch: Batch
+) -> tuple[tuple[Any, ...], np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
+    """:func:`dtalign._kernels.pipeline.fit_polylines`' arguments for ``batch``
+    (``batch.n > 0``), with fresh counters and outputs: ``(args, tickets,
+    errors, finished, outputs)``."""
     from .image import _use_libm_hypot
-    from .lm import _NO_GRADIENT, _RIDGE_HALF, _raise_for
+    from .lm import _NO_GRADIENT, _RIDGE_HALF
 
     k = batch.n
-    if k == 0:
-        return []
     a = shared.lm
     n_params = 3 if a.fit_rotation else 2
     n_pts = batch.pts.shape[0]
@@ -336,6 +323,32 @@ def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]
         DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(), tickets, errors, finished,
         *out,
     )
+    return args, tickets, errors, finished, out
+
+
+def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]:
+    """Fit the polylines of ``batch`` with ``workers`` threads running one
+    compiled loop over them (GIL released throughout).
+
+    Each thread takes the next polyline from a shared counter
+    (:func:`dtalign._kernels.pipeline.fit_polylines`), so the threads stay
+    busy until the list is done, whatever their relative speed. When none
+    is left to take, the calling thread wraps the results finished so far
+    while the others finish their last fits (~0.3 ms of wrapping 64 results
+    overlaps them), then the rest.
+
+    Each fit's ``timings_s`` has ``fit``: the threads' compiled time divided
+    evenly among the polylines (the coarse search and LM run interleaved).
+    Raises the error of the first polyline that fails, like the serial loop.
+    """
+    from ._kernels.pipeline import finished_until, fit_polylines
+    from .batch import _run_threads
+    from .lm import _raise_for
+
+    k = batch.n
+    if k == 0:
+        return []
+    args, tickets, errors, finished, out = loop_inputs(shared, batch)
     # The fits keep read-only views of the outputs, which other threads may
     # still be writing (other rows) while the calling thread wraps.
     views = tuple(_readonly_view(arr) for arr in out)

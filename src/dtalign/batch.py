@@ -299,6 +299,22 @@ def _fit_parts(
 
     if not parts:
         return []
+    shared, batch, error = _plan_batch(products, parts, window, options)
+    fits = _fitjobs.fit_batch(shared, batch, workers=workers)
+    if error is not None:
+        raise error
+    return fits
+
+
+def _plan_batch(
+    products: ImageProducts, parts: list[tuple[Any, Any, Any]], window: Any,
+    options: dict[str, Any],
+) -> tuple[Any, Any, Exception | None]:
+    """The checked plan and batch of a non-empty ``parts``, and the error of its
+    first bad polyline (None if none): :func:`dtalign._fitjobs.plan`, then
+    :func:`~dtalign._fitjobs.prepare`."""
+    from . import _fitjobs
+
     kw = {**_FIT_DEFAULTS, **options}
     shared, first = _fitjobs.plan(
         products, *parts[0], search_window_vu=window, fit_rotation=kw.pop("fit_rotation"),
@@ -306,10 +322,7 @@ def _fit_parts(
         lm_options=kw,
     )
     batch, error = _fitjobs.prepare(shared, parts, first)
-    fits = _fitjobs.fit_batch(shared, batch, workers=workers)
-    if error is not None:
-        raise error
-    return fits
+    return shared, batch, error
 
 
 def _image_parts(item: Any, index: int) -> tuple[Any, float | None, list[tuple[Any, Any, Any]]]:
