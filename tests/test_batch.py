@@ -38,6 +38,38 @@ def polylines(nav):
     return out
 
 
+@pytest.fixture(scope="module")
+def wide():
+    """A scene whose DT is over FULL_SCAN_MAX_SIZE pixels: a NaN in it is found
+    only where a fit reads it (in the compiled loop), not by the up-front
+    checks. Its products and twelve polylines, as the ``polylines`` fixture."""
+    from dtalign._validation import FULL_SCAN_MAX_SIZE
+
+    scene = scenes.navigation_scene(shape=(288, 288), radius=60.0, n_vertices=80,
+                                    offset_vu=(3.4, -2.2), search_window=12)
+    assert scene.image.size > FULL_SCAN_MAX_SIZE
+    polys = []
+    for k in range(12):
+        p = scene.polylines[k % 3]
+        shift = np.array([0.5 * (k // 3), -0.25 * (k // 3)])
+        polys.append((p.vertices_vu + shift, p.normals_vu, p.sigmas))
+    return prepare_image(scene.image, scene.noise_sigma), polys
+
+
+def _nan_corner(products, items, at):
+    """``products`` with a NaN DT corner no polyline of the scene comes near,
+    and ``items`` with polyline ``at`` moved into it."""
+    import dataclasses
+
+    h, w = products.shape
+    dt = np.array(products.edge_dt)
+    dt[h - 40 :, w - 40 :] = np.nan
+    corner = np.array([h - 16.0, w - 16.0]) + np.arange(8.0)[:, None] * np.array([1.0, 1.2])
+    items = list(items)
+    items[at] = (corner, np.tile([1.0, 0.0], (8, 1)), np.ones(8))
+    return dataclasses.replace(products, edge_dt=dt), items
+
+
 def _serial(products, polylines, **options):
     return [
         fit_polyline_products(products, p.vertices_vu, p.normals_vu, p.sigmas,
@@ -256,22 +288,16 @@ def test_fit_many_first_error_in_input_order_beats_later_ones(products, polyline
         fit_many(products, items, search_window_vu=WINDOW, workers=2)
 
 
-def test_fit_many_kernel_error_before_a_bad_polyline_comes_first(nav):
-    # A NaN in the DT where polyline 0's fit reads it fails in the kernel;
-    # polyline 1 is malformed. The serial loop stops at polyline 0.
-    prods = prepare_image(nav.image, nav.noise_sigma)
-    dt = np.array(prods.edge_dt)
-    p = nav.polylines[0]
-    iv, iu = np.rint(p.vertices_vu[0] + 0.0).astype(int)
-    dt[max(iv - 20, 0) : iv + 20, max(iu - 20, 0) : iu + 20] = np.nan
-    import dataclasses
-
-    broken = dataclasses.replace(prods, edge_dt=dt)
-    items = [(p.vertices_vu, p.normals_vu, p.sigmas), _bad_variants(p)["nan vertex"]]
-    expected = _serial_error(broken, items)
-    assert expected is not None and "image_edge_dt" in str(expected)
+def test_fit_many_kernel_error_before_a_bad_polyline_comes_first(wide):
+    # Polyline 0 reads a NaN of the DT, which only the kernel finds (the DT
+    # is too large for the up-front scan); polyline 1 is malformed. The
+    # serial loop stops at polyline 0.
+    products, items = _nan_corner(*wide, at=0)
+    items = [items[0], _bad_variants(scenes.Polyline("p", *wide[1][1]))["nan vertex"]]
+    expected = _serial_error(products, items)
+    assert expected is not None and "the fit read a NaN" in str(expected)
     with pytest.raises(ValueError) as info:
-        fit_many(broken, items, search_window_vu=WINDOW, workers=2)
+        fit_many(products, items, search_window_vu=WINDOW, workers=2)
     assert str(info.value) == str(expected)
 
 
@@ -315,7 +341,7 @@ def test_nested_map_ordered_does_not_deadlock(products, polylines):
 
 
 @pytest.mark.parametrize("workers", [2, 3])
-def test_fit_many_wrapping_while_others_fit_changes_nothing(products, polylines, workers):
+def test_fit_many_wrapping_while_others_fit_changes_nothing(products, polylines, wide, workers):
     # The calling thread wraps the finished results while the others finish
     # their last fits: still the serial results in order, and a kernel
     # failure in the middle still raises the serial loop's error.
@@ -325,18 +351,30 @@ def test_fit_many_wrapping_while_others_fit_changes_nothing(products, polylines,
     assert results_equal(got, expected)
     assert len({f.timings_s["fit"] for f in got}) == 1
 
-    dt = np.array(products.edge_dt)
-    iv, iu = np.rint(polylines[7].vertices_vu[0]).astype(int)
-    dt[max(iv - 20, 0) : iv + 20, max(iu - 20, 0) : iu + 20] = np.nan
-    import dataclasses
-
-    broken = dataclasses.replace(products, edge_dt=dt)
-    items = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines]
+    broken, items = _nan_corner(*wide, at=7)
     expected_error = _serial_error(broken, items)
-    assert expected_error is not None and "image_edge_dt" in str(expected_error)
+    assert expected_error is not None and "the fit read a NaN" in str(expected_error)
     with pytest.raises(ValueError) as info:
         fit_many(broken, items, search_window_vu=WINDOW, workers=workers)
     assert str(info.value) == str(expected_error)
+
+
+@pytest.mark.parametrize(("nan_at", "bad_at"), [(1, 9), (6, 9), (6, 2), (2, 6), (9, 10), (10, 9)])
+@pytest.mark.parametrize("workers", [2, 3])
+def test_fit_many_kernel_and_check_errors_come_in_serial_order(
+        wide, nan_at, bad_at, workers):
+    # A kernel failure (polyline nan_at reads a NaN of the DT) and a malformed
+    # polyline (bad_at), in either order, early or late in the list, raise
+    # what the serial loop raises first.
+    products, items = _nan_corner(*wide, at=nan_at)
+    v, n, s = items[bad_at]
+    items[bad_at] = (v, n, np.where(np.arange(s.size) == 7, 0.0, s))
+    expected = _serial_error(products, items)
+    assert expected is not None
+    assert ("the fit read a NaN" in str(expected)) == (nan_at < bad_at)
+    with pytest.raises(type(expected)) as info:
+        fit_many(products, items, search_window_vu=WINDOW, workers=workers)
+    assert str(info.value) == str(expected)
 
 
 def test_finished_until_reads_the_longest_finished_run():
