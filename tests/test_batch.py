@@ -340,11 +340,17 @@ def test_nested_map_ordered_does_not_deadlock(products, polylines):
         assert results_equal(fits, _serial(products, polylines[k : k + 3]))
 
 
+@pytest.mark.parametrize("tail", [0, 1, 2, 50])
 @pytest.mark.parametrize("workers", [2, 3])
-def test_fit_many_wrapping_while_others_fit_changes_nothing(products, polylines, wide, workers):
-    # The calling thread wraps the finished results while the others finish
-    # their last fits: still the serial results in order, and a kernel
-    # failure in the middle still raises the serial loop's error.
+def test_fit_many_wrapping_while_others_fit_changes_nothing(products, polylines, wide, workers,
+                                                            tail, monkeypatch):
+    # The calling thread stops TAIL polylines short of the end (all of them,
+    # for 50) and wraps the finished results while the others fit: still the
+    # serial results in order, and a kernel failure in the middle still
+    # raises the serial loop's error.
+    from dtalign import _fitjobs
+
+    monkeypatch.setattr(_fitjobs, "TAIL", tail)
     expected = _serial(products, polylines, trust_region_px=1.0)
     got = fit_many(products, polylines, search_window_vu=WINDOW, workers=workers,
                    trust_region_px=1.0)

@@ -43,7 +43,7 @@ def fit_polylines(
     rotation0, use_polarity, fit_rotation, max_iterations, damping, step_tolerance, tukey_c,
     rcond, trust_region, tikhonov_alpha, ridge, ridge_half, ridge_sample_step,
     ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm, tickets,
-    errors, finished, coarse, poses, iterations, converged, covs, rms, raw_rms,
+    errors, finished, stop_at, coarse, poses, iterations, converged, covs, rms, raw_rms,
     inliers, degenerate, r_all, w_all,
 ):  # pragma: no cover - compiled
     """Fit polylines ``j`` (rows ``starts[j]:starts[j+1]`` of the concatenated
@@ -57,8 +57,9 @@ def fit_polylines(
     thread then takes a polyline after it, and every polyline before it is
     fitted (each was taken before it), as the serial loop stops at the first
     raised error. A fitted polyline's ``finished[j]`` is set to 1 after its
-    rows are written (see :func:`finished_until`). Returns the number of
-    polylines this call fitted.
+    rows are written (see :func:`finished_until`). The call takes no
+    polyline from ``stop_at`` on (``k``: none left). Returns the number of
+    polylines it fitted.
     """
     k = starts.shape[0] - 1
     h, w = edge.shape
@@ -66,7 +67,7 @@ def fit_polylines(
     row_start = e_cols = np.zeros(0, dtype=np.int64)
     indexed = False
     done = 0
-    while True:
+    while load(tickets, NEXT) < stop_at:
         j = fetch_add(tickets, NEXT, 1)
         if j >= k or j > load(tickets, FIRST_ERROR):
             return done
@@ -114,6 +115,7 @@ def fit_polylines(
         r_all[a:b] = r
         w_all[a:b] = wt
         store(finished, j, 1)
+    return done
 
 
 @kernel

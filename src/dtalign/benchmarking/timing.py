@@ -177,12 +177,13 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     parts = [_polyline_parts(p, i) for i, p in enumerate(polylines)]
     shared, batch, error = _plan_batch(products, parts, (30, 30), {"trust_region_px": 1.0})
     assert error is None
-    args, tickets, _, finished, _ = loop_inputs(shared, batch)
+    args, tickets, _, finished, out = loop_inputs(shared, batch)
+    to_end = (*args, batch.n, *out)
 
     def call() -> None:
         tickets[NEXT] = 0
         finished[:] = 0
-        _run_threads(lambda: fit_polylines(*args), workers)
+        _run_threads(lambda: fit_polylines(*to_end), workers)
 
     return call
 
