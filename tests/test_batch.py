@@ -388,3 +388,48 @@ def test_finished_until_reads_the_longest_finished_run():
 
     flags = np.array([1, 1, 0, 1, 1, 1, 0], dtype=np.int64)
     assert [finished_until(flags, j) for j in range(8)] == [2, 2, 2, 6, 6, 6, 6, 7]
+
+
+def test_helper_threads_are_parked_reused_and_bounded(products, polylines):
+    from dtalign import batch
+
+    fit_many(products, polylines, search_window_vu=WINDOW, workers=2)
+    parked = list(batch._parked)
+    assert 1 <= len(parked) <= batch._MAX_PARKED
+    fit_many(products, polylines, search_window_vu=WINDOW, workers=2)
+    assert set(map(id, batch._parked)) == set(map(id, parked))  # the same threads again
+    # many calls at once need more helpers; afterwards at most _MAX_PARKED stay
+    expected = _serial(products, polylines[:3])
+    with ThreadPoolExecutor(max_workers=12) as pool:
+        got = list(pool.map(lambda _: fit_many(products, polylines[:3], search_window_vu=WINDOW,
+                                                 workers=3), range(24)))
+    assert all(results_equal(g, expected) for g in got)
+    assert len(batch._parked) <= batch._MAX_PARKED
+
+
+def test_a_raising_helper_job_is_reraised_and_the_helper_lives_on():
+    from dtalign import batch
+
+    def boom():
+        raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError, match="boom"):
+        batch._run_threads(boom, 2, main=lambda: None)
+    assert map_ordered(lambda x: x * x, range(50), workers=2) == [x * x for x in range(50)]
+
+
+def _fit_in_forked_child(args):
+    products, polylines = args
+    fits = fit_many(products, polylines, search_window_vu=WINDOW, workers=2)
+    return [f.offset_vu for f in fits]
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs fork")
+def test_fit_many_in_a_forked_child_does_not_wait_for_the_parents_helpers(products, polylines):
+    import multiprocessing
+
+    fit_many(products, polylines, search_window_vu=WINDOW, workers=2)  # helpers parked here
+    expected = [f.offset_vu for f in _serial(products, polylines)]
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        got = pool.apply_async(_fit_in_forked_child, ((products, polylines),)).get(timeout=120)
+    assert got == expected
