@@ -187,7 +187,12 @@ def _run_threads(fn: Callable[[], None], n: int, main: Callable[[], None] | None
         return
     with _parked_lock:
         helpers = [_parked.pop() for _ in range(min(n - 1, len(_parked)))]
-    helpers += [_Helper() for _ in range(n - 1 - len(helpers))]
+    try:
+        helpers += [_Helper() for _ in range(n - 1 - len(helpers))]
+    except BaseException:  # no thread could be started: park again the ones taken
+        with _parked_lock:
+            _parked.extend(helpers)
+        raise
     for helper in helpers:
         helper.start(fn)
     errors: list[BaseException] = []

@@ -57,9 +57,10 @@ def fit_polylines(
     thread then takes a polyline after it, and every polyline before it is
     fitted (each was taken before it), as the serial loop stops at the first
     raised error. A fitted polyline's ``finished[j]`` is set to 1 after its
-    rows are written (see :func:`finished_until`). The call takes no
-    polyline from ``stop_at`` on (``k``: none left). Returns the number of
-    polylines it fitted.
+    rows are written (see :func:`finished_until`). The call stops taking
+    polylines once the next one is ``stop_at`` or later (``k``: once none is
+    left; a thread that read the counter just before another took a ticket
+    may take one past ``stop_at``). Returns the number of polylines it fitted.
     """
     k = starts.shape[0] - 1
     h, w = edge.shape

@@ -176,7 +176,8 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
 
     parts = [_polyline_parts(p, i) for i, p in enumerate(polylines)]
     shared, batch, error = _plan_batch(products, parts, (30, 30), {"trust_region_px": 1.0})
-    assert error is None
+    if error is not None:
+        raise error
     args, tickets, _, finished, out = loop_inputs(shared, batch)
     to_end = (*args, batch.n, *out)
 
