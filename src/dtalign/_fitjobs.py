@@ -328,9 +328,10 @@ def loop_inputs(
 
 #: Polylines the calling thread leaves to the other threads at the end of a
 #: batch, to wrap the finished results (~5 us each) while they fit those:
-#: 64 fits on 2 threads took 0.1-0.6 ms less (median of 21, six rounds)
-#: than with 0, where the wrapping only overlapped the others' last fit; 3
-#: gained no more. Any of them still untaken after the wrapping it takes.
+#: 64 fits on 2 threads took 0.2-0.7 ms less than with 0 (where the
+#: wrapping only overlapped the others' last fit) in five of six rounds of
+#: 21 alternating samples, 0.05 ms more in one; 3 gained no more. Any of
+#: them still untaken after the wrapping it takes.
 TAIL = 2
 
 

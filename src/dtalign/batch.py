@@ -114,7 +114,7 @@ class _Helper:
     Parked, it waits on a lock (GIL released). Waking one costs a lock
     release; creating a thread cost ~0.1 ms here before the caller went on,
     and ~0.2 ms before the new thread ran its job: 64 fits on 2 threads took
-    0.05-0.5 ms less (2 % overall) in each of eight rounds of shuffled
+    0.04-0.5 ms less (2 % overall) in each of eight rounds of shuffled
     samples. Created with _thread: threading.Thread.start waits for the new
     thread to run (0.1 to 0.4 ms here, this thread idle).
     """
