@@ -38,11 +38,24 @@ def test_readme_table_replaces_only_its_section():
     assert timing.replace_readme_table(out, REPORT) == out
 
 
-def test_batch_row_shows_both_controls():
-    row = {**REPORT["rows"][1], "loop_control_ratio": 1.15, "ratio": 1.5, "passed": False}
+def test_batch_row_shows_every_control():
+    row = {**REPORT["rows"][1], "fp_control_ratio": 1.31, "loop_control_ratio": 1.15,
+           "ratio": 1.5, "passed": False}
     out = timing.replace_readme_table(
         f"{timing.README_START}\n{timing.README_END}\n", {**REPORT, "rows": [row]})
-    assert "| 1.50x | >= 1.8x | FAIL (control 1.93x, compiled loop alone 1.15x) |" in out
+    assert ("| 1.50x | >= 1.8x | FAIL (control 1.93x, FP throughput 1.31x, "
+            "compiled loop alone 1.15x) |") in out
+
+
+def test_fp_control_unit_is_deterministic_work():
+    from dtalign.benchmarking import fpload
+
+    # 32 chains of x -> x * (1 + 1e-7) + 1e-9 from 1.0: the same sum every call
+    x = 1.0
+    for _ in range(1000):
+        x = x * 1.0000001 + 1e-9
+    assert fpload.fp_throughput(1000) == pytest.approx(fpload.LANES * x, rel=1e-14)
+    assert fpload.unit() == fpload.unit()
 
 
 @pytest.mark.parametrize("text", ["no markers", f"{timing.README_END}\n{timing.README_START}"])

@@ -1,0 +1,47 @@
+"""A control for the batch rows: floating-point throughput on two threads.
+
+The SHA-256 control tells whether the second core was free. It cannot tell
+whether two threads of floating-point-heavy code each run as fast as one
+does alone. SHA-256 is a chain of dependent rounds: one thread leaves most
+of a core's execution units idle. Two virtual CPUs that share one physical
+core (SMT siblings on the host, whatever the guest's ``lscpu`` says) then
+still scale ~1.9x on it, while code that keeps the floating-point pipes
+busy, as the LM's four-lane bilinear sampling does, scales far less. On
+the 2-core development VM, in the same minutes, a single multiply-add
+chain scaled 1.84-1.91x, these 32 independent chains 1.31-1.82x, and
+:func:`~dtalign.batch.fit_many`'s compiled loop alone tracked the latter
+(1.57x when it was 1.33x, 1.80x when it was 1.79x).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._jit import kernel
+
+#: Independent multiply-add chains: eight AVX2 registers' worth, more than
+#: the floating-point pipes retire per cycle, so the loop is bound by their
+#: throughput, not by the latency of one chain.
+LANES = 32
+
+#: Rounds per work unit: ~0.12 ms on the development machine, about one fit
+#: of the batch row.
+ROUNDS = 18_000
+
+
+@kernel
+def fp_throughput(rounds):  # pragma: no cover - compiled
+    """``LANES`` independent chains of ``x * (1 + 1e-7) + 1e-9``, ``rounds`` times.
+
+    Returns their sum (so the work cannot be optimised away).
+    """
+    acc = np.ones(LANES)
+    for _ in range(rounds):
+        for k in range(LANES):
+            acc[k] = acc[k] * 1.0000001 + 1e-9
+    return acc.sum()
+
+
+def unit() -> float:
+    """One work unit of the control (GIL released while it runs)."""
+    return float(fp_throughput(ROUNDS))
