@@ -433,3 +433,51 @@ def test_fit_many_in_a_forked_child_does_not_wait_for_the_parents_helpers(produc
     with multiprocessing.get_context("fork").Pool(1) as pool:
         got = pool.apply_async(_fit_in_forked_child, ((products, polylines),)).get(timeout=120)
     assert got == expected
+
+
+class _Subclass(np.ndarray):
+    """An ndarray subclass: not a plain array to the checks."""
+
+
+def _plain_variants():
+    """Polylines that :func:`dtalign._fitjobs._plain` accepts or refuses, by name."""
+    rng = np.random.default_rng(5)
+    v = rng.normal(size=(7, 2))
+    n = v / np.hypot(v[:, :1], v[:, 1:])
+    s = np.ones(7)
+    return {
+        "plain": (v, n, s),
+        "fortran": (np.asfortranarray(v), np.asfortranarray(n), s),
+        "strided": (np.repeat(v, 2, axis=0)[::2], n, s[::1]),
+        "float32 vertices": (v.astype(np.float32), n, s),
+        "big-endian normals": (v, n.astype(">f8"), s),
+        "int sigmas": (v, n, s.astype(np.int64)),
+        "list vertices": (v.tolist(), n, s),
+        "subclass vertices": (v.view(_Subclass), n, s),
+        "three columns": (np.c_[v, v[:, :1]], np.c_[n, n[:, :1]], s),
+        "one column normals": (v, n[:, :1], s),
+        "3-D vertices": (v[:, :, None], n, s),
+        "short normals": (v, n[:-1], s),
+        "short sigmas": (v, n, s[:-1]),
+        "2-D sigmas": (v, n, s[:, None]),
+        "empty": (v[:0], n[:0], s[:0]),
+    }
+
+
+@pytest.mark.parametrize("kind", sorted(_plain_variants()))
+@pytest.mark.parametrize("position", [0, 3])
+def test_bulk_shape_check_agrees_with_the_per_polyline_one(kind, position):
+    from dtalign._fitjobs import _concatenated, _plain
+
+    good = _plain_variants()["plain"]
+    items = [good] * 5
+    items[position] = _plain_variants()[kind]
+    vs, ns, ss = (list(x) for x in zip(*items, strict=True))
+    got = _concatenated(vs, ns, ss)
+    if all(_plain(*it) for it in items):
+        assert got is not None
+        for arr, parts in zip(got[:3], (vs, ns, ss), strict=True):
+            assert arr.dtype == np.float64 and np.array_equal(arr, np.concatenate(parts))
+        assert got[3] == [len(v) for v in vs]
+    else:
+        assert got is None

@@ -16,9 +16,11 @@ must not import Numba.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Sequence
+from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -38,6 +40,31 @@ if TYPE_CHECKING:
     from .pipeline import PolylineFit
 
 FloatArray = check.FloatArray
+
+
+@functools.cache
+def _deps() -> SimpleNamespace:
+    """What the fits use from modules that import Numba, imported on first use
+    (importing :mod:`dtalign.pipeline` must not import Numba) and then kept:
+    an import statement costs ~1 us each time it runs, and ``fit_many`` ran
+    16 of them per call."""
+    from ._args import check_lm_inputs
+    from ._kernels import coarse
+    from ._kernels.checks import OK, polyline_status, polylines_status
+    from ._kernels.pipeline import finished_until, fit_polylines
+    from ._results import LMRefineResult
+    from .batch import _run_threads
+    from .image import _use_libm_hypot
+    from .lm import _NO_GRADIENT, _RIDGE_HALF, _fit, _raise_for
+    from .pipeline import PolylineFit
+
+    return SimpleNamespace(
+        check_lm_inputs=check_lm_inputs, coarse=coarse, OK=OK, polyline_status=polyline_status,
+        polylines_status=polylines_status, finished_until=finished_until,
+        fit_polylines=fit_polylines, LMRefineResult=LMRefineResult, _run_threads=_run_threads,
+        _use_libm_hypot=_use_libm_hypot, _NO_GRADIENT=_NO_GRADIENT, _RIDGE_HALF=_RIDGE_HALF,
+        _fit=_fit, _raise_for=_raise_for, PolylineFit=PolylineFit,
+    )
 
 
 class Plan(NamedTuple):
@@ -90,9 +117,7 @@ def plan(
     ``lm_options`` are the keywords passed on to ``lm_subpixel_refine``
     (``use_polarity``, ``trust_region_px``, ...).
     """
-    from ._args import check_lm_inputs
-    from ._kernels.checks import OK, polyline_status
-
+    d = _deps()
     if not isinstance(products, ImageProducts):
         raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
     # The polyline's values in one compiled pass; on any fault, the NumPy
@@ -101,22 +126,22 @@ def plan(
         verts = check._vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
         norms = check._normals_shape(normals_vu, verts.shape[0])
         sig = check._sigmas_shape(sigmas, verts.shape[0], "sigmas")
-        status, c_v, c_u = polyline_status(verts, norms, sig)
+        status, c_v, c_u = d.polyline_status(verts, norms, sig)
     except (TypeError, ValueError):
         status = -1
-    if status != OK:
+    if status != d.OK:
         verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
         norms = check.normals(normals_vu, verts.shape[0])
         sig = check.sigmas(sigmas, verts.shape[0], "sigmas")
     window = check.search_window(search_window_vu)
     fit_rotation = bool(fit_rotation)
     # the centroid of polyline_status is bit-identical to resolve_pivot's mean
-    pivot = (c_v, c_u) if status == OK and pivot_vu is None else check.resolve_pivot(verts, pivot_vu)
+    pivot = (c_v, c_u) if status == d.OK and pivot_vu is None else check.resolve_pivot(verts, pivot_vu)
     distance = _distance(products, pivot, fit_rotation, pivot_distance_px)
     edge = check.mask2d(products.edge_mask, "edge_mask")
     # The LM's own checks, as lm_subpixel_refine runs them; any finite
     # offset stands for the coarse seed (always a pair of ints).
-    lm = check_lm_inputs({
+    lm = d.check_lm_inputs({
         "vertices_vu": verts, "normals_vu": norms, "sigma_normal_per_vertex_px": sig,
         "image_edge_dt": products.edge_dt, "image_gradient_vu": products.gradient_vu,
         "initial_offset_vu": (0.0, 0.0), "fit_rotation": fit_rotation, "pivot_vu": pivot,
@@ -173,19 +198,45 @@ def _plain(v: Any, n: Any, s: Any) -> bool:
 _F8 = np.dtype(np.float64)
 
 
+def _concatenated(
+    vs: list[Any], ns: list[Any], ss: list[Any]
+) -> tuple[FloatArray, FloatArray, FloatArray, list[int]] | None:
+    """``np.concatenate`` of each list, and the polylines' lengths, if every
+    ``(vs[i], ns[i], ss[i])`` passes :func:`_plain`; None otherwise.
+
+    Checked per list, not per polyline: the casting rule ``"no"`` refuses
+    any dtype but native float64, the concatenation any mix of dimensions,
+    and the results' shapes and the lengths do the rest (~40 us less per
+    64 polylines than :func:`_plain` on each; an ndarray attribute costs
+    ~80 ns, and ``_plain`` reads six).
+    """
+    if set(map(type, vs + ns + ss)) != {np.ndarray}:
+        return None
+    try:
+        pts = np.concatenate(vs, dtype=_F8, casting="no")
+        nrm = np.concatenate(ns, dtype=_F8, casting="no")
+        sig = np.concatenate(ss, dtype=_F8, casting="no")
+    except (TypeError, ValueError):
+        return None
+    lens = list(map(len, vs))
+    if (pts.ndim != 2 or pts.shape[1] != 2 or nrm.ndim != 2 or nrm.shape[1] != 2
+            or sig.ndim != 1 or list(map(len, ns)) != lens or list(map(len, ss)) != lens
+            or min(lens) == 0):
+        return None
+    return pts, nrm, sig, lens
+
+
 def prepare(
     shared: Plan, parts: Sequence[tuple[Any, Any, Any]], first: Item | None = None
 ) -> tuple[Batch, Exception | None]:
     """Check polylines of a call whose first polyline passed :func:`plan`.
 
     ``first``, when given, is that polyline, already checked: it stands
-    for ``parts[0]``. Shapes are checked per polyline (a few attribute
-    tests for float64 arrays), values in one compiled pass over all of
-    them. Returns the polylines up to the first bad one, and the error
+    for ``parts[0]``. Shapes are checked in bulk when every polyline is
+    float64 arrays, else per polyline; values in one compiled pass over all
+    of them. Returns the polylines up to the first bad one, and the error
     that one raises alone (None if all pass).
     """
-    from ._kernels.checks import polylines_status
-
     lm = shared.lm
     verts: list[FloatArray] = []
     norms: list[FloatArray] = []
@@ -193,26 +244,36 @@ def prepare(
     if first is not None:
         verts, norms, sigs = [first.vertices], [first.normals], [first.sigmas]
     bad = len(parts)
-    for k in range(len(verts), len(parts)):
-        v, n, s = parts[k]
-        if not _plain(v, n, s):
-            try:
-                v = check._vertex_shape(v, "vertices_vu", allow_empty=False)
-                n = check._normals_shape(n, v.shape[0])
-                s = check._sigmas_shape(s, v.shape[0], "sigmas")
-            except (TypeError, ValueError):
-                bad = k
-                break
-        verts.append(v)
-        norms.append(n)
-        sigs.append(s)
-    starts = np.zeros(len(verts) + 1, dtype=np.int64)
-    np.cumsum([v.shape[0] for v in verts], out=starts[1:])
-    empty = np.zeros((0, 2))
-    pts = check.readonly(np.concatenate(verts) if verts else empty)
-    nrm = check.readonly(np.concatenate(norms) if norms else empty)
-    sig = check.readonly(np.concatenate(sigs) if sigs else empty[:, 0])
-    n_ok, _, centroids = polylines_status(pts, nrm, sig, starts)
+    start = len(verts)
+    bulk = None
+    if len(parts) > start:
+        vs, ns, ss = zip(*parts[start:], strict=True)
+        bulk = _concatenated(verts + list(vs), norms + list(ns), sigs + list(ss))
+    if bulk is not None:
+        pts, nrm, sig, lens = bulk
+    else:
+        for k in range(start, len(parts)):
+            v, n, s = parts[k]
+            if not _plain(v, n, s):
+                try:
+                    v = check._vertex_shape(v, "vertices_vu", allow_empty=False)
+                    n = check._normals_shape(n, v.shape[0])
+                    s = check._sigmas_shape(s, v.shape[0], "sigmas")
+                except (TypeError, ValueError):
+                    bad = k
+                    break
+            verts.append(v)
+            norms.append(n)
+            sigs.append(s)
+        empty = np.zeros((0, 2))
+        pts = np.concatenate(verts) if verts else empty
+        nrm = np.concatenate(norms) if norms else empty
+        sig = np.concatenate(sigs) if sigs else empty[:, 0]
+        lens = list(map(len, verts))
+    pts, nrm, sig = check.readonly(pts), check.readonly(nrm), check.readonly(sig)
+    starts = np.zeros(len(lens) + 1, dtype=np.int64)
+    np.cumsum(lens, out=starts[1:])
+    n_ok, _, centroids = _deps().polylines_status(pts, nrm, sig, starts)
     bad = min(bad, int(n_ok))
     pivots = centroids[:bad]
     if shared.pivot_vu is not None:
@@ -263,25 +324,22 @@ def _at_window_edge(dv: int, du: int, window: tuple[int, int]) -> bool:
 
 def fit_one(shared: Plan, it: Item) -> PolylineFit:
     """Coarse search, then LM, timed separately (``coarse`` and ``lm``)."""
-    from ._kernels import coarse as _kc
-    from .lm import _fit
-    from .pipeline import PolylineFit
-
+    d = _deps()
     p = shared.products
     t1 = time.perf_counter()
     # (plan() refused an empty image: the LM checks need a non-empty DT)
-    sv, su = _kc.support_of_vertices(it.vertices, shared.h, shared.w)
-    dv, du = _kc.search_support(shared.edge, sv, su, shared.mv, shared.mu)
+    sv, su = d.coarse.support_of_vertices(it.vertices, shared.h, shared.w)
+    dv, du = d.coarse.search_support(shared.edge, sv, su, shared.mv, shared.mu)
     coarse = (int(dv), int(du))
     t2 = time.perf_counter()
-    lm = _fit(shared.lm._replace(
+    lm = d._fit(shared.lm._replace(
         vertices=it.vertices, normals=it.normals, sigmas=it.sigmas,
         offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
     ))
     t3 = time.perf_counter()
     sd = _sigmas_from_cov(np.asarray(lm.covariance)).tolist()
     fit_rotation = shared.lm.fit_rotation
-    return PolylineFit(
+    return d.PolylineFit(
         offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, sigma_vu=(sd[0], sd[1]),
         sigma_rotation_rad=sd[2] if fit_rotation else None, coarse_offset_vu=coarse,
         at_window_edge=_at_window_edge(coarse[0], coarse[1], shared.window),
@@ -299,9 +357,7 @@ def loop_inputs(
     (``batch.n > 0``), with fresh counters and outputs: ``(args, tickets,
     errors, finished, outputs)``; the call is ``fit_polylines(*args, stop_at,
     *outputs)``."""
-    from .image import _use_libm_hypot
-    from .lm import _NO_GRADIENT, _RIDGE_HALF
-
+    d = _deps()
     k = batch.n
     a = shared.lm
     n_params = 3 if a.fit_rotation else 2
@@ -315,13 +371,13 @@ def loop_inputs(
            np.zeros(n_pts), np.zeros(n_pts))
     args = (
         shared.edge, shared.mv, shared.mu, a.dt,
-        a.gradient if a.gradient is not None else _NO_GRADIENT, batch.pts, batch.nrm, batch.sig,
+        a.gradient if a.gradient is not None else d._NO_GRADIENT, batch.pts, batch.nrm, batch.sig,
         batch.starts, batch.pivots, batch.distances, a.rotation, a.use_polarity, a.fit_rotation,
         a.max_iterations, a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,
         -1.0 if a.trust_region_px is None else a.trust_region_px, a.tikhonov_alpha,
-        a.final_gradient_ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
+        a.final_gradient_ridge, d._RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
-        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(), tickets, errors, finished,
+        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, d._use_libm_hypot(), tickets, errors, finished,
     )
     return args, tickets, errors, finished, out
 
@@ -350,18 +406,18 @@ def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]
     evenly among the polylines (the coarse search and LM run interleaved).
     Raises the error of the first polyline that fails, like the serial loop.
     """
-    from ._kernels.pipeline import finished_until, fit_polylines
-    from .batch import _run_threads
-    from .lm import _raise_for
-
+    d = _deps()
+    fit_polylines, finished_until = d.fit_polylines, d.finished_until
     k = batch.n
     if k == 0:
         return []
     args, tickets, errors, finished, out = loop_inputs(shared, batch)
-    # The fits keep read-only views of the outputs, which other threads may
-    # still be writing (other rows) while the calling thread wraps.
-    views = tuple(_readonly_view(arr) for arr in out)
     to_end, short_of_end = (*args, k, *out), (*args, k - TAIL, *out)
+    # The fits keep read-only views of the outputs, which other threads may
+    # still be writing (other rows) while the calling thread wraps. Made
+    # once the calling thread has fitted its share, not before: ~20 us less
+    # before the threads start.
+    views: list[tuple[np.ndarray, ...]] = []
     fits: list[PolylineFit] = []
     busy: list[float] = []
     failures: list[BaseException] = []
@@ -379,26 +435,30 @@ def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]
         try:
             fit_polylines(*short_of_end)
             t1 = time.perf_counter()
-            fits.extend(_wrap(shared, batch, views, 0, finished_until(finished, 0)))
+            views.append(tuple(map(_readonly_view, out)))
+            fits.extend(_wrap(shared, batch, views[0], 0, finished_until(finished, 0)))
             t2 = time.perf_counter()
             fit_polylines(*to_end)
             t3 = time.perf_counter()
-            fits.extend(_wrap(shared, batch, views, len(fits), finished_until(finished, len(fits))))
+            fits.extend(_wrap(shared, batch, views[0], len(fits),
+                              finished_until(finished, len(fits))))
             busy.append((t1 - t0) + (t3 - t2))
         except BaseException as exc:  # the helpers must still be waited for
             failures.append(exc)
             busy.append(0.0)
 
     threads = min(workers, k)
-    _run_threads(run, threads, run_wrap_run if threads > 1 else None)
+    d._run_threads(run, threads, run_wrap_run if threads > 1 else None)
     for arr in out:
         arr.flags.writeable = False
     if failures:
         raise failures[0]
     first_error = int(tickets[1])
     if first_error < k:
-        _raise_for(int(errors[first_error]))
-    fits.extend(_wrap(shared, batch, views, len(fits), k))
+        d._raise_for(int(errors[first_error]))
+    if not views:
+        views.append(tuple(map(_readonly_view, out)))
+    fits.extend(_wrap(shared, batch, views[0], len(fits), k))
     per_fit = sum(busy) / k
     for fit in fits:
         fit.timings_s["fit"] = per_fit
@@ -415,11 +475,10 @@ def _wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int,
           hi: int) -> list[PolylineFit]:
     """:class:`PolylineFit` objects of :func:`fit_batch`'s compiled results
     ``lo:hi`` (``timings_s`` without ``fit``, which the caller adds)."""
-    from ._results import LMRefineResult
-    from .pipeline import PolylineFit
-
     if hi <= lo:
         return []
+    d = _deps()
+    LMRefineResult, PolylineFit = d.LMRefineResult, d.PolylineFit
     (coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate, r_all,
      w_all) = out
     p = shared.products

@@ -47,6 +47,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from . import _fitjobs
 from ._image_args import ImageDerivativesConfig
 from .pipeline import ImageProducts, PolylineFit, fit_polyline_products, prepare_image
 
@@ -370,8 +371,6 @@ def _fit_parts(
     the first bad one are fitted, and the first error in input order is
     raised, as the serial loop would.
     """
-    from . import _fitjobs
-
     if not parts:
         return []
     shared, batch, error = _plan_batch(products, parts, window, options)
@@ -388,8 +387,6 @@ def _plan_batch(
     """The checked plan and batch of a non-empty ``parts``, and the error of its
     first bad polyline (None if none): :func:`dtalign._fitjobs.plan`, then
     :func:`~dtalign._fitjobs.prepare`."""
-    from . import _fitjobs
-
     kw = {**_FIT_DEFAULTS, **options}
     shared, first = _fitjobs.plan(
         products, *parts[0], search_window_vu=window, fit_rotation=kw.pop("fit_rotation"),
