@@ -24,7 +24,7 @@ from .._jit import kernel
 #: throughput, not by the latency of one chain.
 LANES = 32
 
-#: Rounds per work unit: ~0.12 ms on the development machine, about one fit
+#: Rounds per work unit: ~0.11 ms on the development machine, about one fit
 #: of the batch row.
 ROUNDS = 18_000
 
