@@ -547,3 +547,18 @@ def test_navigation_scene_all_three_polylines_recovered(derivatives):
     err = np.subtract(res.offset_vu, scene.true_offset_vu)
     assert abs(res.rotation_rad - 0.01) < 3 * sd[2]
     assert np.all(np.abs(err) < 3 * sd[:2])
+
+
+@pytest.mark.parametrize("diag", [
+    [4.0, -1.0, np.nan], [-0.0, np.inf, 0.0], [1e-300, 5e-324, -5e-324], [-np.inf, 2.0],
+    [np.nan, np.nan], [2.0, 3.0],
+])
+def test_single_fit_sigmas_equal_the_vectorised_ones(diag):
+    from dtalign.observability import _sigma_list, _sigmas_from_cov
+
+    rng = np.random.default_rng(len(diag))
+    cov = rng.normal(size=(len(diag), len(diag)))
+    np.fill_diagonal(cov, diag)
+    got, want = _sigma_list(cov), _sigmas_from_cov(cov).tolist()
+    assert [x.hex() for x in got] == [x.hex() for x in want]
+    assert all(type(x) is float for x in got)

@@ -32,7 +32,7 @@ from ._constants import (
     DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
     DEFAULT_RIDGE_SAMPLE_STEP_PX,
 )
-from .observability import _sigmas_from_cov
+from .observability import _sigma_list, _sigmas_from_cov
 from .products import ImageProducts
 
 if TYPE_CHECKING:
@@ -337,7 +337,7 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
         offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
     ))
     t3 = time.perf_counter()
-    sd = _sigmas_from_cov(np.asarray(lm.covariance)).tolist()
+    sd = _sigma_list(lm.covariance)
     fit_rotation = shared.lm.fit_rotation
     return d.PolylineFit(
         offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, sigma_vu=(sd[0], sd[1]),
