@@ -4,11 +4,11 @@ The SHA-256 control tells whether the second core was free. It cannot tell
 whether two threads of floating-point-heavy code each run as fast as one
 does alone. SHA-256 is a chain of dependent rounds: one thread leaves most
 of a core's execution units idle. Two virtual CPUs that share one physical
-core (SMT siblings on the host, whatever the guest's ``lscpu`` says) then
-still scale ~1.9x on it, while code that keeps the floating-point pipes
+core (as SMT siblings on the host would, whatever the guest's ``lscpu``
+says) then still scale ~1.9x on it, while code that keeps the floating-point pipes
 busy, as the LM's four-lane bilinear sampling does, scales far less. On
 the 2-core development VM, in the same minutes, a single multiply-add
-chain scaled 1.84-1.91x, these 32 independent chains 1.31-1.82x, and
+chain scaled 1.83-1.91x, these 32 independent chains 1.31-1.82x, and
 :func:`~dtalign.batch.fit_many`'s compiled loop alone tracked the latter
 (1.57x when it was 1.33x, 1.80x when it was 1.79x).
 """
