@@ -481,3 +481,31 @@ def test_bulk_shape_check_agrees_with_the_per_polyline_one(kind, position):
         assert got[3] == [len(v) for v in vs]
     else:
         assert got is None
+
+
+def test_lm_checks_given_the_checked_polyline_equal_the_full_ones(products, polylines):
+    """``plan`` hands the LM checks the polyline it already checked; the
+    result must be what the LM's own polyline check gives."""
+    from dtalign import _validation
+    from dtalign._args import check_lm_inputs
+
+    p = polylines[1]
+    kw = {
+        "vertices_vu": p.vertices_vu, "normals_vu": p.normals_vu,
+        "sigma_normal_per_vertex_px": p.sigmas, "image_edge_dt": products.edge_dt,
+        "image_gradient_vu": products.gradient_vu, "initial_offset_vu": (1.0, -2.0),
+        "fit_rotation": True, "pivot_vu": None, "pivot_distance_px": 40.0,
+        "use_polarity": True, "max_iterations": 7, "damping": 1e-3, "step_tolerance_px": 1e-4,
+        "tukey_c": 4.685, "pinvh_rcond": 1e-12, "trust_region_px": 1.0,
+        "tikhonov_alpha": 0.0, "final_gradient_ridge": False, "initial_rotation_rad": 0.01,
+    }
+    checked = _validation.polyline(p.vertices_vu, p.normals_vu, p.sigmas)
+    full, given = check_lm_inputs(kw), check_lm_inputs(kw, checked)
+    assert full._fields == given._fields
+    for name, a, b in zip(full._fields, full, given, strict=True):
+        if isinstance(a, np.ndarray):
+            assert a.dtype == b.dtype and a.flags.writeable == b.flags.writeable, name
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        else:
+            assert a == b, name
+    assert given.pivot == checked[3]  # the centroid pivot, from the checked pass
