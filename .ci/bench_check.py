@@ -48,8 +48,8 @@ NOISE_LOADED_RUNS = 12
 #: name -> (target, achieved median, spread);
 #: floor = min(target, achieved) * (1 - spread).
 #: Where the target is met the floor is the target less the measured noise
-#: margin (issue #3). Where it is not met yet (batch_64_fits, which this
-#: machine gives between 1.0x and 1.85x, see below) the floor
+#: margin (issue #3). Where it is not met reliably (batch_64_fits, which
+#: this machine gives between 1.0x and 1.95x, see below) the floor
 #: guards the ratio achieved, less the same margin, so a regression still
 #: fails CI; the missed targets are printed on every run and stated in the
 #: notes.
