@@ -111,7 +111,7 @@ def check_lm_inputs(
     ``polyline``, when given, is :func:`dtalign._validation.polyline`'s
     result for the three per-vertex keywords, which a caller has already
     checked (the pipeline checks them first, for its own messages): it
-    stands for that check, ~8 us per call.
+    stands for that check (~5 us warm).
     """
     if polyline is None:
         polyline = check.polyline(
