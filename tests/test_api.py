@@ -44,7 +44,9 @@ P, K = inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY
 NO = inspect.Parameter.empty
 C = CONSTANTS
 SIGNATURES = {
-    "coarse_ncc_search": [("edge_mask", P, NO), ("polyline_mask", P, NO), ("search_window_vu", P, NO)],
+    # SPEC 8.1: the support floor of today's techniques
+    "coarse_ncc_search": [("edge_mask", P, NO), ("polyline_mask", P, NO), ("search_window_vu", P, NO),
+                          ("min_support_fraction", K, 0.5)],
     "build_polyline_mask": [("vertices_vu", P, NO), ("shape_vu", P, NO)],
     "polarity_filter": [("vertices_vu", P, NO), ("normals_vu", P, NO),
                         ("image_gradient_vu", P, NO), ("offset_vu", K, (0.0, 0.0))],
@@ -77,7 +79,8 @@ SIGNATURES = {
         ("max_total_displacement_px", K, C["DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX"])],
 }
 LM_FIELDS = ["offset_vu", "rotation_rad", "covariance", "residuals_px", "weights", "rms_px",
-             "raw_rms_px", "iterations", "converged", "inlier_count", "degenerate"]
+             "raw_rms_px", "iterations", "converged", "inlier_count", "degenerate",
+             "polarity_rejected_count"]  # SPEC 8.1: the 12th field, last
 
 # --- tiny inputs: a horizontal edge at row 5 of a 12 x 12 image ------------
 H = W = 12

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import dtalign
+from dtalign import reference as ref
 from dtalign.scenes import disc_scene, navigation_scene
 
 C = dtalign.DEFAULT_TUKEY_C
@@ -101,7 +102,9 @@ def _one_row(poly_u, edge_u, width):
 def test_coarse_score_is_the_in_bounds_fraction_not_the_count():
     # du=-2 keeps one pixel inside, on an edge: 1/1; du=+2 and +3 overlap twice: 2/3.
     edge, poly = _one_row([0, 1, 2], [0, 3, 4], 10)
-    assert dtalign.coarse_ncc_search(edge, poly, (0, 3)) == (0, -2)
+    assert dtalign.coarse_ncc_search(edge, poly, (0, 3), min_support_fraction=0.0) == (0, -2)
+    # SPEC 8.1's default floor: one pixel of three inside (< 0.5 * 3) is no candidate
+    assert dtalign.coarse_ncc_search(edge, poly, (0, 3)) == (0, 2)
 
 
 def test_coarse_exact_ties_between_different_counts_use_the_key():
@@ -231,10 +234,14 @@ def test_covariance_rcond_cutoff():
                                np.diag([1.0, 1e10]), rtol=1e-9)
 
 
-def test_covariance_without_information_is_inf():
-    # the design's guard cases: no positive weight, no rows
-    assert np.all(dtalign.information_matrix_to_covariance(np.ones((3, 2)), np.zeros(3)) == np.inf)
-    assert np.all(dtalign.information_matrix_to_covariance(np.ones((0, 3)), np.ones(0)) == np.inf)
+def test_covariance_without_information_is_zero():
+    # the design's guard cases, no positive weight and no rows: SPEC 2 gives the
+    # zero matrix (a caller's s2 * cov with s2 == 0 must stay 0, not 0 * inf)
+    for jac, w in ((np.ones((3, 2)), np.zeros(3)), (np.ones((0, 3)), np.ones(0))):
+        cov = dtalign.information_matrix_to_covariance(jac, w)
+        assert cov.shape == (jac.shape[1],) * 2 and cov.dtype == np.float64
+        assert np.array_equal(cov, np.zeros_like(cov))
+        np.testing.assert_array_equal(cov, ref.information_matrix_to_covariance(jac, w))
 
 
 # --------------------------------------------------------------------------
@@ -334,7 +341,8 @@ def test_all_vertices_rejected_by_polarity_is_degenerate():
         assert np.all(res.covariance == np.inf)
         np.testing.assert_array_equal(res.residuals_px, np.full(6, 1.0e6))  # the penalty
         np.testing.assert_array_equal(res.weights, np.zeros(6))
-        assert res.raw_rms_px == 1.0e6
+        # SPEC 8.1: raw RMS over the polarity-accepted vertices, of which there are none
+        assert res.raw_rms_px == math.inf and res.polarity_rejected_count == 6
 
 
 def test_all_vertices_rejected_by_tukey_is_degenerate():

@@ -18,6 +18,8 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from ._constants import (
+    _INFINITY_DT_PENALTY_PX,
+    DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
     DEFAULT_DT_HALF_WIDTH_PX,
     DEFAULT_EDGE_THRESHOLD_K_SIGMA,
     DEFAULT_IMAGE_GRADIENT_SIGMA_PX,
@@ -36,9 +38,17 @@ __version__ = "0.1.0"
 
 # public name -> submodule that defines it
 _LAZY: dict[str, str] = {
+    "CoarseSearchResult": "._results",
     "LMRefineResult": "._results",
     "RidgeRefineResult": "._results",
+    "SecondaryBasin": "._results",
     "coarse_ncc_search": ".coarse",
+    "coarse_ncc_search_scored": ".coarse",
+    "coarse_polarity_search_scored": ".coarse",
+    "find_secondary_dt_minimum": ".basin",
+    "DTFitGateConfig": ".gates",
+    "DTFitGateVerdict": ".gates",
+    "evaluate_dt_fit_gates": ".gates",
     "build_polyline_mask": ".coarse",
     "polarity_filter": ".weights",
     "tukey_biweight_weights": ".weights",
@@ -64,7 +74,15 @@ _LAZY: dict[str, str] = {
     "prepare_image": ".pipeline",
 }
 
+#: Private names today's techniques import (SPEC section 8.6): importable,
+#: not in ``__all__``.
+_PRIVATE_LAZY: dict[str, str] = {
+    "_rotate_vertices": ".sampling",
+    "_rotate_directions": ".sampling",
+}
+
 __all__ = [
+    "DEFAULT_COARSE_MIN_SUPPORT_FRACTION",
     "DEFAULT_DT_HALF_WIDTH_PX",
     "DEFAULT_EDGE_THRESHOLD_K_SIGMA",
     "DEFAULT_IMAGE_GRADIENT_SIGMA_PX",
@@ -82,7 +100,7 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
+    module = _LAZY.get(name) or _PRIVATE_LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'dtalign' has no attribute {name!r}")
     value = getattr(importlib.import_module(module, __name__), name)
@@ -96,8 +114,15 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # static analysers see ordinary imports
     from ._image_args import ImageDerivativesConfig
-    from ._results import LMRefineResult, RidgeRefineResult
-    from .coarse import build_polyline_mask, coarse_ncc_search
+    from ._results import CoarseSearchResult, LMRefineResult, RidgeRefineResult, SecondaryBasin
+    from .basin import find_secondary_dt_minimum
+    from .coarse import (
+        build_polyline_mask,
+        coarse_ncc_search,
+        coarse_ncc_search_scored,
+        coarse_polarity_search_scored,
+    )
+    from .gates import DTFitGateConfig, DTFitGateVerdict, evaluate_dt_fit_gates
     from .image import (
         build_image_edge_dt,
         compute_all_image_derivatives,
@@ -119,7 +144,12 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         prepare_image,
     )
     from .ridge import gradient_ridge_refine
-    from .sampling import apply_translation, sample_dt_bilinear
+    from .sampling import (
+        _rotate_directions,
+        _rotate_vertices,
+        apply_translation,
+        sample_dt_bilinear,
+    )
     from .weights import (
         information_matrix_to_covariance,
         polarity_filter,

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from . import _validation as check
 from ._validation import FloatArray
@@ -21,7 +22,7 @@ def tukey_c_value(c: Any, name: str = "c") -> float:
     """The biweight cutoff: a finite number > 0."""
     value = check.real(c, name)
     if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        raise ValueError(f"{name} must be a positive finite number; got {c!r}")
     return value
 
 
@@ -41,7 +42,9 @@ def _nonnegative_or_inf(value: Any, name: str) -> float:
 
 
 def no_information_covariance(n_params: int) -> FloatArray:
-    """The all-``+inf`` covariance that marks a fit with no information."""
+    """The all-``+inf`` covariance that marks an LM fit with no information
+    (SPEC section 3 step 5; ``information_matrix_to_covariance`` itself
+    returns zeros there, SPEC section 2)."""
     return np.full((n_params, n_params), np.inf)
 
 
@@ -49,12 +52,12 @@ def check_covariance_inputs(jacobian: Any, weights: Any, rcond: Any) -> tuple[Fl
     """Checks of :func:`information_matrix_to_covariance`."""
     jac = check._as_float_array(jacobian, "jacobian")
     if jac.ndim != 2:
-        raise ValueError(f"jacobian must be 2-D, got {jac.ndim}-D")
+        raise ValueError(f"jacobian must be 2-D; got ndim={jac.ndim}")
     w = check._as_float_array(weights, "weights")
     if w.ndim != 1 or w.shape[0] != jac.shape[0]:
         raise ValueError(
-            f"weights must be a 1-D vector of length {jac.shape[0]} (jacobian rows), "
-            f"got shape {w.shape}"
+            "weights must be a 1-D vector matching the Jacobian rows; "
+            f"got weights {w.shape}, jacobian {jac.shape}"
         )
     check.require_finite(jac, "jacobian")
     check.require_finite(w, "weights")
@@ -63,19 +66,124 @@ def check_covariance_inputs(jacobian: Any, weights: Any, rcond: Any) -> tuple[Fl
     return jac, w, _rcond(rcond, "rcond")
 
 
-def check_coarse_inputs(edge_mask: Any, polyline_mask: Any, search_window_vu: Any) -> tuple[Any, Any, int, int]:
-    """Shared checks of the coarse search; the window is clipped to the image."""
-    edge = check.mask2d(edge_mask, "edge_mask")
-    poly = check.mask2d(polyline_mask, "polyline_mask")
-    if edge.shape != poly.shape:
+def min_support_fraction_value(value: Any) -> float:
+    """SPEC 8.2's support floor: a real number in ``[0, 1]`` (NaN refused)."""
+    fraction = check.real(value, "min_support_fraction")
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"min_support_fraction must be in [0, 1]; got {value!r}")
+    return fraction
+
+
+def _clip_window(mv: int, mu: int, shape: tuple[int, ...]) -> tuple[int, int]:
+    """A shift of H or more rows moves every pixel of the image off it:
+    margins beyond the image change no result of a mask search."""
+    return min(mv, max(shape[0] - 1, 0)), min(mu, max(shape[1] - 1, 0))
+
+
+def _clip_window_for(verts: FloatArray, mv: int, mu: int, shape: tuple[int, ...]) -> tuple[int, int]:
+    """Margins beyond which no vertex (in the image or off it) can land in it:
+    a shift larger than ``max |coordinate| + size`` changes no result."""
+    if verts.shape[0] == 0:
+        return min(mv, 0), min(mu, 0)
+    reach = np.abs(verts).max(axis=0)
+    return (min(mv, int(reach[0]) + shape[0] + 1), min(mu, int(reach[1]) + shape[1] + 1))
+
+
+def check_coarse_inputs(
+    edge_mask: Any, polyline_mask: Any, search_window_vu: Any, min_support_fraction: Any = 0.0
+) -> tuple[np.ndarray, NDArray[np.bool_], int, int, float]:
+    """Checks of ``coarse_ncc_search[_scored]`` in SPEC 8.2's order.
+
+    Returns the edge mask (bool when its values are 0/1, else its float64
+    values, which the overlap sums), the polyline mask as bool, the window
+    clipped to the image, and the support fraction.
+    """
+    e = np.asarray(edge_mask)
+    p = np.asarray(polyline_mask)
+    if e.ndim != 2 or p.ndim != 2:
         raise ValueError(
-            f"edge_mask and polyline_mask shape mismatch: {edge.shape} vs {poly.shape}"
+            f"edge_mask and polyline_mask must be 2-D; got ndims {e.ndim}, {p.ndim}"
         )
+    if e.shape != p.shape:
+        raise ValueError(f"shape mismatch: edge_mask {e.shape} vs polyline_mask {p.shape}")
     mv, mu = check.search_window(search_window_vu)
-    # A shift of H or more rows moves every polyline pixel off the image.
-    mv = min(mv, max(edge.shape[0] - 1, 0))
-    mu = min(mu, max(edge.shape[1] - 1, 0))
-    return edge, poly, mv, mu
+    fraction = min_support_fraction_value(min_support_fraction)
+    edge = check.mask_values(e, "edge_mask")
+    poly = check.mask2d(p, "polyline_mask")
+    mv, mu = _clip_window(mv, mu, e.shape)
+    return edge, poly, mv, mu, fraction
+
+
+class PolaritySearchArgs(NamedTuple):
+    """Validated arguments of ``coarse_polarity_search_scored``."""
+
+    edge: NDArray[np.bool_]
+    gradient: FloatArray
+    vertices: FloatArray
+    normals: FloatArray
+    mv: int
+    mu: int
+    fraction: float
+
+
+def check_polarity_search_inputs(
+    edge_mask: Any, image_gradient_vu: Any, vertices_vu: Any, normals_vu: Any,
+    search_window_vu: Any, min_support_fraction: Any,
+) -> PolaritySearchArgs:
+    """Checks of ``coarse_polarity_search_scored`` in SPEC 8.3's order.
+
+    The gradient may hold NaN (such a vertex's weight, and its shift's
+    score, is NaN, which never wins); vertices and normals must be finite.
+    """
+    e = np.asarray(edge_mask)
+    if e.ndim != 2:
+        raise ValueError(f"edge_mask must be 2-D; got ndim={e.ndim}")
+    grad = check._as_float_array(image_gradient_vu, "image_gradient_vu")
+    if grad.ndim != 3 or grad.shape[2] != 2:
+        raise ValueError(f"image_gradient_vu must have shape (H, W, 2); got {grad.shape}")
+    if grad.shape[:2] != e.shape:
+        raise ValueError(
+            f"shape mismatch: edge_mask {e.shape} vs image_gradient_vu {grad.shape[:2]}"
+        )
+    verts = check.vertices(vertices_vu, "vertices_vu")
+    norms = check.normals(normals_vu, verts.shape[0])
+    mv, mu = check.search_window(search_window_vu)
+    fraction = min_support_fraction_value(min_support_fraction)
+    mv, mu = _clip_window_for(verts, mv, mu, e.shape)
+    return PolaritySearchArgs(check.mask2d(e, "edge_mask"), grad, verts, norms, mv, mu, fraction)
+
+
+class BasinArgs(NamedTuple):
+    """Validated arguments of ``find_secondary_dt_minimum``."""
+
+    dt: FloatArray
+    vertices: FloatArray
+    converged: tuple[float, float]
+    mv: int
+    mu: int
+    exclude_radius: float
+    fraction: float
+
+
+def check_basin_inputs(
+    image_edge_dt: Any, vertices_vu: Any, converged_offset_vu: Any, search_window_vu: Any,
+    exclude_radius_px: Any, min_support_fraction: Any,
+) -> BasinArgs:
+    """Checks of ``find_secondary_dt_minimum`` (the reference checks nothing:
+    what it accepts gives the same result here; non-finite or mis-shaped input
+    is refused naming the argument). Margins are ``int()`` of the window
+    entries, as SPEC 8.4 says; a negative one scans nothing."""
+    dt = check.image2d(image_edge_dt, "image_edge_dt")
+    verts = check.vertices(vertices_vu, "vertices_vu")
+    converged = check.pair(converged_offset_vu, "converged_offset_vu")
+    wv, wu = check.pair(search_window_vu, "search_window_vu")
+    radius = check.finite_real(exclude_radius_px, "exclude_radius_px")
+    fraction = min_support_fraction_value(min_support_fraction)
+    # int() as the reference takes it, after bounding what no vertex can use
+    mv, mu = (int(max(min(m, float(1 << 53)), -1.0)) for m in (wv, wu))
+    if mv >= 0 and mu >= 0:
+        mv, mu = _clip_window_for(verts, mv, mu, dt.shape)
+    return BasinArgs(dt, verts, converged, mv, mu, radius, fraction)
 
 
 class LMArgs(NamedTuple):

@@ -55,9 +55,17 @@ DEFAULT_EDGE_THRESHOLD_K_SIGMA: float = 4.0
 #: the exact distance carries no information, and the cap bounds the work.
 DEFAULT_DT_HALF_WIDTH_PX: float = 64.0
 
+#: Smallest fraction of a polyline's support that a coarse shift must keep
+#: inside the image to be a candidate (SPEC section 8.1): a shift that
+#: pushes most of the model off the frame would otherwise win on the few
+#: pixels it keeps on an edge.
+DEFAULT_COARSE_MIN_SUPPORT_FRACTION: float = 0.5
+
 #: Residual given to polarity-rejected vertices: the Tukey biweight zeroes
-#: any such vertex on the first reweighting (internal, not exported).
+#: any such vertex on the first reweighting. Today's techniques import it
+#: as ``_INFINITY_DT_PENALTY_PX`` (SPEC section 8.6).
 POLARITY_PENALTY_RESIDUAL: float = 1.0e6
+_INFINITY_DT_PENALTY_PX: float = POLARITY_PENALTY_RESIDUAL
 
 #: Central-difference half-step of the translation Jacobian, pixels.
 JACOBIAN_TRANSLATION_EPS_PX: float = 0.25

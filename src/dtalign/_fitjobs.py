@@ -32,6 +32,7 @@ from ._constants import (
     DEFAULT_RIDGE_MAX_ITERATIONS,
     DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
     DEFAULT_RIDGE_SAMPLE_STEP_PX,
+    POLARITY_PENALTY_RESIDUAL,
 )
 from .observability import _sigma_list, _sigmas_from_cov
 from .products import ImageProducts
@@ -511,6 +512,10 @@ def _wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int,
             residuals_px=r_all[s_j:e_j], weights=w_all[s_j:e_j],
             rms_px=rms_j, raw_rms_px=raw_j, iterations=n_iter, converged=conv,
             inlier_count=inl, degenerate=deg,
+            # the rejected vertices carry the penalty (PolylineFit.polarity_rejected)
+            polarity_rejected_count=int(
+                np.count_nonzero(r_all[s_j:e_j] == POLARITY_PENALTY_RESIDUAL)
+            ) if a.use_polarity else 0,
         )
         fit = object.__new__(PolylineFit)
         fit.__dict__.update(

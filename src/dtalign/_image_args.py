@@ -47,7 +47,7 @@ class ImageDerivativesConfig:
                 and float(value) > 0.0
             )
             if not ok:
-                raise ValueError(f"{f.name} must be a finite positive number, got {value!r}")
+                raise ValueError(f"{f.name} must be a finite positive number; got {value!r}")
             object.__setattr__(self, f.name, float(value))
 
 
@@ -66,14 +66,17 @@ def check_image(image_ext: Any) -> FloatArray:
     """A non-empty, finite 2-D image as C-contiguous float64."""
     arr = np.asarray(image_ext)
     if arr.ndim != 2:
-        raise TypeError(f"image_ext must be 2-D, got {arr.ndim}-D")
+        raise TypeError(f"image_ext must be 2-D; got ndim={arr.ndim}")
     if arr.dtype.kind not in "biuf":
         raise TypeError(f"image_ext must be a real numeric array, got dtype {arr.dtype}")
     if arr.size == 0:
         raise ValueError(f"image_ext must not be empty, got shape {arr.shape}")
     out = np.ascontiguousarray(arr, dtype=np.float64)
     if not np.isfinite(out).all():
-        raise ValueError("image_ext must be finite: found NaN or inf pixels")
+        raise ValueError(
+            "image_ext must contain only finite values; NaN or +/-inf would propagate "
+            "through gaussian_filter / sobel and poison every derivative downstream"
+        )
     return check.readonly(out)
 
 
@@ -82,9 +85,9 @@ def check_sigma_px(sigma_px: Any) -> float:
     try:
         value = check.real(sigma_px, "sigma_px")
     except TypeError as exc:
-        raise ValueError(f"sigma_px must be a finite positive number, got {sigma_px!r}") from exc
+        raise ValueError(f"sigma_px must be a finite positive number; got {sigma_px!r}") from exc
     if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"sigma_px must be a finite positive number, got {value!r}")
+        raise ValueError(f"sigma_px must be a finite positive number; got {sigma_px!r}")
     return value
 
 
@@ -94,8 +97,8 @@ def check_noise_sigma(image_noise_sigma: Any) -> float:
         value = check.real(image_noise_sigma, "image_noise_sigma")
     except TypeError as exc:
         raise ValueError(
-            f"image_noise_sigma must be finite and >= 0, got {image_noise_sigma!r}"
+            f"image_noise_sigma must be finite and >= 0; got {image_noise_sigma!r}"
         ) from exc
     if not (math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"image_noise_sigma must be finite and >= 0, got {value!r}")
+        raise ValueError(f"image_noise_sigma must be finite and >= 0; got {value!r}")
     return value

@@ -7,12 +7,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LMRefineResult", "RidgeRefineResult"]
+__all__ = ["CoarseSearchResult", "LMRefineResult", "RidgeRefineResult", "SecondaryBasin"]
 
 
 def _readonly(name: str, value: object) -> NDArray[np.float64]:
     if not isinstance(value, np.ndarray):
-        raise TypeError(f"{name} must be a numpy.ndarray, got {type(value).__name__}")
+        raise TypeError(f"LMRefineResult.{name} must be an ndarray; got {type(value).__name__}")
     # A read-only view: the result cannot be edited through it, and the
     # caller's own array (if they built the result by hand) is untouched.
     view = value.view()
@@ -42,15 +42,19 @@ class LMRefineResult:
     rms_px : float
         Weighted RMS residual, ``+inf`` when degenerate.
     raw_rms_px : float
-        Unweighted RMS over all vertices (penalised ones included).
+        Unweighted RMS residual over the polarity-accepted vertices (all of
+        them without polarity); ``+inf`` when none is accepted.
     iterations : int
         LM iterations taken (accepted and rejected steps).
     converged : bool
-        True when an accepted step fell below the step tolerance.
+        True when an accepted step fell below the step tolerance, or the
+        final ridge polish ran, was applied and converged.
     inlier_count : int
         Number of vertices with a positive weight.
     degenerate : bool
         True when no vertex carries weight: the covariance is then ``+inf``.
+    polarity_rejected_count : int
+        Vertices the seed polarity mask rejected (0 without polarity).
     """
 
     offset_vu: tuple[float, float]
@@ -64,6 +68,7 @@ class LMRefineResult:
     converged: bool
     inlier_count: int
     degenerate: bool
+    polarity_rejected_count: int = 0
 
     def __post_init__(self) -> None:
         for name in ("covariance", "residuals_px", "weights"):
@@ -83,6 +88,7 @@ class LMRefineResult:
         converged: bool,
         inlier_count: int,
         degenerate: bool,
+        polarity_rejected_count: int,
     ) -> LMRefineResult:
         """Wrap arrays a kernel just allocated (nobody else holds them).
 
@@ -98,7 +104,7 @@ class LMRefineResult:
             offset_vu=offset_vu, rotation_rad=rotation_rad, covariance=covariance,
             residuals_px=residuals_px, weights=weights, rms_px=rms_px, raw_rms_px=raw_rms_px,
             iterations=iterations, converged=converged, inlier_count=inlier_count,
-            degenerate=degenerate,
+            degenerate=degenerate, polarity_rejected_count=polarity_rejected_count,
         )
         return obj
 
@@ -127,3 +133,44 @@ class RidgeRefineResult:
     iterations: int
     converged: bool
     applied: bool
+
+
+@dataclass(frozen=True)
+class CoarseSearchResult:
+    """Outcome of the scored coarse searches (SPEC section 8.2).
+
+    Attributes
+    ----------
+    offset_vu : tuple of int
+        The best integer shift ``(dv, du)``.
+    score : float
+        Its score, floored at 0: the edge match fraction (or the sum of a
+        float edge mask's values over the count) for
+        :func:`dtalign.coarse_ncc_search_scored`, the mean polarity
+        agreement for :func:`dtalign.coarse_polarity_search_scored`.
+    """
+
+    offset_vu: tuple[int, int]
+    score: float
+
+
+@dataclass(frozen=True)
+class SecondaryBasin:
+    """The best integer shift outside the converged basin (SPEC section 8.4).
+
+    Attributes
+    ----------
+    offset_vu : tuple of int
+        The rival shift ``(dv, du)``.
+    distance_px : float
+        Its distance from the converged offset.
+    cost_px : float
+        Mean DT sample of the shifted vertices there.
+    converged_cost_px : float
+        The same cost at the converged offset.
+    """
+
+    offset_vu: tuple[int, int]
+    distance_px: float
+    cost_px: float
+    converged_cost_px: float

@@ -74,7 +74,7 @@ def _vertex_shape(value: Any, name: str, allow_empty: bool) -> FloatArray:
     arr = _as_float_array(value, name)
     if arr.ndim != 2 or arr.shape[1] != 2 or (not allow_empty and arr.shape[0] == 0):
         what = "(N, 2) with N > 0" if not allow_empty else "(N, 2)"
-        raise ValueError(f"{name} must have shape {what}, got {arr.shape}")
+        raise ValueError(f"{name} must have shape {what}; got {arr.shape}")
     return arr
 
 
@@ -118,7 +118,7 @@ def image2d(value: Any, name: str) -> FloatArray:
     """
     arr = _as_float_array(value, name)
     if arr.ndim != 2:
-        raise ValueError(f"{name} must be 2-D, got {arr.ndim}-D")
+        raise ValueError(f"{name} must be 2-D; got ndim={arr.ndim}")
     if arr.size == 0:
         raise ValueError(f"{name} must not be empty, got shape {arr.shape}")
     require_finite_if_small(arr, name)
@@ -129,7 +129,7 @@ def gradient(value: Any, name: str = "image_gradient_vu") -> FloatArray:
     """An ``(H, W, 2)`` gradient-vector image (finiteness as :func:`image2d`)."""
     arr = _as_float_array(value, name)
     if arr.ndim != 3 or arr.shape[2] != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise ValueError(f"{name} must have shape (H, W, 2), got {arr.shape}")
+        raise ValueError(f"{name} must have shape (H, W, 2); got {arr.shape}")
     require_finite_if_small(arr, name)
     return arr
 
@@ -213,21 +213,24 @@ def shape2(value: Any, name: str = "shape_vu") -> tuple[int, int]:
 
 
 def search_window(value: Any) -> tuple[int, int]:
-    """The coarse-search margin: a tuple/list of two non-negative ints."""
+    """The coarse-search margin: a tuple/list of two non-negative ints.
+
+    Checked in SPEC section 9's order: the container, each entry's type,
+    then the sign (so a ``(-1, 2.0)`` window is a TypeError, as upstream).
+    """
     if not isinstance(value, (tuple, list)) or len(value) != 2:
         raise ValueError(
-            f"search_window_vu must be a length-2 sequence of ints, got {value!r}"
+            f"search_window_vu must be a length-2 sequence of ints; got {value!r}"
         )
-    out = []
     for i, item in enumerate(value):
         if isinstance(item, (bool, np.bool_)) or not isinstance(item, numbers.Integral):
             raise TypeError(
-                f"search_window_vu[{i}] must be int, got {type(item).__name__}"
+                f"search_window_vu[{i}] must be int; got {type(item).__name__}"
             )
-        if int(item) < 0:
-            raise ValueError(f"search_window_vu[{i}] must be non-negative, got {item}")
-        out.append(int(item))
-    return out[0], out[1]
+    mv, mu = int(value[0]), int(value[1])
+    if mv < 0 or mu < 0:
+        raise ValueError(f"search_window_vu must be non-negative; got {value!r}")
+    return mv, mu
 
 
 def mask2d(value: Any, name: str) -> NDArray[np.bool_]:
@@ -242,6 +245,24 @@ def mask2d(value: Any, name: str) -> NDArray[np.bool_]:
     if arr.dtype.kind == "f" and arr.size and not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite (found NaN or inf)")
     return np.ascontiguousarray(arr != 0)
+
+
+def mask_values(arr: np.ndarray, name: str) -> np.ndarray:
+    """An edge mask whose values count: bool when they are all 0/1, else float64.
+
+    SPEC 8.2 sums the edge mask's values as float64; for 0/1 values that sum
+    is a count, which the integer kernels compute exactly.
+    """
+    if arr.dtype == np.bool_:
+        return np.ascontiguousarray(arr)
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must be a numeric or boolean array, got dtype {arr.dtype}")
+    values = np.ascontiguousarray(arr, dtype=np.float64)
+    if values.size and not np.isfinite(values).all():
+        raise ValueError(f"{name} must be finite (found NaN or inf)")
+    if ((values == 0.0) | (values == 1.0)).all():
+        return values != 0.0
+    return values
 
 
 def weight_mask(value: Any, n_vertices: int) -> FloatArray:
@@ -263,18 +284,14 @@ def weight_mask(value: Any, n_vertices: int) -> FloatArray:
 def _normals_shape(value: Any, n_vertices: int) -> FloatArray:
     arr = _as_float_array(value, "normals_vu")
     if arr.shape != (n_vertices, 2):
-        raise ValueError(
-            f"normals_vu must match vertices_vu shape ({n_vertices}, 2), got {arr.shape}"
-        )
+        raise ValueError(f"normals_vu must match vertices_vu shape; got {arr.shape}")
     return arr
 
 
 def _sigmas_shape(value: Any, n_vertices: int, name: str = "sigma_normal_per_vertex_px") -> FloatArray:
     arr = _as_float_array(value, name)
     if arr.ndim != 1 or arr.shape[0] != n_vertices:
-        raise ValueError(
-            f"{name} must be a 1-D vector of length {n_vertices}, got shape {arr.shape}"
-        )
+        raise ValueError(f"{name} must be a 1-D vector matching vertices_vu; got {arr.shape}")
     return arr
 
 
@@ -294,7 +311,7 @@ def sigmas(value: Any, n_vertices: int, name: str = "sigma_normal_per_vertex_px"
 
 
 _SIGMA_MESSAGE = (
-    "sigma_normal_per_vertex_px values must be finite and > 0 (and 1/sigma^2 representable)"
+    "sigma_normal_per_vertex_px entries must be finite and > 0 (and 1/sigma^2 representable)"
 )
 
 
@@ -345,7 +362,8 @@ def pose(
     distance = real(pivot_distance_px, "pivot_distance_px")
     if fit_rotation and not (math.isfinite(distance) and distance > 0.0):
         raise ValueError(
-            f"fit_rotation=True requires a finite pivot_distance_px > 0, got {distance!r}"
+            "fit_rotation=True requires pivot_distance_px > 0 for the convergence test; "
+            f"got {distance!r}"
         )
     if not math.isfinite(distance):
         raise ValueError(f"pivot_distance_px must be finite, got {distance!r}")

@@ -8,10 +8,12 @@ covariance.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
+from . import ridge as _ridge_module
 from ._args import LMArgs, check_lm_inputs
 from ._constants import (
     DEFAULT_LM_DAMPING,
@@ -25,6 +27,7 @@ from ._constants import (
     DEFAULT_TUKEY_C,
 )
 from ._kernels import fit as _k
+from ._kernels import robust as _robust
 from ._results import LMRefineResult
 from ._validation import nonfinite_read
 from .image import _use_libm_hypot
@@ -33,6 +36,9 @@ from .image import _use_libm_hypot
 _RIDGE_HALF = round(DEFAULT_RIDGE_HALF_WIDTH_PX / DEFAULT_RIDGE_SAMPLE_STEP_PX)
 #: Stand-in gradient when none is given (never read: polarity and ridge are off).
 _NO_GRADIENT = np.zeros((1, 1, 2))
+#: The ridge stage as shipped; SPEC 8.1 lets a caller replace the module
+#: attribute, and only then does the LM call out to Python for it.
+_compiled_ridge = _ridge_module.gradient_ridge_refine
 
 __all__ = ["LMRefineResult", "lm_subpixel_refine"]
 
@@ -114,28 +120,82 @@ def lm_subpixel_refine(
     return _fit(a)
 
 
-def _kernel_args(a: LMArgs) -> tuple[Any, ...]:
-    """The arguments of the compiled fit (:func:`dtalign._kernels.fit.fit`)."""
+def _kernel_args(a: LMArgs, ridge: bool) -> tuple[Any, ...]:
+    """The arguments of the compiled fit after its polarity inputs
+    (:func:`dtalign._kernels.fit.fit_with_mask`)."""
     grad = a.gradient if a.gradient is not None else _NO_GRADIENT
     return (
-        a.dt, grad, a.vertices, a.normals, a.sigmas, a.use_polarity,
         np.array([a.offset[0], a.offset[1], a.rotation]), np.array(a.pivot),
         a.fit_rotation, a.pivot_distance, a.max_iterations, a.damping, a.step_tolerance,
         a.tukey_c, a.pinvh_rcond, -1.0 if a.trust_region_px is None else a.trust_region_px,
-        a.tikhonov_alpha, a.final_gradient_ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
+        a.tikhonov_alpha, ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
         DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(),
-    )
+    ), grad
+
+
+def _ridge_replaced() -> bool:
+    """Whether a caller replaced ``dtalign.ridge.gradient_ridge_refine`` (SPEC 8.1)."""
+    return _ridge_module.gradient_ridge_refine is not _compiled_ridge
 
 
 def _fit(a: LMArgs) -> LMRefineResult:
+    if a.final_gradient_ridge and _ridge_replaced():
+        return _fit_with_replaced_ridge(a)
+    rest, grad = _kernel_args(a, a.final_gradient_ridge)
+    out = _k.fit(a.dt, grad, a.vertices, a.normals, a.sigmas, a.use_polarity, *rest)
+    return _result(out)
+
+
+def _result(out: tuple[Any, ...]) -> LMRefineResult:
     (error, pose, iterations, converged, r, w, _jac, cov, rms, raw_rms, inliers,
-     degenerate) = _k.fit(*_kernel_args(a))
+     degenerate, rejected) = out
     if error != _k.OK:
         _raise_for(int(error))
     return LMRefineResult._from_kernel(
         (float(pose[0]), float(pose[1])), float(pose[2]), cov, r, w, float(rms),
         float(raw_rms), int(iterations), bool(converged), int(inliers), bool(degenerate),
+        int(rejected),
+    )
+
+
+def _fit_with_replaced_ridge(a: LMArgs) -> LMRefineResult:
+    """SPEC 8.1: the LM compiled, then the caller's ridge stage, called with
+    exactly the keywords the spec lists, then the state at its pose."""
+    rest, grad = _kernel_args(a, False)
+    n = a.vertices.shape[0]
+    if a.use_polarity:
+        pol, bad = _robust.polarity(a.vertices, a.normals, grad, a.offset[0], a.offset[1])
+        if bad:
+            _raise_for(_k.BAD_GRADIENT)
+    else:
+        pol = np.ones(n)
+    lm = _result(_k.fit_with_mask(a.dt, grad, a.vertices, a.normals, a.sigmas, pol, *rest))
+    if lm.inlier_count == 0:
+        return lm
+    ridge = _ridge_module.gradient_ridge_refine(
+        vertices_vu=a.vertices,
+        normals_vu=a.normals,
+        sigma_normal_per_vertex_px=a.sigmas,
+        gradient_magnitude=np.hypot(grad[:, :, 0], grad[:, :, 1]),
+        initial_offset_vu=lm.offset_vu,
+        weight_mask=np.array(pol, dtype=np.float64),
+        initial_rotation_rad=lm.rotation_rad,
+        fit_rotation=a.fit_rotation,
+        pivot_vu=a.pivot,
+        pivot_distance_px=a.pivot_distance,
+        tukey_c=a.tukey_c,
+    )
+    if not ridge.applied:
+        return lm
+    moved = a._replace(
+        offset=(float(ridge.offset_vu[0]), float(ridge.offset_vu[1])),
+        rotation=float(ridge.rotation_rad), max_iterations=0,
+    )
+    rest, _ = _kernel_args(moved, False)
+    at_ridge = _result(_k.fit_with_mask(a.dt, grad, a.vertices, a.normals, a.sigmas, pol, *rest))
+    return dataclasses.replace(
+        at_ridge, iterations=lm.iterations, converged=bool(lm.converged or ridge.converged)
     )
 
 

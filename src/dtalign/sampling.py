@@ -66,3 +66,37 @@ def apply_translation(vertices_vu: Any, dv: float, du: float) -> FloatArray:
     out[:, 0] += dv
     out[:, 1] += du
     return out
+
+
+def _rotate_vertices(vertices_vu: Any, pivot_vu: Any, theta: float) -> Any:
+    """Rotate vertices by ``theta`` about ``pivot_vu`` (SPEC section 2's rotation).
+
+    ``v' = pv + cos(theta) (v - pv) - sin(theta) (u - pu)``,
+    ``u' = pu + sin(theta) (v - pv) + cos(theta) (u - pu)``. At exactly
+    ``theta == 0.0`` the input object itself is returned (no arithmetic),
+    as today's techniques rely on. Private, but imported by those techniques
+    (SPEC section 8.6).
+    """
+    if theta == 0.0:
+        return vertices_vu
+    pts = np.asarray(vertices_vu, dtype=np.float64)
+    pv, pu = (float(x) for x in pivot_vu)
+    c = np.cos(theta)
+    s = np.sin(theta)
+    dv = pts[:, 0] - pv
+    du = pts[:, 1] - pu
+    return np.stack([pv + c * dv - s * du, pu + s * dv + c * du], axis=1)
+
+
+def _rotate_directions(directions_vu: Any, theta: float) -> Any:
+    """Rotate direction vectors (normals) by ``theta`` about the origin.
+
+    The input object itself at exactly ``theta == 0.0``; private, imported
+    by today's techniques (SPEC section 8.6).
+    """
+    if theta == 0.0:
+        return directions_vu
+    d = np.asarray(directions_vu, dtype=np.float64)
+    c = np.cos(theta)
+    s = np.sin(theta)
+    return np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]], axis=1)

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from . import _validation as check
-from ._args import check_covariance_inputs, no_information_covariance, tukey_c_value
+from ._args import check_covariance_inputs, tukey_c_value
 from ._constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C
 from ._kernels import robust as _k
 from ._validation import FloatArray
@@ -67,7 +67,7 @@ def tukey_biweight_weights(residuals: Any, *, c: float = DEFAULT_TUKEY_C) -> Flo
     c = tukey_c_value(c)
     r = check._as_float_array(residuals, "residuals")
     if r.ndim != 1:
-        raise ValueError(f"residuals must be 1-D, got {r.ndim}-D")
+        raise ValueError(f"residuals must be 1-D; got ndim={r.ndim}")
     return _k.tukey_many(r, c)  # type: ignore[no-any-return]
 
 
@@ -90,12 +90,15 @@ def information_matrix_to_covariance(
     ndarray, shape (P, P)
         The symmetrised pseudoinverse. Along an unobservable direction (a
         straight edge's along-edge axis) the variance is 0, not inf
-        (SPEC section 6). With no rows or no
-        positive weight there is no information: every entry is ``+inf``.
+        (SPEC section 6). With no rows or no positive weight it is the
+        ``(P, P)`` zero matrix (SPEC section 2); ``lm_subpixel_refine``
+        marks its degenerate fits with an all-``+inf`` covariance instead.
     """
     jac, w, rcond = check_covariance_inputs(jacobian, weights, rcond)
     if jac.shape[0] == 0 or not (w > 0).any():
-        return no_information_covariance(jac.shape[1])
+        # SPEC 2: no information is the zero matrix here (a caller's s2 * cov
+        # with s2 == 0 must stay 0); the +inf sentinel is the LM's (SPEC 3)
+        return np.zeros((jac.shape[1], jac.shape[1]))
     info, _ = _k.normal_equations(jac, w, np.zeros(jac.shape[0]), jac.shape[1])
     cov, ok = _k.symmetric_pinvh(info, rcond)
     if not ok:

@@ -17,6 +17,7 @@ import numpy as np
 
 from .._jit import inline_kernel, kernel
 from .bits import fill
+from .pairwise import numpy_sum
 
 
 @kernel
@@ -249,48 +250,61 @@ def overlap_dense(pv, pu, flat, h, w, mv, mu):  # pragma: no cover - compiled
     return overlap
 
 
-@kernel
-def best_shift(overlap, counts, mv, mu):  # pragma: no cover - compiled
-    """Highest ``overlap / n``; ties go to the smallest ``(|dv|+|du|, |dv|, dv, du)``.
+@inline_kernel
+def better(score, dv, du, best_score, best_dv, best_du):  # pragma: no cover - compiled
+    """SPEC's order of shifts: a higher score, or an equal one with the smaller
+    ``(|dv| + |du|, |dv|, dv, du)``. A NaN score never wins."""
+    if score > best_score:
+        return True
+    if score != best_score:
+        return False
+    k1 = abs(dv) + abs(du)
+    k0 = abs(best_dv) + abs(best_du)
+    if k1 != k0:
+        return k1 < k0
+    if abs(dv) != abs(best_dv):
+        return abs(dv) < abs(best_dv)
+    if dv != best_dv:
+        return dv < best_dv
+    return du < best_du
 
-    An empty ``counts`` means the same ``n > 0`` for every shift: the
-    overlap alone then orders the scores (dividing by one positive ``n`` keeps
-    their order and their ties), so no division is needed.
+
+@kernel
+def best_scored(overlap, counts, n_pixels, mv, mu, min_support):  # pragma: no cover - compiled
+    """``(dv, du, score)`` of the best shift with ``n >= 1`` and ``n >= min_support``
+    in-image pixels; ``score`` is ``overlap / n``, and -1 when none is eligible.
+
+    An empty ``counts`` means every shift keeps all ``n_pixels`` inside (and
+    so is eligible): the overlap alone then orders the scores (dividing by
+    one positive ``n`` keeps their order and their ties), so only the
+    winner's score is divided.
     """
     uniform = counts.shape[0] == 0
-    found = False
-    best_score = 0.0
+    best_score = -1.0
     best_dv = 0
     best_du = 0
     for a in range(2 * mv + 1):
         dv = a - mv
         for b in range(2 * mu + 1):
-            n = 1 if uniform else counts[a, b]
-            if n == 0:
+            n = n_pixels if uniform else counts[a, b]
+            if n == 0 or n < min_support:
                 continue
             du = b - mu
             score = float(overlap[a, b]) if uniform else overlap[a, b] / n
-            if not found or score > best_score:
-                better = True
-            elif score < best_score:
-                better = False
-            else:
-                k1 = abs(dv) + abs(du)
-                k0 = abs(best_dv) + abs(best_du)
-                if k1 != k0:
-                    better = k1 < k0
-                elif abs(dv) != abs(best_dv):
-                    better = abs(dv) < abs(best_dv)
-                elif dv != best_dv:
-                    better = dv < best_dv
-                else:
-                    better = du < best_du
-            if better:
-                found = True
+            if better(score, dv, du, best_score, best_dv, best_du):
                 best_score = score
                 best_dv = dv
                 best_du = du
-    return best_dv, best_du
+    if uniform and best_score >= 0.0:
+        best_score = best_score / n_pixels
+    return best_dv, best_du, best_score
+
+
+@kernel
+def best_shift(overlap, counts, mv, mu):  # pragma: no cover - compiled
+    """:func:`best_scored`'s shift with no support floor (SPEC section 2's search)."""
+    dv, du, _ = best_scored(overlap, counts, 1, mv, mu, 0.0)
+    return dv, du
 
 
 @kernel
@@ -323,24 +337,73 @@ def flat_words(mask):  # pragma: no cover - compiled
 
 @kernel
 def search_support(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
-    """Best shift for a polyline support given as row-major ``(pv, pu)``.
+    """Best shift for a polyline support given as row-major ``(pv, pu)``."""
+    dv, du, _ = search_support_scored(edge, pv, pu, mv, mu, 0.0)
+    return dv, du
+
+
+@kernel
+def search_support_scored(edge, pv, pu, mv, mu, min_support):  # pragma: no cover - compiled
+    """``(dv, du, score)`` of the best shift for a row-major support ``(pv, pu)``.
 
     Dense correlation (:func:`overlap_dense`) where it serves; else only the
     edge pixels within the window around the polyline's bounding box can
     score, so only that box of the edge mask is scanned.
     """
     if pv.shape[0] == 0:
-        return 0, 0
+        return 0, 0, 0.0
     h, w = edge.shape
     edge_flat, edge_words = flat_words(edge)
     if dense_ok(pv.shape[0], mu):
         overlap = overlap_dense(pv, pu, edge_flat, h, w, mv, mu)
-        return best_shift(overlap, in_image_counts(pv, pu, h, w, mv, mu), mv, mu)
-    e_rows, e_cols = nonzero_in_box(
-        edge_flat, edge_words, w, max(pv[0] - mv, 0), min(pv[-1] + mv, h - 1),
-        max(pu.min() - mu, 0), min(pu.max() + mu, w - 1),
-    )
-    return search_index(row_starts(e_rows, h), e_cols, pv, pu, h, w, mv, mu)
+    else:
+        e_rows, e_cols = nonzero_in_box(
+            edge_flat, edge_words, w, max(pv[0] - mv, 0), min(pv[-1] + mv, h - 1),
+            max(pu.min() - mu, 0), min(pu.max() + mu, w - 1),
+        )
+        overlap = overlap_sparse(pv, pu, row_starts(e_rows, h), e_cols, h, w, mv, mu)
+    counts = in_image_counts(pv, pu, h, w, mv, mu)
+    return best_scored(overlap, counts, pv.shape[0], mv, mu, min_support)
+
+
+@kernel
+def float_overlap_search(values, pv, pu, mv, mu, min_support):  # pragma: no cover - compiled
+    """:func:`search_support_scored` for an edge mask of arbitrary float values.
+
+    The overlap is then the float64 sum of the values under the in-image
+    polyline pixels, in row-major pixel order, as NumPy's pairwise sum adds
+    them (the reference's ``values[rows, cols].sum()``): per row shift, the
+    values of every column shift are gathered in that order, then summed.
+    """
+    h, w = values.shape
+    m = pv.shape[0]
+    nu = 2 * mu + 1
+    gathered = np.empty((nu, m))
+    counts = np.zeros(nu, dtype=np.int64)
+    best_score = -1.0
+    best_dv = 0
+    best_du = 0
+    for dv in range(-mv, mv + 1):
+        counts[:] = 0
+        for i in range(m):
+            r = pv[i] + dv
+            if r < 0 or r >= h:
+                continue
+            for b in range(nu):
+                c = pu[i] + b - mu
+                if c >= 0 and c < w:
+                    gathered[b, counts[b]] = values[r, c]
+                    counts[b] += 1
+        for b in range(nu):
+            n = counts[b]
+            if n == 0 or n < min_support:
+                continue
+            score = numpy_sum(gathered[b], n) / n
+            if better(score, dv, b - mu, best_score, best_dv, best_du):
+                best_score = score
+                best_dv = dv
+                best_du = b - mu
+    return best_dv, best_du, best_score
 
 
 @kernel
@@ -353,12 +416,39 @@ def search_index(row_start, e_cols, pv, pu, h, w, mv, mu):  # pragma: no cover -
 
 
 @kernel
-def coarse_search(edge, poly, mv, mu):  # pragma: no cover
+def polyline_support(poly):  # pragma: no cover - compiled
+    """Row-major ``(rows, cols)`` of a C-contiguous bool polyline mask's pixels."""
+    h, w = poly.shape
+    poly_flat, poly_words = flat_words(poly)
+    return nonzero_in_box(poly_flat, poly_words, w, 0, h - 1, 0, w - 1)
+
+
+@kernel
+def coarse_search(edge, poly, mv, mu):  # pragma: no cover - compiled
     """``(dv, du)`` of the best shift; ``(0, 0)`` when no pixel can stay inside.
 
     Masks are C-contiguous 2-D bool arrays of the same, non-empty shape.
     """
-    h, w = poly.shape
-    poly_flat, poly_words = flat_words(poly)
-    pv, pu = nonzero_in_box(poly_flat, poly_words, w, 0, h - 1, 0, w - 1)
+    pv, pu = polyline_support(poly)
     return search_support(edge, pv, pu, mv, mu)
+
+
+@kernel
+def coarse_search_scored(edge, poly, mv, mu, fraction):  # pragma: no cover - compiled
+    """SPEC 8.2: ``(dv, du, score)``, ``score`` before the ``max(score, 0)``.
+
+    ``edge`` and ``poly`` are bool masks of the same, non-empty shape.
+    """
+    pv, pu = polyline_support(poly)
+    if pv.shape[0] == 0:
+        return 0, 0, 0.0
+    return search_support_scored(edge, pv, pu, mv, mu, fraction * pv.shape[0])
+
+
+@kernel
+def coarse_search_values(values, poly, mv, mu, fraction):  # pragma: no cover - compiled
+    """:func:`coarse_search_scored` for an edge mask of float64 values (summed)."""
+    pv, pu = polyline_support(poly)
+    if pv.shape[0] == 0:
+        return 0, 0, 0.0
+    return float_overlap_search(values, pv, pu, mv, mu, fraction * pv.shape[0])

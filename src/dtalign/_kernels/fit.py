@@ -13,6 +13,7 @@ import numpy as np
 
 from .._jit import kernel
 from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop, staging_buffers
+from .pairwise import numpy_sum
 from .ridge import (
     PATCH_MARGIN,
     RIDGE_BAD_FIELD,
@@ -38,32 +39,46 @@ def _failed(error, pose0, n, n_params):  # pragma: no cover - compiled
     """The tuple :func:`fit` returns with an error code (the rest is unused)."""
     empty = np.zeros(n)
     return (error, pose0.copy(), 0, False, empty, empty.copy(), np.zeros((n_params, n)),
-            np.full((n_params, n_params), np.inf), math.inf, math.inf, 0, True)
+            np.full((n_params, n_params), np.inf), math.inf, math.inf, 0, True, 0)
+
+
+@kernel
+def accepted_raw_rms(r, pol):  # pragma: no cover - compiled
+    """SPEC 8.1's ``raw_rms_px``: ``sqrt(mean(r**2))`` over the vertices the
+    seed polarity mask accepted, summed as NumPy's ``mean`` sums (pairwise),
+    so it equals the reference's bit for bit; ``+inf`` when none is."""
+    squares = np.empty(r.shape[0])
+    k = 0
+    for i in range(r.shape[0]):
+        if pol[i] > 0.0:
+            squares[k] = r[i] * r[i]
+            k += 1
+    if k == 0:
+        return math.inf
+    return math.sqrt(numpy_sum(squares, k) / k)
 
 
 @kernel
 def _summary(r, w):  # pragma: no cover - compiled
-    """``(inliers, sum(w), sum(w r^2), sum(r^2))``, summed lane-wise as the LM's sums."""
+    """``(inliers, sum(w), sum(w r^2))``, summed lane-wise as the LM's sums."""
     n = r.shape[0]
     n4 = n - n % 4
     zero = splat(0.0)
-    count4 = total4 = weighted4 = raw4 = zero
+    count4 = total4 = weighted4 = zero
     for i in range(0, n4, 4):
         ri = load4(r, i)
         wi = load4(w, i)
         count4 += positive_ones(wi)
         total4 += wi
         weighted4 += wi * ri * ri
-        raw4 += ri * ri
     inliers = int(hsum(count4))  # exact: a count below 2**53
-    total, weighted, raw = hsum(total4), hsum(weighted4), hsum(raw4)
+    total, weighted = hsum(total4), hsum(weighted4)
     for i in range(n4, n):
         if w[i] > 0.0:
             inliers += 1
         total += w[i]
         weighted += w[i] * r[i] * r[i]
-        raw += r[i] * r[i]
-    return inliers, total, weighted, raw
+    return inliers, total, weighted
 
 
 @kernel
@@ -76,8 +91,9 @@ def fit(
     """SPEC section 3, steps 1-5.
 
     Returns ``(error, pose, iterations, converged, r, w, jac, covariance,
-    rms, raw_rms, inlier_count, degenerate)`` (``jac`` as columns, ``(P, N)``);
-    when ``error`` is not :data:`OK` the other values are placeholders.
+    rms, raw_rms, inlier_count, degenerate, polarity_rejected_count)``
+    (``jac`` as columns, ``(P, N)``); when ``error`` is not :data:`OK` the
+    other values are placeholders.
     """
     n = pts.shape[0]
     n_params = 3 if fit_rotation else 2
@@ -87,6 +103,33 @@ def fit(
             return _failed(BAD_GRADIENT, pose0, n, n_params)
     else:
         pol = np.ones(n)
+    return fit_with_mask(
+        dt, grad, pts, nrm, sig, pol, pose0, pivot, fit_rotation, pivot_distance,
+        max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
+        ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
+        ridge_max_displacement, use_libm,
+    )
+
+
+@kernel
+def fit_with_mask(
+    dt, grad, pts, nrm, sig, pol, pose0, pivot, fit_rotation, pivot_distance,
+    max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
+    ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
+    ridge_max_displacement, use_libm,
+):  # pragma: no cover - compiled
+    """:func:`fit` from a given seed polarity mask ``pol`` (1.0 accepted, 0.0 not).
+
+    With ``max_iterations == 0`` and no ridge it is SPEC section 3 step 3 and
+    5 alone: the state and summary at ``pose0``, what ``lm_subpixel_refine``
+    needs after a replaced ridge stage moved the pose (SPEC 8.1).
+    """
+    n = pts.shape[0]
+    n_params = 3 if fit_rotation else 2
+    rejected = 0
+    for i in range(n):
+        if not pol[i] > 0.0:
+            rejected += 1
     pose, iterations, converged, r, w, jac, info, status = lm_loop(
         dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
         damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
@@ -95,12 +138,12 @@ def fit(
         return _failed(BAD_DT, pose0, n, n_params)
     if status == LOOP_DIVERGED:
         return _failed(DIVERGED, pose0, n, n_params)
-    inlier_count, total_weight, weighted, raw = _summary(r, w)
+    inlier_count, total_weight, weighted = _summary(r, w)
     if ridge and inlier_count > 0:
         patch, tiles, r0, c0 = magnitude_patch(
             grad, pts, pose[0], pose[1], ridge_half * ridge_sample_step + PATCH_MARGIN
         )
-        new_pose, ridge_iterations, _, ridge_status = ridge_loop(
+        new_pose, ridge_iterations, ridge_converged, ridge_status = ridge_loop(
             _NO_MAGNITUDE, patch, tiles, grad, r0, c0, use_libm, pts, nrm, sig, pol, pose, pivot, fit_rotation, pivot_distance,
             ridge_max_iterations, ridge_step_tolerance, tukey_c, ridge_half, ridge_sample_step,
         )
@@ -114,6 +157,7 @@ def fit(
             return _failed(DIVERGED, pose0, n, n_params)
         if ridge_iterations > 0 and not moved > ridge_max_displacement:
             pose = new_pose
+            converged = converged or ridge_converged  # SPEC 8.1
             inv_var = np.empty(n)
             for i in range(n):
                 inv_var[i] = 1.0 / (sig[i] * sig[i])
@@ -124,9 +168,9 @@ def fit(
             )[0]
             if status < 0:
                 return _failed(BAD_DT, pose0, n, n_params)
-            inlier_count, total_weight, weighted, raw = _summary(r, w)
+            inlier_count, total_weight, weighted = _summary(r, w)
     degenerate = inlier_count == 0 or total_weight == 0.0
-    raw_rms = math.sqrt(raw / n)
+    raw_rms = accepted_raw_rms(r, pol)
     if degenerate:
         rms = math.inf
         cov = np.full((n_params, n_params), np.inf)
@@ -138,4 +182,4 @@ def fit(
         if not ok:
             return _failed(DIVERGED, pose0, n, n_params)
     return (OK, pose, iterations, converged, r, w, jac, cov, rms, raw_rms, inlier_count,
-            degenerate)
+            degenerate, rejected)

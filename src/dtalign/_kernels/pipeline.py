@@ -92,7 +92,7 @@ def fit_polylines(
         pivot = np.empty(2)
         pivot[0] = pivots[j, 0]
         pivot[1] = pivots[j, 1]
-        (error, pose, n_iter, conv, r, wt, _jac, cov, rms_j, raw_j, inl, deg) = fit(
+        (error, pose, n_iter, conv, r, wt, _jac, cov, rms_j, raw_j, inl, deg, _rej) = fit(
             dt, grad, p, nrm[a:b], sig[a:b], use_polarity, pose0, pivot, fit_rotation,
             distances[j], max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region,
             tikhonov_alpha, ridge, ridge_half, ridge_sample_step, ridge_max_iterations,

@@ -17,14 +17,17 @@ import scipy.linalg
 
 from .. import _validation as check
 from .._args import (
+    check_basin_inputs,
     check_coarse_inputs,
     check_covariance_inputs,
     check_lm_inputs,
+    check_polarity_search_inputs,
     check_ridge_inputs,
     no_information_covariance,
     tukey_c_value,
 )
 from .._constants import (
+    DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,
     DEFAULT_LM_STEP_TOLERANCE,
@@ -41,7 +44,7 @@ from .._constants import (
     POLARITY_PENALTY_RESIDUAL,
     RIDGE_CURVATURE_EPS,
 )
-from .._results import LMRefineResult, RidgeRefineResult
+from .._results import CoarseSearchResult, LMRefineResult, RidgeRefineResult, SecondaryBasin
 from .._validation import FloatArray
 
 # --------------------------------------------------------------------------
@@ -168,30 +171,159 @@ def build_polyline_mask(vertices_vu: Any, shape_vu: Any) -> np.ndarray:
     return mask
 
 
-def coarse_ncc_search(edge_mask: Any, polyline_mask: Any, search_window_vu: Any) -> tuple[int, int]:
-    """Integer shift maximising the per-vertex edge match fraction."""
-    edge, poly, mv, mu = check_coarse_inputs(edge_mask, polyline_mask, search_window_vu)
+def coarse_ncc_search(
+    edge_mask: Any,
+    polyline_mask: Any,
+    search_window_vu: Any,
+    *,
+    min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
+) -> tuple[int, int]:
+    """Integer shift maximising the per-vertex edge match fraction (SPEC 8.1)."""
+    return coarse_ncc_search_scored(
+        edge_mask, polyline_mask, search_window_vu, min_support_fraction=min_support_fraction
+    ).offset_vu
+
+
+def _shift_key(dv: int, du: int) -> tuple[int, int, int, int]:
+    """The tie order of equal scores (SPEC 2)."""
+    return (abs(dv) + abs(du), abs(dv), dv, du)
+
+
+def coarse_ncc_search_scored(
+    edge_mask: Any,
+    polyline_mask: Any,
+    search_window_vu: Any,
+    *,
+    min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
+) -> CoarseSearchResult:
+    """The best integer shift and its score (SPEC 8.2)."""
+    edge, poly, mv, mu, fraction = check_coarse_inputs(
+        edge_mask, polyline_mask, search_window_vu, min_support_fraction
+    )
     pv, pu = np.nonzero(poly)
     if pv.size == 0:
-        return 0, 0
-    h, w = edge.shape
-    best_key: tuple[float, int, int, int, int] | None = None
+        return CoarseSearchResult((0, 0), 0.0)
+    values = edge.astype(np.float64)  # a bool mask sums to a count
+    h, w = values.shape
+    min_support = fraction * pv.size
+    best = -1.0
+    best_offset = (0, 0)
     for dv in range(-mv, mv + 1):
         for du in range(-mu, mu + 1):
             sv = pv + dv
             su = pu + du
             inside = (sv >= 0) & (sv < h) & (su >= 0) & (su < w)
             n = int(np.count_nonzero(inside))
-            if n == 0:
+            if n == 0 or n < min_support:
                 continue
-            overlap = int(np.count_nonzero(edge[sv[inside], su[inside]]))
-            score = overlap / n
-            key = (-score, abs(dv) + abs(du), abs(dv), dv, du)
-            if best_key is None or key < best_key:
-                best_key = key
-    if best_key is None:
-        return 0, 0
-    return int(best_key[3]), int(best_key[4])
+            score = float(values[sv[inside], su[inside]].sum() / n)
+            if score > best or (score == best and _shift_key(dv, du) < _shift_key(*best_offset)):
+                best = score
+                best_offset = (dv, du)
+    return CoarseSearchResult(best_offset, max(best, 0.0))
+
+
+def coarse_polarity_search_scored(
+    edge_mask: Any,
+    image_gradient_vu: Any,
+    vertices_vu: Any,
+    normals_vu: Any,
+    search_window_vu: Any,
+    *,
+    min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
+) -> CoarseSearchResult:
+    """Coarse search weighted by normal/gradient agreement (SPEC 8.3)."""
+    a = check_polarity_search_inputs(
+        edge_mask, image_gradient_vu, vertices_vu, normals_vu, search_window_vu,
+        min_support_fraction,
+    )
+    edge, grad, pts, nrm = a.edge, a.gradient, a.vertices, a.normals
+    n_vertices = pts.shape[0]
+    if n_vertices == 0:
+        return CoarseSearchResult((0, 0), 0.0)
+    h, w = edge.shape
+    base_v = np.rint(pts[:, 0])
+    base_u = np.rint(pts[:, 1])
+    norm = np.hypot(nrm[:, 0], nrm[:, 1])
+    norm = np.where(norm == 0.0, 1.0, norm)  # a zero normal stays zero: it never matches
+    nv_hat = nrm[:, 0] / norm
+    nu_hat = nrm[:, 1] / norm
+    min_support = a.fraction * n_vertices
+    best = -1.0
+    best_offset = (0, 0)
+    for dv in range(-a.mv, a.mv + 1):
+        for du in range(-a.mu, a.mu + 1):
+            sv = base_v + dv
+            su = base_u + du
+            inside = (sv >= 0) & (sv < h) & (su >= 0) & (su < w)
+            n = int(np.count_nonzero(inside))
+            if n == 0 or n < min_support:
+                continue
+            iv = sv[inside].astype(np.int64)
+            iu = su[inside].astype(np.int64)
+            g = grad[iv, iu]
+            s = np.hypot(g[:, 0], g[:, 1])
+            s = np.where(s == 0.0, 1.0, s)
+            with np.errstate(invalid="ignore", over="ignore"):  # a NaN score never wins
+                cos = (nv_hat[inside] * g[:, 0] + nu_hat[inside] * g[:, 1]) / s
+            weights = np.where(edge[iv, iu], np.maximum(cos, 0.0), 0.0)
+            score = float(weights.sum() / n)
+            if score > best or (score == best and _shift_key(dv, du) < _shift_key(*best_offset)):
+                best = score
+                best_offset = (dv, du)
+    return CoarseSearchResult(best_offset, max(best, 0.0))
+
+
+def _basin_cost(dt: FloatArray, pts: FloatArray, ov: float, ou: float, min_support: float) -> float | None:
+    """Mean DT sample of the in-bounds shifted vertices; None when undefined."""
+    h, w = dt.shape
+    shifted = pts + np.array([ov, ou])
+    inside = (
+        (shifted[:, 0] >= 0) & (shifted[:, 0] <= h - 1)
+        & (shifted[:, 1] >= 0) & (shifted[:, 1] <= w - 1)
+    )
+    k = int(np.count_nonzero(inside))
+    if k == 0 or k < min_support:
+        return None
+    return float(_sample(dt, shifted[inside]).mean())
+
+
+def find_secondary_dt_minimum(
+    image_edge_dt: Any,
+    vertices_vu: Any,
+    *,
+    converged_offset_vu: Any,
+    search_window_vu: Any,
+    exclude_radius_px: float,
+    min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
+) -> SecondaryBasin | None:
+    """The best integer shift outside the converged basin (SPEC 8.4)."""
+    a = check_basin_inputs(
+        image_edge_dt, vertices_vu, converged_offset_vu, search_window_vu, exclude_radius_px,
+        min_support_fraction,
+    )
+    pts = a.vertices
+    if pts.shape[0] == 0:
+        return None
+    min_support = a.fraction * pts.shape[0]
+    cdv, cdu = a.converged
+    converged_cost = _basin_cost(a.dt, pts, cdv, cdu, min_support)
+    if converged_cost is None:
+        return None
+    best: tuple[float, float, int, int] | None = None
+    for dv in range(-a.mv, a.mv + 1):
+        for du in range(-a.mu, a.mu + 1):
+            distance = float(np.hypot(dv - cdv, du - cdu))
+            if distance <= a.exclude_radius:
+                continue
+            cost = _basin_cost(a.dt, pts, dv, du, min_support)
+            if cost is None:
+                continue
+            if best is None or (cost, distance) < (best[0], best[1]):
+                best = (cost, distance, dv, du)
+    if best is None:
+        return None
+    return SecondaryBasin((best[2], best[3]), best[1], best[0], converged_cost)
 
 
 # --------------------------------------------------------------------------
@@ -229,7 +361,7 @@ def tukey_biweight_weights(residuals: Any, *, c: float = DEFAULT_TUKEY_C) -> Flo
     c = tukey_c_value(c)
     r = check._as_float_array(residuals, "residuals")
     if r.ndim != 1:
-        raise ValueError(f"residuals must be 1-D, got {r.ndim}-D")
+        raise ValueError(f"residuals must be 1-D; got ndim={r.ndim}")
     return _tukey(r, c)
 
 
@@ -246,7 +378,9 @@ def information_matrix_to_covariance(
     """Pseudoinverse of the M-estimator information matrix ``J^T W J``."""
     jac, w, rcond = check_covariance_inputs(jacobian, weights, rcond)
     if jac.shape[0] == 0 or not (w > 0).any():
-        return no_information_covariance(jac.shape[1])
+        # SPEC 2: no information is the zero matrix here (a caller's s2 * cov
+        # with s2 == 0 must stay 0); the +inf sentinel is the LM's (SPEC 3)
+        return np.zeros((jac.shape[1], jac.shape[1]))
     a = np.sqrt(w)[:, None] * jac
     info = a.T @ a
     cov = scipy.linalg.pinvh(info, rtol=rcond)
@@ -363,17 +497,24 @@ def lm_subpixel_refine(
 
     if a.final_gradient_ridge and (w > 0).any():
         assert grad is not None  # check_lm_inputs refused the ridge without it
-        magnitude = np.hypot(grad[:, :, 0], grad[:, :, 1])
-        ridge = _ridge(
-            pts, nrm, sig, magnitude, pose, a.fit_rotation, pivot, a.pivot_distance,
-            polarity.astype(np.float64),
-            a.tukey_c, DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
-            DEFAULT_RIDGE_HALF_WIDTH_PX, DEFAULT_RIDGE_SAMPLE_STEP_PX,
-            DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
+        # SPEC 8.1: through the module attribute, so a caller may replace it
+        ridge = gradient_ridge_refine(
+            vertices_vu=pts,
+            normals_vu=nrm,
+            sigma_normal_per_vertex_px=sig,
+            gradient_magnitude=np.hypot(grad[:, :, 0], grad[:, :, 1]),
+            initial_offset_vu=(float(pose[0]), float(pose[1])),
+            weight_mask=polarity.astype(np.float64),
+            initial_rotation_rad=float(pose[2]),
+            fit_rotation=a.fit_rotation,
+            pivot_vu=pivot,
+            pivot_distance_px=a.pivot_distance,
+            tukey_c=a.tukey_c,
         )
         if ridge.applied:
             pose = np.array([*ridge.offset_vu, ridge.rotation_rad])
             r, w, jac = evaluate(pose)
+            converged = bool(converged or ridge.converged)
 
     inlier_count = int(np.count_nonzero(w > 0))
     total_weight = float(np.sum(w))
@@ -384,7 +525,9 @@ def lm_subpixel_refine(
     else:
         rms = float(np.sqrt(np.sum(w * r * r) / total_weight))
         cov = information_matrix_to_covariance(jac, w, rcond=a.pinvh_rcond)
-    raw_rms = float(np.sqrt(np.mean(r * r))) if r.size else float("inf")
+    # SPEC 8.1: over the vertices the seed polarity mask accepted
+    accepted_r = r[polarity]
+    raw_rms = float(np.sqrt(np.mean(accepted_r * accepted_r))) if accepted_r.size else float("inf")
     return LMRefineResult(
         offset_vu=(float(pose[0]), float(pose[1])),
         rotation_rad=float(pose[2]),
@@ -397,6 +540,7 @@ def lm_subpixel_refine(
         converged=converged,
         inlier_count=inlier_count,
         degenerate=degenerate,
+        polarity_rejected_count=int(np.count_nonzero(~polarity)),
     )
 
 

@@ -1,0 +1,228 @@
+"""Parity of SPEC section 8's scans: the compiled path against ``dtalign.reference``.
+
+Seeded random scenes, at least 200 per function, over the families the
+issue names: ties, flat edge masks, polylines mostly off-frame, the support
+floor at its boundary, NaN gradients, float edge masks, zero normals, and an
+exclusion radius that covers the whole window. Offsets and ``None`` results
+must be equal in every case; scores and costs equal to 1e-12 relative (the
+compiled sums follow NumPy's pairwise order, so they are in fact equal).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import dtalign
+from dtalign import reference as ref
+from dtalign import scenes
+from dtalign._kernels import polarity_search as ps
+from dtalign._kernels.pairwise import numpy_sum
+
+N_CASES = 220
+REL = 1e-12
+
+
+def _close(a: float, b: float) -> bool:
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b)
+    return abs(a - b) <= REL * max(abs(a), abs(b), 1e-300)
+
+
+def _disc_image(rng, shape):
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    cv = rng.uniform(0.3, 0.7) * h
+    cu = rng.uniform(0.3, 0.7) * w
+    r = rng.uniform(0.15, 0.35) * min(h, w)
+    img = np.where((yy - cv) ** 2 + (xx - cu) ** 2 <= r * r, 100.0, 0.0)
+    if rng.random() < 0.5:  # a second, dimmer disc: edges of both polarities nearby
+        img += np.where((yy - cv - r) ** 2 + (xx - cu) ** 2 <= (0.5 * r) ** 2, -40.0, 0.0)
+    img += rng.normal(0.0, rng.uniform(0.5, 3.0), size=shape)
+    return img, (cv, cu, r)
+
+
+def _limb(rng, geometry, n, spread):
+    cv, cu, r = geometry
+    t = np.sort(rng.uniform(0, 2 * np.pi, n)) if rng.random() < 0.5 else np.linspace(0, 2 * np.pi, n, endpoint=False)
+    verts = np.stack([cv + r * np.sin(t), cu + r * np.cos(t)], axis=1)
+    verts += rng.normal(0.0, spread, size=2) + rng.normal(0.0, 0.3, size=verts.shape)
+    normals = -np.stack([np.sin(t), np.cos(t)], axis=1)  # into the disc: the bright side
+    return verts, normals
+
+
+def _scene(seed: int) -> dict:
+    """One random scene and the keywords of all three scans."""
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(24, 72)), int(rng.integers(24, 72)))
+    img, geometry = _disc_image(rng, shape)
+    _, dt, grad = ref.compute_all_image_derivatives(img, 1.0)
+    edge = dt <= 0.5
+    n = int(rng.integers(1, 60))
+    verts, normals = _limb(rng, geometry, n, rng.uniform(0.0, 4.0))
+    family = seed % 11
+    if family == 0:  # mostly off-frame
+        verts += np.array([shape[0] * rng.choice([-0.8, 0.8]), shape[1] * rng.uniform(-0.6, 0.6)])
+    if family == 1:  # flat edge masks
+        edge = np.zeros(shape, bool) if rng.random() < 0.5 else np.ones(shape, bool)
+    if family == 2:  # NaN gradients, some at edge pixels
+        bad = rng.random(shape) < 0.05
+        grad = grad.copy()
+        grad[bad] = np.nan
+    if family == 3:  # zero normals and duplicate vertices
+        normals = normals.copy()
+        normals[rng.random(n) < 0.3] = 0.0
+        verts = np.concatenate([verts, verts[: n // 2]])
+        normals = np.concatenate([normals, normals[: n // 2]])
+    if family == 4:  # integer-valued gradients and DT: exact ties
+        grad = np.round(grad / 50.0)
+        dt = np.round(dt)
+    if family == 5:  # float edge mask values
+        edge = np.where(edge, rng.uniform(0.0, 2.0, size=shape), 0.0)
+    if family == 6:  # vertices on exact pixel centres and half-pixels (rint ties)
+        verts = np.round(verts * 2.0) / 2.0
+    if family == 7:  # a constant DT: every cost ties
+        dt = np.full(shape, float(rng.integers(0, 5)))
+    n_total = verts.shape[0]
+    # support floor: often exactly at a count of in-frame vertices
+    if rng.random() < 0.4:
+        fraction = int(rng.integers(0, n_total + 1)) / n_total
+    else:
+        fraction = float(rng.choice([0.0, 0.25, 0.5, 0.75, 1.0, rng.uniform()]))
+    window = (int(rng.integers(0, 9)), int(rng.integers(0, 9)))
+    converged = (float(rng.uniform(-3, 3)), float(rng.uniform(-3, 3)))
+    if family == 8:  # exclusion radius covering the whole window
+        radius = float(np.hypot(window[0] + 4, window[1] + 4))
+    else:
+        radius = float(rng.choice([0.0, 1.0, 2.5, rng.uniform(0, 6)]))
+    if family == 9:  # negative margins scan nothing (the basin takes real margins)
+        basin_window = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 9)))
+    else:
+        basin_window = (window[0] + 0.7, float(window[1]))
+    return dict(
+        edge=edge, grad=np.ascontiguousarray(grad), dt=dt, verts=verts, normals=normals,
+        window=window, fraction=fraction, converged=converged, radius=radius,
+        basin_window=basin_window, polyline_mask=dtalign.build_polyline_mask(
+            np.clip(verts, -1e6, 1e6), shape
+        ),
+    )
+
+
+SEEDS = list(range(N_CASES))
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_polarity_search_parity(seed):
+    s = _scene(seed)
+    args = (s["edge"], s["grad"], s["verts"], s["normals"], s["window"])
+    got = dtalign.coarse_polarity_search_scored(*args, min_support_fraction=s["fraction"])
+    want = ref.coarse_polarity_search_scored(*args, min_support_fraction=s["fraction"])
+    assert got.offset_vu == want.offset_vu
+    assert type(got.offset_vu[0]) is int and type(got.score) is float
+    assert _close(got.score, want.score)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_ncc_scored_parity(seed):
+    s = _scene(seed)
+    for fraction in (s["fraction"], 0.0):
+        got = dtalign.coarse_ncc_search_scored(
+            s["edge"], s["polyline_mask"], s["window"], min_support_fraction=fraction
+        )
+        want = ref.coarse_ncc_search_scored(
+            s["edge"], s["polyline_mask"], s["window"], min_support_fraction=fraction
+        )
+        assert got.offset_vu == want.offset_vu
+        assert _close(got.score, want.score)
+        assert dtalign.coarse_ncc_search(
+            s["edge"], s["polyline_mask"], s["window"], min_support_fraction=fraction
+        ) == got.offset_vu
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_secondary_basin_parity(seed):
+    s = _scene(seed)
+    kw = dict(
+        converged_offset_vu=s["converged"], search_window_vu=s["basin_window"],
+        exclude_radius_px=s["radius"], min_support_fraction=s["fraction"],
+    )
+    got = dtalign.find_secondary_dt_minimum(s["dt"], s["verts"], **kw)
+    want = ref.find_secondary_dt_minimum(s["dt"], s["verts"], **kw)
+    assert (got is None) == (want is None)
+    if got is not None:
+        assert got.offset_vu == want.offset_vu
+        for name in ("distance_px", "cost_px", "converged_cost_px"):
+            assert _close(getattr(got, name), getattr(want, name)), name
+
+
+def test_parity_sweep_covers_the_named_cases():
+    """The sweep really meets the cases it claims: ties, None results,
+    NaN gradients at edge pixels, eligible-at-equality support floors."""
+    none_results = ties = nan_edge = 0
+    for seed in SEEDS:
+        s = _scene(seed)
+        kw = dict(
+            converged_offset_vu=s["converged"], search_window_vu=s["basin_window"],
+            exclude_radius_px=s["radius"], min_support_fraction=s["fraction"],
+        )
+        none_results += ref.find_secondary_dt_minimum(s["dt"], s["verts"], **kw) is None
+        if seed % 11 in (1, 4, 7):
+            ties += 1
+        nan_edge += bool((np.isnan(s["grad"][..., 0]) & (np.asarray(s["edge"]) != 0)).any())
+    assert none_results >= 20
+    assert ties >= 50
+    assert nan_edge >= 10
+
+
+def test_large_limb_polarity_and_basin_equal_the_reference():
+    """The SPEC 7 limb: the sparse path of the polarity search (every vertex
+    inside under every shift) and the basin's early drop on a real DT."""
+    scene = scenes.disc_scene(shape=(384, 384), radius=90.0, n_vertices=300)
+    _, dt, grad = ref.compute_all_image_derivatives(scene.image, scene.noise_sigma)
+    p = scene.polyline
+    args = (dt <= 0.5, grad, p.vertices_vu, p.normals_vu, (12, 12))
+    got = dtalign.coarse_polarity_search_scored(*args)
+    assert got == ref.coarse_polarity_search_scored(*args)
+    assert got.offset_vu == (7, -5)
+    kw = dict(converged_offset_vu=(7.3, -4.6), search_window_vu=(12, 12), exclude_radius_px=3.0)
+    assert dtalign.find_secondary_dt_minimum(dt, p.vertices_vu, **kw) == ref.find_secondary_dt_minimum(
+        dt, p.vertices_vu, **kw
+    )
+
+
+@pytest.mark.parametrize("n", [*range(0, 300), 1000, 4097, 8193, 20000])
+def test_pairwise_sum_is_numpys(n):
+    """The kernels' sums follow NumPy's own summation tree, bit for bit."""
+    rng = np.random.default_rng(n)
+    a = rng.normal(size=n) * np.exp(rng.normal(size=n) * 8)
+    assert numpy_sum(a, n) == np.sum(a)
+    if n:
+        assert numpy_sum(a, n) / n == a.mean()
+
+
+@pytest.mark.parametrize("seed", SEEDS[:60])
+def test_polarity_sparse_path_equals_the_dense_one(seed):
+    """The two exact ways of :mod:`dtalign._kernels.polarity_search` agree bit
+    for bit where both apply (every vertex inside under every shift)."""
+    s = _scene(seed)
+    edge = np.ascontiguousarray(np.asarray(s["edge"]) != 0)
+    pts = np.ascontiguousarray(s["verts"])
+    h, w = edge.shape
+    mv, mu = s["window"]
+    keep = ((np.rint(pts[:, 0]) - mv >= 0) & (np.rint(pts[:, 0]) + mv < h)
+            & (np.rint(pts[:, 1]) - mu >= 0) & (np.rint(pts[:, 1]) + mu < w))
+    if not keep.any():
+        pytest.skip("no vertex stays inside under every shift")
+    pts = np.ascontiguousarray(pts[keep])
+    nrm = np.ascontiguousarray(s["normals"][keep])
+    sparse = ps.polarity_search(edge, s["grad"], pts, nrm, mv, mu, 0.0)
+    norm = np.hypot(nrm[:, 0], nrm[:, 1])
+    norm = np.where(norm == 0.0, 1.0, norm)
+    dense = ps._dense_scores(
+        edge, s["grad"], np.rint(pts[:, 0]), np.rint(pts[:, 1]),
+        nrm[:, 0] / norm, nrm[:, 1] / norm, mv, mu, 0.0,
+    )
+    assert sparse[:2] == dense[:2]
+    assert sparse[2] == dense[2] or (math.isnan(sparse[2]) and math.isnan(dense[2]))
