@@ -570,3 +570,88 @@ def test_gate_from_tuning_validates():
     tuning = dict(zip(GATE_FIELDS, [0.84, 0.35, "1.25", 0.05], strict=True))
     with raises(ValueError, f"DTFitGateConfig.{GATE_FIELDS[2]} must be in [0, 1]; got 1.25"):
         dtalign.DTFitGateConfig.from_tuning(tuning)
+
+
+# ---------------------------------------------------------------- §1: refusals beyond the reference
+# (no §9 text: the message must name the argument)
+
+NAN = math.nan
+
+
+@pytest.mark.parametrize("arg,value", [
+    ("vertices_vu", np.array([[2.0, 3.0], [NAN, 4.0], [2.5, 2.0]])),
+    ("vertices_vu", np.array([[2.0, 3.0], [3.0, math.inf], [2.5, 2.0]])),
+    ("normals_vu", np.array([[1.0, 0.0], [NAN, 0.0], [0.0, 1.0]])),
+    ("image_edge_dt", np.full((H, W), NAN)),
+    ("image_edge_dt", np.where(np.eye(H, W) > 0, math.inf, 1.0)),
+    ("image_gradient_vu", np.where(GRAD == 1.0, NAN, 0.0)),
+    ("initial_offset_vu", (NAN, 0.0)),
+    ("initial_offset_vu", (0.0, math.inf)),
+    ("initial_offset_vu", (0.0, 0.0, 0.0)),
+    ("initial_offset_vu", (1.0,)),
+    ("initial_rotation_rad", NAN),
+    ("pivot_vu", (NAN, 1.0)),
+    ("pivot_vu", (1.0, 2.0, 3.0)),
+    ("trust_region_px", NAN),
+    ("trust_region_px", -1.0),
+    ("tikhonov_alpha", NAN),
+    ("tikhonov_alpha", -0.5),
+    ("damping", NAN),
+    ("damping", -1e-3),
+    ("step_tolerance_px", NAN),
+    ("step_tolerance_px", -1e-3),
+    ("max_iterations", -1),
+], ids=lambda x: x if isinstance(x, str) else None)
+def test_lm_refuses_beyond_reference(arg, value):
+    with pytest.raises(ValueError, match=re.escape(arg)):
+        lm(**{arg: value})
+
+
+@pytest.mark.parametrize("arg,value", [
+    ("vertices_vu", np.array([[2.0, 3.0], [NAN, 4.0], [2.5, 2.0]])),
+    ("normals_vu", np.array([[1.0, 0.0], [math.inf, 0.0], [0.0, 1.0]])),
+    ("gradient_magnitude", np.full((H, W), NAN)),
+    ("initial_offset_vu", (NAN, 0.0)),
+    ("initial_offset_vu", (0.0, 0.0, 1.0)),
+    ("initial_rotation_rad", math.inf),
+    ("pivot_vu", (0.0, NAN)),
+    ("sample_step_px", 0.0),
+    ("sample_step_px", -0.5),
+    ("half_width_px", 0.0),
+    ("half_width_px", -3.0),
+    ("step_tolerance_px", NAN),
+    ("max_iterations", -2),
+], ids=lambda x: x if isinstance(x, str) else None)
+def test_ridge_refuses_beyond_reference(arg, value):
+    with pytest.raises(ValueError, match=re.escape(arg)):
+        ridge(**{arg: value})
+
+
+def test_polarity_filter_refuses_non_finite():
+    with pytest.raises(ValueError, match="vertices_vu"):
+        dtalign.polarity_filter(np.array([[NAN, 1.0]]), np.array([[1.0, 0.0]]), GRAD)
+    with pytest.raises(ValueError, match="normals_vu"):
+        dtalign.polarity_filter(np.array([[1.0, 1.0]]), np.array([[NAN, 0.0]]), GRAD)
+    with pytest.raises(ValueError, match="offset_vu"):
+        dtalign.polarity_filter(VERTS, NORMS, GRAD, offset_vu=(NAN, 0.0))
+    with pytest.raises(ValueError, match="offset_vu"):
+        dtalign.polarity_filter(VERTS, NORMS, GRAD, offset_vu=(0.0, 1.0, 2.0))
+
+
+def test_sample_dt_refuses_non_finite():
+    with pytest.raises(ValueError, match="vertices_vu"):
+        dtalign.sample_dt_bilinear(DT, np.array([[NAN, 1.0]]))
+    with pytest.raises(ValueError, match="dt"):
+        dtalign.sample_dt_bilinear(np.full((H, W), NAN), VERTS)
+
+
+def test_polarity_search_refuses_non_finite_vertices():
+    with pytest.raises(ValueError, match="vertices_vu"):
+        pol_scored((1, 1), verts=np.array([[NAN, 1.0], [1.0, 1.0], [2.0, 2.0]]))
+
+
+@pytest.mark.parametrize("func", sorted(IMAGE_FUNCS))
+@pytest.mark.parametrize("shape", [(0, 5), (4, 0), (0, 0)])
+def test_empty_image_refused(func, shape):
+    with pytest.raises(ValueError, match="image_ext"):
+        IMAGE_FUNCS[func](np.zeros(shape))

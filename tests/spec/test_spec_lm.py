@@ -481,3 +481,44 @@ def test_ridge_weight_mask_zero_no_iteration():
                                       gradient_magnitude=_ridge_field(10.3),
                                       initial_offset_vu=(0.0, 0.0), weight_mask=np.zeros(13))
     assert not r.applied and r.iterations == 0 and r.offset_vu == (0.0, 0.0)
+
+
+# ---------------------------------------------------------------- §2 Jacobian and §3 step 5
+
+def _pose(verts, pivot, dv, du, theta):
+    rot = verts if theta == 0.0 else np.asarray(dtalign._rotate_vertices(verts, pivot, theta))
+    return rot + np.array([dv, du])
+
+
+@pytest.mark.parametrize("fit_rotation", [False, True])
+def test_covariance_from_section2_jacobian_at_the_seed(fit_rotation):
+    dt, grad, verts, normals = _scene()
+    flipped = np.zeros(len(verts), dtype=bool)
+    flipped[[3, 4]] = True
+    norms = np.where(flipped[:, None], -normals, normals)
+    seed, theta = (1.0, 0.0), (0.01 if fit_rotation else 0.0)
+    kw = dict(normals_vu=norms, initial_offset_vu=seed, max_iterations=0)
+    if fit_rotation:
+        kw.update(fit_rotation=True, initial_rotation_rad=theta, pivot_distance_px=10.0)
+    r = _refine(**kw)
+    pivot = tuple(verts.mean(axis=0))
+    pos = _pose(verts, pivot, seed[0], seed[1], theta)
+    cols = [
+        (dtalign.sample_dt_bilinear(dt, pos + [0.25, 0.0])
+         - dtalign.sample_dt_bilinear(dt, pos - [0.25, 0.0])) / 0.5,
+        (dtalign.sample_dt_bilinear(dt, pos + [0.0, 0.25])
+         - dtalign.sample_dt_bilinear(dt, pos - [0.0, 0.25])) / 0.5,
+    ]
+    if fit_rotation:
+        cols.append((dtalign.sample_dt_bilinear(dt, _pose(verts, pivot, *seed, theta + 1e-3))
+                     - dtalign.sample_dt_bilinear(dt, _pose(verts, pivot, *seed, theta - 1e-3)))
+                    / 2e-3)
+    jac = np.stack(cols, axis=1)
+    res = np.where(flipped, dtalign._INFINITY_DT_PENALTY_PX, dtalign.sample_dt_bilinear(dt, pos))
+    np.testing.assert_allclose(np.asarray(r.residuals_px), res, rtol=1e-12, atol=1e-12)
+    w = _tukey(res, dtalign.DEFAULT_TUKEY_C) * ~flipped
+    np.testing.assert_allclose(np.asarray(r.weights), w, rtol=1e-12, atol=1e-15)
+    expected = dtalign.information_matrix_to_covariance(jac, w)
+    assert r.covariance.shape == (jac.shape[1],) * 2
+    np.testing.assert_allclose(r.covariance, expected, rtol=1e-8, atol=1e-12)
+    assert r.rotation_rad == theta
