@@ -8,10 +8,19 @@ Only the winner's cost matters, so most shifts need not be summed to the
 end: with a non-negative DT (checked over the scanned region first) a
 running sum that already exceeds the best cost so far, with a margin far
 wider than any rounding difference between the running and the pairwise
-sum, cannot win or tie, and that shift is dropped. Shifts are visited ring
-by ring outward from the converged offset, where the low costs are, so a
-good best is found early; the winner is still chosen by the exact rule
+sum, cannot win or tie, and that shift is dropped. The shifts next to
+the converged offset, where the low rival costs are, are visited first, so
+a good best is found early; the winner is still chosen by the exact rule
 ``(cost, distance, scan order)``, whatever the visiting order.
+
+Along a row of shifts, the samples of a vertex change by at most ``L``
+per column step, ``L`` the largest difference between horizontal
+neighbours of the DT (at most 1 for a distance transform, measured over the
+scanned region). A dropped shift's first ``k`` samples summed to more than
+the bound by some margin; the next shift's same ``k`` samples then sum to at
+least that sum less ``k L``, so while that stays above the bound the next
+shifts are dropped without a sample. A drop therefore samples on a little
+past the bound, to buy the margin for its neighbours.
 """
 
 from __future__ import annotations
@@ -56,46 +65,134 @@ def _samples_at(dt, pts, ov, ou, out):  # pragma: no cover - compiled
 #: ``2 log2(n) * 2**-53`` relative, far below this, so a dropped shift's
 #: exact cost is strictly greater than the best.
 DROP_MARGIN = 1.0e-9
-#: Samples between two drop tests.
+#: Samples between two drop tests (a power of two).
 DROP_EVERY = 8
+#: A dropped shift samples on until its running sum exceeds the bound by
+#: ``CARRY_STEPS`` column steps' worth of change (``k L`` each), so that
+#: many of the following shifts in its row can be dropped unsampled.
+CARRY_STEPS = 8
+#: Relative slack on the carried bound, for the rounding of the samples.
+CARRY_SLACK = 1.0e-9
+#: Chebyshev radius, beyond the exclusion radius, of the shifts about the
+#: converged offset visited first: the low rival costs lie next to the
+#: basin, and a low best makes the drop test bite everywhere else.
+NEAR_RING = 2
 
 
 @kernel
-def _in_bounds_ranges(coord, low, high, m):  # pragma: no cover - compiled
-    """For each vertex coordinate, the shifts ``k`` in ``[-m, m]`` with
-    ``low <= coord + k <= high`` (as computed in float64): a range ``[lo, hi]``
-    (empty when ``lo > hi``). The test is monotone in ``k``, so it is one range."""
+def _axis_tables(coord, m, size):  # pragma: no cover - compiled
+    """For shift ``k = a - m`` and vertex ``i``: whether ``coord[i] + k`` lies in
+    ``[0, size - 1]`` (as computed in float64), its floor and its fraction --
+    what every sample of that row (or column) shift reads, formed once."""
     n = coord.shape[0]
-    lo = np.empty(n, dtype=np.int64)
-    hi = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        lo[i] = m + 1
-        hi[i] = -m - 1
-        for k in range(-m, m + 1):
-            x = coord[i] + k
-            if x >= low and x <= high:
-                if k < lo[i]:
-                    lo[i] = k
-                hi[i] = k
-    return lo, hi
+    count = 2 * m + 1
+    inside = np.zeros((count, n), dtype=np.bool_)
+    low = np.zeros((count, n), dtype=np.int64)
+    frac = np.zeros((count, n))
+    for a in range(count):
+        for i in range(n):
+            x = coord[i] + (a - m)
+            if x >= 0.0 and x <= size - 1:
+                f = math.floor(x)
+                inside[a, i] = True
+                low[a, i] = int(f)
+                frac[a, i] = x - f
+    return inside, low, frac
 
 
 @kernel
-def _region_ok(dt, pts, mv, mu):  # pragma: no cover - compiled
-    """``(finite, non_negative)`` of the DT pixels any scanned sample can read."""
+def _in_bounds_counts(v_in, u_in):  # pragma: no cover - compiled
+    """How many vertices each shift keeps in bounds, ``(nv, nu)``. A vertex's
+    in-bounds shifts form one rectangle (the test is monotone in each shift),
+    added through a 2-D difference array."""
+    nv, n = v_in.shape
+    nu = u_in.shape[0]
+    diff = np.zeros((nv + 1, nu + 1), dtype=np.int64)
+    for i in range(n):
+        a0 = nv
+        a1 = -1
+        for a in range(nv):
+            if v_in[a, i]:
+                a0 = min(a0, a)
+                a1 = a
+        b0 = nu
+        b1 = -1
+        for b in range(nu):
+            if u_in[b, i]:
+                b0 = min(b0, b)
+                b1 = b
+        if a1 >= 0 and b1 >= 0:
+            diff[a0, b0] += 1
+            diff[a0, b1 + 1] -= 1
+            diff[a1 + 1, b0] -= 1
+            diff[a1 + 1, b1 + 1] += 1
+    counts = np.zeros((nv, nu), dtype=np.int64)
+    for a in range(nv):
+        for b in range(nu):
+            x = diff[a, b]
+            if a > 0:
+                x += counts[a - 1, b]
+            if b > 0:
+                x += counts[a, b - 1]
+            if a > 0 and b > 0:
+                x -= counts[a - 1, b - 1]
+            counts[a, b] = x
+    return counts
+
+
+@kernel
+def _region_ok(dt, v_low, u_low):  # pragma: no cover - compiled
+    """``(finite, non_negative, step)`` of the DT pixels the scan can read;
+    ``step`` is the largest difference between horizontal neighbours there."""
     h, w = dt.shape
-    r0 = max(int(math.floor(max(pts[:, 0].min() - mv, 0.0))), 0)
-    r1 = min(int(math.floor(min(pts[:, 0].max() + mv, h - 1.0))) + 1, h - 1)
-    c0 = max(int(math.floor(max(pts[:, 1].min() - mu, 0.0))), 0)
-    c1 = min(int(math.floor(min(pts[:, 1].max() + mu, w - 1.0))) + 1, w - 1)
+    r0 = v_low.min()
+    r1 = min(v_low.max() + 1, h - 1)
+    c0 = u_low.min()
+    c1 = min(u_low.max() + 1, w - 1)
     finite = True
     non_negative = True
+    step = 0.0
     for r in range(r0, r1 + 1):
         for c in range(c0, c1 + 1):
             x = dt[r, c]
             finite &= math.isfinite(x)
             non_negative &= x >= 0.0
-    return finite, non_negative
+            if c > c0:
+                step = max(step, abs(x - dt[r, c - 1]))
+    return finite, non_negative, step
+
+
+@kernel
+def _shift_cost(dt, v_in, v_low, v_frac, u_in, u_low, u_frac, a, b, count, bound, carry,
+                buf):  # pragma: no cover - compiled
+    """The cost at row shift ``a`` and column shift ``b`` with ``count`` vertices
+    in bounds: ``(cost, k, running)``. Once its running sum exceeds ``bound``
+    the shift cannot win: it stops when the sum also exceeds
+    ``bound + carry * k`` (or at the last vertex) and returns ``inf`` with the
+    ``k`` samples taken and their running sum."""
+    h, w = dt.shape
+    n = v_in.shape[1]
+    running = 0.0
+    k = 0
+    over = False
+    for i in range(n):
+        if not (v_in[a, i] and u_in[b, i]):
+            continue
+        v0 = v_low[a, i]
+        u0 = u_low[b, i]
+        v1 = min(v0 + 1, h - 1)
+        u1 = min(u0 + 1, w - 1)
+        x = blend(dt[v0, u0], dt[v0, u1], dt[v1, u0], dt[v1, u1], v_frac[a, i], u_frac[b, i])
+        buf[k] = x
+        k += 1
+        running += x
+        if k % DROP_EVERY == 0 and running > bound:
+            over = True
+            if running > bound + carry * k:
+                break
+    if over or running > bound:
+        return math.inf, k, running
+    return numpy_sum(buf, count) / count, k, running
 
 
 @kernel
@@ -117,93 +214,67 @@ def secondary_basin(dt, pts, cdv, cdu, mv, mu, radius, min_support):  # pragma: 
         return NONFINITE, 0, 0, 0.0, 0.0, 0.0
     if mv < 0 or mu < 0:
         return NO_CANDIDATE, 0, 0, 0.0, 0.0, converged_cost
-    finite, prunable = _region_ok(dt, pts, mv, mu)
+    v_in, v_low, v_frac = _axis_tables(pts[:, 0].copy(), mv, h)
+    u_in, u_low, u_frac = _axis_tables(pts[:, 1].copy(), mu, w)
+    finite, prunable, step = _region_ok(dt, v_low, u_low)
     if not finite:
         return NONFINITE, 0, 0, 0.0, 0.0, 0.0
-    v_lo, v_hi = _in_bounds_ranges(pts[:, 0], 0.0, h - 1.0, mv)
-    u_lo, u_hi = _in_bounds_ranges(pts[:, 1], 0.0, w - 1.0, mu)
     nv = 2 * mv + 1
     nu = 2 * mu + 1
-    # in-bounds count of every shift: per vertex, one rectangle of shifts
-    diff = np.zeros((nv + 1, nu + 1), dtype=np.int64)
-    for i in range(n):
-        if v_lo[i] <= v_hi[i] and u_lo[i] <= u_hi[i]:
-            a0 = v_lo[i] + mv
-            a1 = v_hi[i] + mv + 1
-            b0 = u_lo[i] + mu
-            b1 = u_hi[i] + mu + 1
-            diff[a0, b0] += 1
-            diff[a0, b1] -= 1
-            diff[a1, b0] -= 1
-            diff[a1, b1] += 1
-    counts = np.zeros((nv, nu), dtype=np.int64)
-    for a in range(nv):
-        for b in range(nu):
-            x = diff[a, b]
-            if a > 0:
-                x += counts[a - 1, b]
-            if b > 0:
-                x += counts[a, b - 1]
-            if a > 0 and b > 0:
-                x -= counts[a - 1, b - 1]
-            counts[a, b] = x
+    counts = _in_bounds_counts(v_in, u_in)
     found = False
-    best_dv = 0
-    best_du = 0
-    best_cost = math.inf
-    best_distance = math.inf
-    # rings of growing Chebyshev radius about the converged offset's pixel
-    centre_a = min(max(int(round(cdv)) + mv, 0), nv - 1)
-    centre_b = min(max(int(round(cdu)) + mu, 0), nu - 1)
-    rings = max(centre_a, nv - 1 - centre_a, centre_b, nu - 1 - centre_b)
-    for ring in range(rings + 1):
-        for a in range(max(centre_a - ring, 0), min(centre_a + ring, nv - 1) + 1):
-            edge_row = a == centre_a - ring or a == centre_a + ring
-            step = 1 if edge_row else 2 * ring
-            b = centre_b - ring
-            while b <= centre_b + ring:
-                if b < 0 or b >= nu:
-                    b += step if step > 0 else 1
+    best = (math.inf, math.inf, 0, 0)  # (cost, distance, dv, du): the SPEC order
+    near = int(math.ceil(radius)) + NEAR_RING if radius < nv + nu else nv + nu
+    a_lo = max(int(round(cdv)) + mv - near, 0)
+    a_hi = min(int(round(cdv)) + mv + near, nv - 1)
+    b_lo = max(int(round(cdu)) + mu - near, 0)
+    b_hi = min(int(round(cdu)) + mu + near, nu - 1)
+    # per column step, the most a vertex's sample can change (with slack)
+    carry_step = step * (1.0 + CARRY_SLACK)
+    for sweep in range(2):  # the shifts next to the basin, then all others
+        for a in range(nv):
+            near_row = a_lo <= a <= a_hi
+            if sweep == 0 and not near_row:
+                continue
+            carried_k = 0  # a dropped shift of this row: its k samples' running sum
+            carried_sum = 0.0
+            carried_steps = 0
+            for b in range(nu):
+                is_near = near_row and b_lo <= b <= b_hi
+                if is_near != (sweep == 0):
+                    carried_k = 0
                     continue
+                carried_steps += 1
                 dv = a - mv
                 du = b - mu
-                kb = counts[a, b]
                 distance = math.hypot(dv - cdv, du - cdu)
-                b += step if step > 0 else 1
-                if distance <= radius or kb == 0 or kb < min_support:
+                if distance <= radius:
                     continue
-                bound = best_cost * kb * (1.0 + DROP_MARGIN) if prunable else math.inf
-                running = 0.0
-                k = 0
-                dropped = False
-                for i in range(n):
-                    if dv < v_lo[i] or dv > v_hi[i] or du < u_lo[i] or du > u_hi[i]:
-                        continue
-                    v = pts[i, 0] + dv
-                    u = pts[i, 1] + du
-                    v0 = int(math.floor(v))
-                    u0 = int(math.floor(u))
-                    v1 = min(v0 + 1, h - 1)
-                    u1 = min(u0 + 1, w - 1)
-                    x = blend(dt[v0, u0], dt[v0, u1], dt[v1, u0], dt[v1, u1], v - v0, u - u0)
-                    buf[k] = x
-                    k += 1
-                    running += x
-                    if k % DROP_EVERY == 0 and running > bound:
-                        dropped = True
-                        break
-                if dropped:
+                count = counts[a, b]
+                if count == 0 or count < min_support:
                     continue
-                cost = numpy_sum(buf, k) / k
-                if (not found or cost < best_cost
-                        or (cost == best_cost and (distance < best_distance
-                            or (distance == best_distance and (dv < best_dv
-                                or (dv == best_dv and du < best_du)))))):
+                bound = best[0] * count * (1.0 + DROP_MARGIN) if prunable else math.inf
+                if (carried_k > 0 and count == n
+                        and carried_sum * (1.0 - CARRY_SLACK) - carried_steps * carried_k * carry_step
+                        > bound):
+                    continue  # dropped unsampled: its first samples already exceed the bound
+                cost, k, running = _shift_cost(
+                    dt, v_in, v_low, v_frac, u_in, u_low, u_frac, a, b, count, bound,
+                    CARRY_STEPS * carry_step, buf,
+                )
+                if cost == math.inf and bound < math.inf:
+                    # dropped: strictly worse than the best; its samples carry on
+                    # along the row when every vertex is in bounds (the same ones)
+                    carried_k = k if count == n else 0
+                    carried_sum = running
+                    carried_steps = 0
+                    continue
+                if not math.isfinite(cost):
+                    return NONFINITE, 0, 0, 0.0, 0.0, 0.0
+                candidate = (cost, distance, dv, du)
+                if not found or candidate < best:
                     found = True
-                    best_dv = dv
-                    best_du = du
-                    best_cost = cost
-                    best_distance = distance
+                    best = candidate
     if not found:
         return NO_CANDIDATE, 0, 0, 0.0, 0.0, converged_cost
-    return FOUND, best_dv, best_du, best_distance, best_cost, converged_cost
+    return FOUND, best[2], best[3], best[1], best[0], converged_cost

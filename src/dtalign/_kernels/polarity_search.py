@@ -131,6 +131,25 @@ def _tree_plan(n):  # pragma: no cover - compiled
 
 
 @kernel
+def _edge_gradients(grad, row_start, e_cols, r_lo, r_hi):  # pragma: no cover - compiled
+    """``(g_v, g_u, s)`` of every indexed edge pixel, ``s = hypot(g)`` (1 where
+    it is 0): formed once per pixel, not once per vertex that meets it."""
+    m = e_cols.shape[0]
+    gv = np.empty(m)
+    gu = np.empty(m)
+    norm = np.empty(m)
+    for r in range(r_lo, r_hi + 1):
+        for j in range(row_start[r], row_start[r + 1]):
+            a = grad[r, e_cols[j], 0]
+            b = grad[r, e_cols[j], 1]
+            gv[j] = a
+            gu[j] = b
+            s = math.hypot(a, b)
+            norm[j] = 1.0 if s == 0.0 else s
+    return gv, gu, norm
+
+
+@kernel
 def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu):  # pragma: no cover - compiled
     """Scores when every vertex stays inside the image under every shift.
 
@@ -158,6 +177,9 @@ def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu):  # 
     slots = 2 * UNROLL - 1
     acc = np.zeros((nu, n_leaves, slots))
     leaf_sum = np.empty(n_leaves)
+    e_gv, e_gu, e_norm = _edge_gradients(
+        grad, row_start, e_cols, int(bv.min()) - mv, int(bv.max()) + mv
+    )
     stack = np.empty(n_leaves + 1)
     best_score = -1.0
     best_dv = 0
@@ -178,7 +200,8 @@ def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu):  # 
                     continue
                 if col > c_lo + 2 * mu:
                     break
-                wgt = _weight(edge, grad, r, col, nhv[i], nhu[i])
+                cos = (nhv[i] * e_gv[j - 1] + nhu[i] * e_gu[j - 1]) / e_norm[j - 1]
+                wgt = 0.0 if cos <= 0.0 else cos  # as _weight: NaN stays NaN
                 if wgt != 0.0 or wgt != wgt:
                     acc[col - c_lo, leaf_of[i], slot_of[i]] += wgt
         for b in range(nu):

@@ -18,6 +18,9 @@ TARGETS: dict[str, float | None] = {
     "derivatives_1024": 5.0,
     "coarse_30": 300.0,
     "coarse_50": 300.0,
+    "coarse_scored_30": 300.0,
+    "polarity_search_30": 300.0,
+    "secondary_basin_30": 300.0,
     "lm_n200": 50.0,
     "lm_trust_region": 50.0,
     "lm_rotation": 50.0,
@@ -32,6 +35,9 @@ DESCRIPTIONS = {
     "derivatives_1024": "compute_all_image_derivatives, 1024x1024 disc",
     "coarse_30": "coarse_ncc_search +-30, 200-pixel limb",
     "coarse_50": "coarse_ncc_search +-50, 200-pixel limb",
+    "coarse_scored_30": "coarse_ncc_search_scored +-30, 200-pixel limb",
+    "polarity_search_30": "coarse_polarity_search_scored +-30, 200-vertex limb",
+    "secondary_basin_30": "find_secondary_dt_minimum +-30, 200-vertex limb, 3 px basin",
     "lm_n200": "lm_subpixel_refine, translation, N=200",
     "lm_trust_region": "LM N=200, trust_region_px=1.0",
     "lm_rotation": "LM N=200, fit_rotation (true 0.01 rad)",
@@ -67,6 +73,8 @@ class Inputs:
     limb_mask: np.ndarray
     lm: dict[str, dict[str, Any]]
     navigation: Any
+    limb: Any = None  # the 200-vertex limb polyline of the SPEC 7 disc
+    converged_vu: tuple[float, float] = (0.0, 0.0)  # its LM fit, for the basin scan
 
 
 def lm_keywords(polyline: Any, dt: Any, grad: Any, offset: tuple[float, float],
@@ -116,7 +124,9 @@ def build_inputs() -> Inputs:
             kw["pivot_distance_px"] = scene.pivot_distance_px
         lm[name] = kw
     limb = ref.build_polyline_mask(base.polyline.vertices_vu, dt.shape)
-    return Inputs(base.image, base.noise_sigma, dt, grad, edge, limb, lm, scenes.navigation_scene())
+    converged = ref.lm_subpixel_refine(**lm["lm_n200"]).offset_vu
+    return Inputs(base.image, base.noise_sigma, dt, grad, edge, limb, lm, scenes.navigation_scene(),
+                  base.polyline, converged)
 
 
 def end_to_end(api: Any, scene: Any, window: tuple[int, int] = (30, 30)) -> list[Any]:
@@ -147,6 +157,18 @@ def workload_call(name: str, api: Any, inputs: Inputs) -> Callable[[], Any]:
     if name in ("coarse_30", "coarse_50"):
         m = int(name[-2:])
         return lambda: api.coarse_ncc_search(inputs.edge_mask, inputs.limb_mask, (m, m))
+    if name == "coarse_scored_30":
+        return lambda: api.coarse_ncc_search_scored(inputs.edge_mask, inputs.limb_mask, (30, 30))
+    if name == "polarity_search_30":
+        p = inputs.limb
+        return lambda: api.coarse_polarity_search_scored(
+            inputs.edge_mask, inputs.gradient, p.vertices_vu, p.normals_vu, (30, 30)
+        )
+    if name == "secondary_basin_30":
+        return lambda: api.find_secondary_dt_minimum(
+            inputs.dt, inputs.limb.vertices_vu, converged_offset_vu=inputs.converged_vu,
+            search_window_vu=(30, 30), exclude_radius_px=3.0,
+        )
     if name == "end_to_end":
         return lambda: end_to_end(api, inputs.navigation)
     kw = inputs.lm[name]
@@ -157,6 +179,8 @@ def _same(a: Any, b: Any) -> bool:
     """Whether two workload results agree (a sanity check, not the parity suite)."""
     if isinstance(a, list):
         return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if a is None or b is None or not hasattr(a, "rotation_rad"):
+        return bool(a == b)  # the scans: exact results, None included
     if hasattr(a, "offset_vu"):
         return bool(
             np.allclose(a.offset_vu, b.offset_vu, rtol=0, atol=1e-9)
