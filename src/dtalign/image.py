@@ -26,7 +26,7 @@ from ._image_args import (
     resolve_config,
 )
 from ._kernels import image as _k
-from ._validation import FloatArray
+from ._validation import FloatArray, smoothing_sigma
 
 __all__ = [
     "ImageDerivativesConfig",
@@ -144,6 +144,7 @@ def compute_image_gradient_vu(
     """
     image = check_image(image_ext)
     sigma = check_sigma_px(sigma_px)
+    smoothing_sigma(sigma, image.shape, "sigma_px")
     grad = np.empty(image.shape + (2,))
     _k.gradient_vu(image, _gaussian_weights(sigma), grad)
     return grad
@@ -229,6 +230,7 @@ def compute_all_image_derivatives(
     image = check_image(image_ext)
     noise = check_noise_sigma(image_noise_sigma)
     cfg = resolve_config(config)
+    smoothing_sigma(cfg.image_gradient_sigma_px, image.shape, "config.image_gradient_sigma_px")
     threshold = cfg.edge_threshold_k_sigma * max(noise, NOISE_SIGMA_FLOOR)
     half_width = cfg.dt_half_width_px
     grad = np.empty(image.shape + (2,))
