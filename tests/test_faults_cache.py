@@ -227,3 +227,25 @@ def test_read_only_prewarmed_cache_is_read(module_dir: Path) -> None:
     (warning,) = _warnings(err)
     assert "cannot write the Numba cache in " + str(folder) in warning
     assert sorted(p.name for p in folder.iterdir()) == before
+
+
+def test_every_package_kernel_has_the_checked_cache() -> None:
+    """Every dispatcher in dtalign goes through dtalign._jit (decoration only, no compile)."""
+    import importlib
+    import pkgutil
+
+    from numba.core.dispatcher import Dispatcher
+
+    import dtalign
+    from dtalign._numba_cache import CheckedFunctionCache, UncachedFunctionCache
+
+    found = 0
+    for info in pkgutil.walk_packages(dtalign.__path__, "dtalign."):
+        if not info.name.startswith(("dtalign._kernels", "dtalign.benchmarking")):
+            continue
+        module = importlib.import_module(info.name)
+        for name, value in vars(module).items():
+            if isinstance(value, Dispatcher) and value.__module__ == info.name:
+                found += 1
+                assert isinstance(value._cache, (CheckedFunctionCache, UncachedFunctionCache)), name
+    assert found > 20

@@ -125,7 +125,8 @@ def compute_image_gradient_vu(
         Finite real image (any real dtype or memory layout), non-empty.
     sigma_px : float, optional
         Sigma of the Gaussian pre-smoothing in pixels (SciPy's
-        ``gaussian_filter``: mode ``reflect``, truncate 4.0).
+        ``gaussian_filter``: mode ``reflect``, truncate 4.0); at most
+        ``max(H, W, 32)``, which bounds the work (docs/limits.rst).
 
     Returns
     -------
@@ -197,7 +198,9 @@ def compute_all_image_derivatives(
     image_noise_sigma : float
         Noise standard deviation of the image (DN), finite and >= 0.
     config : ImageDerivativesConfig, optional
-        ``None`` means ``ImageDerivativesConfig()``.
+        ``None`` means ``ImageDerivativesConfig()``. Its
+        ``image_gradient_sigma_px`` must be at most ``max(H, W, 32)``
+        (ValueError naming ``config.image_gradient_sigma_px``).
 
     Returns
     -------

@@ -137,7 +137,12 @@ def load_image(path: PathLike) -> FloatArray:
         A colour image whose channels are all equal (a grey image saved as
         RGB, like the Cassini summary PNGs) gives its G channel; any other
         colour image gives the BT.601 luma ``0.299 R + 0.587 G + 0.114 B``.
-        An alpha channel is ignored.
+        An alpha channel is ignored. Pillow modes: grey ``L``, ``I;16``,
+        ``I`` and ``F`` keep their values; ``1`` gives 0/255; ``LA`` its
+        grey; palette (``P``, ``PA``), ``CMYK``, ``YCbCr``, ``HSV``,
+        ``RGBX`` and ``RGBa`` are converted to RGB by Pillow first. Other
+        modes (``LAB``...) and multi-frame files (animations, stacks) are
+        refused by name.
 
     Returns
     -------
@@ -148,8 +153,11 @@ def load_image(path: PathLike) -> FloatArray:
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If the file cannot be read or does not hold a non-empty, finite,
-        2-D image.
+        If the file cannot be read (whatever the reading library raised:
+        an empty or truncated file, a header claiming more pixels than
+        Pillow's decompression-bomb limit or than the file holds...) or
+        does not hold a non-empty, finite, 2-D image. The message is one
+        line and names the file.
     ImportError
         For a FITS file without astropy, or a PNG without Pillow; the
         message says what to install.
@@ -248,9 +256,12 @@ def load_polyline_csv(path: PathLike, *, name: str | None = None) -> Polyline:
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If columns are missing (the message lists them), a value is not a
-        finite number (the message gives the line and column), a sigma is
-        not > 0, or there are no vertex rows.
+        If the file cannot be read (not UTF-8, a cell over
+        ``csv.field_size_limit()``, 128 KiB by default: the message gives
+        the line), columns are missing (the message lists them), a value is
+        not a finite number (the message gives the line and column), a
+        sigma is not > 0, or there are no vertex rows. Every message is one
+        line and names the file.
     """
     p = _existing(path, "polyline file")
     try:
