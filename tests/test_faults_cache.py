@@ -28,7 +28,10 @@ from pathlib import Path
 
 import pytest
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+import dtalign
+
+#: The children import the same dtalign as this process (source tree or install).
+SRC = Path(dtalign.__file__).resolve().parents[1]
 
 #: Per child process: Numba's import plus one tiny compile takes a few
 #: seconds here, minutes only under extreme load. Never a timing assertion.
@@ -236,7 +239,6 @@ def test_every_package_kernel_has_the_checked_cache() -> None:
 
     from numba.core.dispatcher import Dispatcher
 
-    import dtalign
     from dtalign._numba_cache import CheckedFunctionCache, UncachedFunctionCache
 
     found = 0
