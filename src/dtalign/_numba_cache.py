@@ -55,7 +55,7 @@ def _numba_class(*names: str) -> Any:
     raise ImportError(f"numba.core.caching has none of {names}: unsupported Numba version")
 
 
-# Numba 0.59 names these with a leading underscore; 0.68 without.
+# Older Numba releases name some of these with a leading underscore.
 _UserProvidedLocator = _numba_class("UserProvidedCacheLocator", "_UserProvidedCacheLocator")
 _InTreeLocator = _numba_class("InTreeCacheLocator", "_InTreeCacheLocator")
 _UserWideLocator = _numba_class("UserWideCacheLocator", "_UserWideCacheLocator")
@@ -73,6 +73,7 @@ _FORMAT = "dtalign-sha256-1"
 #: Length of the SHA-256 digest that prefixes each checked payload.
 _DIGEST_SIZE = hashlib.sha256().digest_size
 
+#: (kind, folder) pairs already logged at WARNING in this process.
 _reported: set[tuple[str, str]] = set()
 _reported_lock = threading.Lock()
 
