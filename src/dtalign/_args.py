@@ -256,7 +256,7 @@ def check_lm_inputs(
         pivot=pivot,
         pivot_distance=distance,
         use_polarity=bool(kw["use_polarity"]),
-        max_iterations=check.count(kw["max_iterations"], "max_iterations"),
+        max_iterations=check.iteration_count(kw["max_iterations"], "max_iterations"),
         damping=check.nonnegative_real(kw["damping"], "damping"),
         step_tolerance=check.nonnegative_real(kw["step_tolerance_px"], "step_tolerance_px"),
         tukey_c=tukey_c_value(kw["tukey_c"], "tukey_c"),
@@ -306,11 +306,13 @@ def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
     )
     half_width = check.positive_real(kw["half_width_px"], "half_width_px")
     sample_step = check.positive_real(kw["sample_step_px"], "sample_step_px")
-    if round(half_width / sample_step) < 1:
+    ratio = half_width / sample_step
+    if math.isfinite(ratio) and round(ratio) < 1:
         raise ValueError(
             "half_width_px / sample_step_px must round to at least 1: the profile "
             f"needs three samples (got {half_width!r} and {sample_step!r})"
         )
+    check.ridge_profile_size(half_width, sample_step)
     return RidgeArgs(
         vertices=verts,
         normals=norms,
@@ -322,7 +324,7 @@ def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
         pivot=pivot,
         pivot_distance=distance,
         weight_mask=check.weight_mask(kw["weight_mask"], verts.shape[0]),
-        max_iterations=check.count(kw["max_iterations"], "max_iterations"),
+        max_iterations=check.iteration_count(kw["max_iterations"], "max_iterations"),
         step_tolerance=check.nonnegative_real(kw["step_tolerance_px"], "step_tolerance_px"),
         tukey_c=tukey_c_value(kw["tukey_c"], "tukey_c"),
         half_width=half_width,

@@ -1,9 +1,13 @@
 """The one place where dtalign sets Numba compilation flags.
 
-* ``cache=True``: compiled machine code is written beside the source (or,
+* On-disk cache: compiled machine code is written beside the source (or,
   when the package directory is read-only, to Numba's user-wide cache
   directory; ``NUMBA_CACHE_DIR`` overrides both), so a new process does not
-  pay the compile time again.
+  pay the compile time again. This is Numba's ``cache=True`` with
+  :class:`dtalign._numba_cache.CheckedFunctionCache`: a damaged entry is a
+  cache miss (recompiled and replaced), a read-only pre-warmed folder is
+  read, and with no usable folder kernels compile in memory; each is logged
+  on the ``dtalign`` logger (see ``docs/caching.rst``).
 * ``nogil=True``: kernels release the GIL, so the public functions scale in
   a ``ThreadPoolExecutor``.
 * ``fastmath=False``: every kernel's result is compared bit-for-bit or to
@@ -23,10 +27,11 @@ from typing import Any, TypeVar
 
 import numba
 
+from ._numba_cache import attach_cache
+
 F = TypeVar("F", bound=Callable[..., Any])
 
 JIT_OPTIONS: dict[str, Any] = {
-    "cache": True,
     "nogil": True,
     "fastmath": False,
     "error_model": "numpy",
@@ -35,7 +40,7 @@ JIT_OPTIONS: dict[str, Any] = {
 
 def kernel(fn: F) -> F:
     """Compile ``fn`` lazily with the project's Numba flags."""
-    return numba.njit(**JIT_OPTIONS)(fn)  # type: ignore[no-any-return]
+    return attach_cache(numba.njit(**JIT_OPTIONS)(fn))  # type: ignore[no-any-return]
 
 
 def inline_kernel(fn: F) -> F:
@@ -45,4 +50,4 @@ def inline_kernel(fn: F) -> F:
     pose transform, magnitude lookup): LLVM's own inliner does not always
     take them, and a call per sample costs more than the sample.
     """
-    return numba.njit(inline="always", **JIT_OPTIONS)(fn)  # type: ignore[no-any-return]
+    return attach_cache(numba.njit(inline="always", **JIT_OPTIONS)(fn))  # type: ignore[no-any-return]

@@ -400,3 +400,64 @@ def resolve_pivot(verts: FloatArray, pivot_vu: Any) -> tuple[float, float]:
             )
         return float(centroid[0]), float(centroid[1])
     return pair(pivot_vu, "pivot_vu")
+
+
+# ---------------------------------------------------------------------------
+# Ranges that keep a call bounded. Each is checked after the SPEC-ordered
+# checks of its function and names the argument.
+# ---------------------------------------------------------------------------
+
+#: Largest accepted iteration count: the kernels count iterations in an
+#: int64 (a larger Python int fails Numba's typing after a compile).
+MAX_ITERATIONS = 2**63 - 1
+
+
+def iteration_count(value: Any, name: str = "max_iterations") -> int:
+    """A non-negative int (as :func:`count`) of at most ``2**63 - 1``."""
+    out = count(value, name)
+    if out > MAX_ITERATIONS:
+        raise ValueError(
+            f"{name} must be at most 2**63 - 1 (iterations are counted in int64), got {out}"
+        )
+    return out
+
+
+#: Most samples of one ridge profile, ``2 * round(half_width_px /
+#: sample_step_px) + 1``. Every iteration reads each vertex's profile (three
+#: times when fitting rotation), so this bounds the work at ~30,000 bilinear
+#: reads per vertex and iteration, and the profile buffers at 80 kB; the
+#: default profile (3.0 px at 0.5 px) has 13 samples.
+MAX_RIDGE_PROFILE_SAMPLES = 10_001
+
+
+def ridge_profile_size(half_width_px: float, sample_step_px: float) -> None:
+    """Refuse a ridge profile of more than :data:`MAX_RIDGE_PROFILE_SAMPLES` samples."""
+    ratio = half_width_px / sample_step_px
+    if not math.isfinite(ratio) or 2 * round(ratio) + 1 > MAX_RIDGE_PROFILE_SAMPLES:
+        raise ValueError(
+            "half_width_px / sample_step_px must round to at most "
+            f"{(MAX_RIDGE_PROFILE_SAMPLES - 1) // 2}: a profile of at most "
+            f"{MAX_RIDGE_PROFILE_SAMPLES} samples per vertex "
+            f"(got half_width_px={half_width_px!r}, sample_step_px={sample_step_px!r})"
+        )
+
+
+#: The Gaussian smoothing sigma may reach the image's longer side, and at
+#: least this many pixels on small images (where any sigma is cheap).
+#: Beyond the longer side ``L`` the result is a nearly constant image (the
+#: reflect-extended image has period ``2 L``: its fundamental is damped
+#: below 1 %), while the cost grows with sigma: the 1-D kernels have
+#: ``2 * int(4 * sigma + 0.5) + 1`` taps, so the cap bounds the work at
+#: about ``16 * max(L, 32)`` multiply-adds per pixel.
+MIN_SIGMA_CAP_PX = 32.0
+
+
+def smoothing_sigma(sigma: float, shape: tuple[int, ...], name: str = "sigma_px") -> None:
+    """Refuse a (checked, positive) smoothing sigma wider than the image allows."""
+    cap = max(float(max(shape[0], shape[1])), MIN_SIGMA_CAP_PX)
+    if sigma > cap:
+        raise ValueError(
+            f"{name} must be at most the image's longer side ({cap:g} px for shape "
+            f"{tuple(shape)}; at least {MIN_SIGMA_CAP_PX:g} px): a wider Gaussian gives a "
+            f"nearly flat image at a cost that grows with sigma; got {sigma!r}"
+        )

@@ -26,7 +26,7 @@ from ._image_args import (
     resolve_config,
 )
 from ._kernels import image as _k
-from ._validation import FloatArray
+from ._validation import FloatArray, smoothing_sigma
 
 __all__ = [
     "ImageDerivativesConfig",
@@ -125,7 +125,8 @@ def compute_image_gradient_vu(
         Finite real image (any real dtype or memory layout), non-empty.
     sigma_px : float, optional
         Sigma of the Gaussian pre-smoothing in pixels (SciPy's
-        ``gaussian_filter``: mode ``reflect``, truncate 4.0).
+        ``gaussian_filter``: mode ``reflect``, truncate 4.0); at most
+        ``max(H, W, 32)``, which bounds the work (docs/limits.rst).
 
     Returns
     -------
@@ -144,6 +145,7 @@ def compute_image_gradient_vu(
     """
     image = check_image(image_ext)
     sigma = check_sigma_px(sigma_px)
+    smoothing_sigma(sigma, image.shape, "sigma_px")
     grad = np.empty(image.shape + (2,))
     _k.gradient_vu(image, _gaussian_weights(sigma), grad)
     return grad
@@ -196,7 +198,9 @@ def compute_all_image_derivatives(
     image_noise_sigma : float
         Noise standard deviation of the image (DN), finite and >= 0.
     config : ImageDerivativesConfig, optional
-        ``None`` means ``ImageDerivativesConfig()``.
+        ``None`` means ``ImageDerivativesConfig()``. Its
+        ``image_gradient_sigma_px`` must be at most ``max(H, W, 32)``
+        (ValueError naming ``config.image_gradient_sigma_px``).
 
     Returns
     -------
@@ -229,6 +233,7 @@ def compute_all_image_derivatives(
     image = check_image(image_ext)
     noise = check_noise_sigma(image_noise_sigma)
     cfg = resolve_config(config)
+    smoothing_sigma(cfg.image_gradient_sigma_px, image.shape, "config.image_gradient_sigma_px")
     threshold = cfg.edge_threshold_k_sigma * max(noise, NOISE_SIGMA_FLOOR)
     half_width = cfg.dt_half_width_px
     grad = np.empty(image.shape + (2,))

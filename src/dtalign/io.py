@@ -68,6 +68,34 @@ def _rgb_to_grey(arr: np.ndarray) -> FloatArray:
     return np.ascontiguousarray(rgb @ _LUMA)
 
 
+def _reason(exc: BaseException) -> str:
+    """``Type: message`` of an exception on one line (some span several)."""
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+#: Pillow modes read as they are: grey (``1`` as 0/255), palette, RGB(A)
+#: and the integer and float grey modes, whose values are kept unscaled.
+_PILLOW_AS_IS = {"L", "RGB", "RGBA", "I", "I;16", "I;16L", "I;16B", "I;16N", "F"}
+
+#: Pillow modes Pillow converts for us: to grey for a grey image with
+#: alpha, to RGB(A) for the rest. CMYK and YCbCr are colour spaces whose
+#: channels are not R, G, B: read raw they would give an inverted or wrong
+#: image. Any other mode (LAB, premultiplied ``La``, packed 15/16-bit
+#: RGB...) is refused by name.
+_PILLOW_CONVERT = {
+    "1": "L",
+    "LA": "L",
+    "P": "RGBA",
+    "PA": "RGBA",
+    "RGBX": "RGB",
+    "RGBa": "RGBA",
+    "CMYK": "RGB",
+    "YCbCr": "RGB",
+    "HSV": "RGB",
+}
+
+
 def _pillow_array(p: Path) -> np.ndarray:
     try:
         from PIL import Image
@@ -77,12 +105,24 @@ def _pillow_array(p: Path) -> np.ndarray:
         ) from None
     try:
         with Image.open(p) as img:
-            img.load()
-            if img.mode in ("P", "PA", "LA", "1"):
-                img = img.convert("RGBA" if "A" in img.mode or img.mode == "P" else "L")
-            return np.asarray(img)
-    except OSError as exc:
-        raise ValueError(f"cannot read image {p}: {exc}") from None
+            frames = getattr(img, "n_frames", 1)
+            mode = img.mode
+            if frames == 1 and mode in _PILLOW_AS_IS | _PILLOW_CONVERT.keys():
+                img.load()
+                if mode in _PILLOW_CONVERT:
+                    img = img.convert(_PILLOW_CONVERT[mode])
+                return np.asarray(img)
+    except Exception as exc:  # OSError, DecompressionBombError, SyntaxError from a plugin...
+        raise ValueError(f"cannot read image {p}: {_reason(exc)}") from None
+    if frames != 1:
+        raise ValueError(
+            f"image {p} has {frames} frames (an animation or a stack): "
+            "dtalign reads one 2-D image; save the frame you want on its own"
+        )
+    raise ValueError(
+        f"image {p} has Pillow mode {mode!r}, which dtalign does not read: "
+        "save it as grey (L, I;16, I or F) or RGB"
+    )
 
 
 def load_image(path: PathLike) -> FloatArray:
@@ -97,7 +137,12 @@ def load_image(path: PathLike) -> FloatArray:
         A colour image whose channels are all equal (a grey image saved as
         RGB, like the Cassini summary PNGs) gives its G channel; any other
         colour image gives the BT.601 luma ``0.299 R + 0.587 G + 0.114 B``.
-        An alpha channel is ignored.
+        An alpha channel is ignored. Pillow modes: grey ``L``, ``I;16``,
+        ``I`` and ``F`` keep their values; ``1`` gives 0/255; ``LA`` its
+        grey; palette (``P``, ``PA``), ``CMYK``, ``YCbCr``, ``HSV``,
+        ``RGBX`` and ``RGBa`` are converted to RGB by Pillow first. Other
+        modes (``LAB``...) and multi-frame files (animations, stacks) are
+        refused by name.
 
     Returns
     -------
@@ -108,8 +153,11 @@ def load_image(path: PathLike) -> FloatArray:
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If the file cannot be read or does not hold a non-empty, finite,
-        2-D image.
+        If the file cannot be read (whatever the reading library raised:
+        an empty or truncated file, a header claiming more pixels than
+        Pillow's decompression-bomb limit or than the file holds...) or
+        does not hold a non-empty, finite, 2-D image. The message is one
+        line and names the file.
     ImportError
         For a FITS file without astropy, or a PNG without Pillow; the
         message says what to install.
@@ -117,12 +165,7 @@ def load_image(path: PathLike) -> FloatArray:
     p = _existing(path, "image file")
     suffix = p.suffix.lower()
     if suffix == ".npy":
-        try:
-            arr = np.load(p, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"cannot read image {p}: {exc}") from None
-        if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "biuf":
-            raise ValueError(f"image {p} must hold a numeric array")
+        arr = _load_npy(p)
     elif suffix in _FITS_SUFFIXES:
         arr = _load_fits(p)
     else:
@@ -139,6 +182,30 @@ def load_image(path: PathLike) -> FloatArray:
     return out
 
 
+def _load_npy(p: Path) -> np.ndarray:
+    """A numeric array from a ``.npy`` file, without pickles.
+
+    Memory-mapped, so a header that claims more data than the file holds
+    is refused before anything of that size is allocated.
+    """
+    try:
+        arr = np.load(p, allow_pickle=False, mmap_mode="r")
+    except Exception as exc:  # EOFError (empty file), ValueError (bad header, pickles)...
+        raise ValueError(f"cannot read image {p}: {_reason(exc)}") from None
+    if not isinstance(arr, np.ndarray):
+        close = getattr(arr, "close", None)
+        if close is not None:
+            close()
+        raise ValueError(f"image {p} must hold a numeric array, got {type(arr).__name__}")
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"image {p} must hold a numeric array, got dtype {arr.dtype}")
+    try:
+        # A copy in memory: the caller gets an ordinary array, not a view of the file.
+        return np.array(arr, dtype=np.float64, order="C")
+    except Exception as exc:  # e.g. OSError: the file cannot be read back
+        raise ValueError(f"cannot read image {p}: {_reason(exc)}") from None
+
+
 def _load_fits(p: Path) -> np.ndarray:
     try:
         from astropy.io import fits
@@ -152,8 +219,8 @@ def _load_fits(p: Path) -> np.ndarray:
                 data = getattr(hdu, "data", None)
                 if data is not None and np.ndim(data) == 2:
                     return np.array(data, dtype=np.float64)
-    except OSError as exc:
-        raise ValueError(f"cannot read FITS file {p}: {exc}") from None
+    except Exception as exc:  # astropy raises OSError, but also others for bad headers
+        raise ValueError(f"cannot read FITS file {p}: {_reason(exc)}") from None
     raise ValueError(f"FITS file {p} has no HDU with 2-D image data")
 
 
@@ -189,16 +256,25 @@ def load_polyline_csv(path: PathLike, *, name: str | None = None) -> Polyline:
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If columns are missing (the message lists them), a value is not a
-        finite number (the message gives the line and column), a sigma is
-        not > 0, or there are no vertex rows.
+        If the file cannot be read (not UTF-8, a cell over
+        ``csv.field_size_limit()``, 128 KiB by default: the message gives
+        the line), columns are missing (the message lists them), a value is
+        not a finite number (the message gives the line and column), a
+        sigma is not > 0, or there are no vertex rows. Every message is one
+        line and names the file.
     """
     p = _existing(path, "polyline file")
     try:
         with open(p, newline="", encoding="utf-8-sig") as fh:
-            rows = [row for row in csv.reader(fh)]
+            reader = csv.reader(fh)
+            try:
+                rows = list(reader)
+            except csv.Error as exc:  # a NUL byte, a cell over csv.field_size_limit()
+                raise ValueError(
+                    f"polyline CSV {p} line {reader.line_num}: {_reason(exc)}"
+                ) from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"cannot read polyline CSV {p}: {exc}") from None
+        raise ValueError(f"cannot read polyline CSV {p}: {_reason(exc)}") from None
     numbered = [
         (i + 1, row)
         for i, row in enumerate(rows)

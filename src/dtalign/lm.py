@@ -96,7 +96,8 @@ def lm_subpixel_refine(
     use_polarity : bool
         Drop vertices whose normal opposes the gradient at the seed.
     max_iterations, damping, step_tolerance_px
-        LM iteration cap, initial damping, pixel-equivalent step tolerance.
+        LM iteration cap (an int, 0 to ``2**63 - 1``), initial damping,
+        pixel-equivalent step tolerance (both finite, >= 0).
     tukey_c, pinvh_rcond
         Biweight cutoff (sigma units) and pseudoinverse cutoff.
     trust_region_px : float, optional

@@ -70,9 +70,12 @@ def gradient_ridge_refine(
         Rotation about the pivot (vertex centroid by default); fitting it
         needs ``pivot_distance_px > 0``.
     max_iterations, step_tolerance_px, tukey_c
-        Iteration cap, pixel-equivalent step tolerance, biweight cutoff.
+        Iteration cap (an int, 0 to ``2**63 - 1``), pixel-equivalent step
+        tolerance, biweight cutoff.
     half_width_px, sample_step_px : float
-        Profile half-width and spacing, pixels.
+        Profile half-width and spacing, pixels: the profile's
+        ``2 * round(half_width_px / sample_step_px) + 1`` samples per
+        vertex must number 3 to 10,001 (docs/limits.rst).
     max_total_displacement_px : float
         The polish is discarded if the translation moves farther than this.
 

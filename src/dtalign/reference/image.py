@@ -14,7 +14,7 @@ import scipy.ndimage
 
 from .._constants import DEFAULT_IMAGE_GRADIENT_SIGMA_PX, NOISE_SIGMA_FLOOR
 from .._image_args import check_image, check_noise_sigma, check_sigma_px, resolve_config
-from .._validation import FloatArray
+from .._validation import FloatArray, smoothing_sigma
 
 #: Sector test of the Canny thinning: tan(67.5 deg) = 1 + sqrt(2).
 _SECTOR_K = 1.0 + np.sqrt(2.0)
@@ -26,6 +26,7 @@ def compute_image_gradient_vu(
     """Sobel-of-Gaussian gradient, ``[..., 0] = g_v`` and ``[..., 1] = g_u``."""
     image = check_image(image_ext)
     sigma = check_sigma_px(sigma_px)
+    smoothing_sigma(sigma, image.shape, "sigma_px")
     return _gradient(image, sigma)
 
 
@@ -90,6 +91,7 @@ def compute_all_image_derivatives(
     image = check_image(image_ext)
     noise = check_noise_sigma(image_noise_sigma)
     cfg = resolve_config(config)
+    smoothing_sigma(cfg.image_gradient_sigma_px, image.shape, "config.image_gradient_sigma_px")
     grad = _gradient(image, cfg.image_gradient_sigma_px)
     g_v = grad[..., 0]
     g_u = grad[..., 1]
