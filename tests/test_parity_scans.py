@@ -222,7 +222,7 @@ def test_polarity_sparse_path_equals_the_dense_one(seed):
     norm = np.where(norm == 0.0, 1.0, norm)
     dense = ps._dense_scores(
         edge, s["grad"], np.rint(pts[:, 0]), np.rint(pts[:, 1]),
-        nrm[:, 0] / norm, nrm[:, 1] / norm, mv, mu, 0.0,
+        nrm[:, 0] / norm, nrm[:, 1] / norm, mv, mu, 0.0, np.zeros((0, 0)),
     )
     assert sparse[:2] == dense[:2]
     assert sparse[2] == dense[2] or (math.isnan(sparse[2]) and math.isnan(dense[2]))
@@ -247,3 +247,23 @@ def test_secondary_basin_pruning_parity(seed):
     got = dtalign.find_secondary_dt_minimum(dt, verts, **kw)
     want = ref.find_secondary_dt_minimum(dt, verts, **kw)
     assert got == want
+
+
+def test_huge_windows_over_far_flung_vertices_are_refused_not_run():
+    """A polyline thrown far off the frame with a huge window would scan
+    ~1e12 shifts: refused up front, naming the argument."""
+    dt = np.zeros((32, 32))
+    verts = np.array([[5.0, 5.0], [-1e6, 1e6]])
+    with pytest.raises(ValueError, match="search_window_vu is too large"):
+        dtalign.find_secondary_dt_minimum(
+            dt, verts, converged_offset_vu=(0, 0), search_window_vu=(10**7, 10**7),
+            exclude_radius_px=1.0,
+        )
+    with pytest.raises(ValueError, match="search_window_vu is too large"):
+        dtalign.coarse_polarity_search_scored(
+            dt <= 0.5, np.zeros((32, 32, 2)), verts, np.ones((2, 2)), (10**7, 10**7)
+        )
+    # a window far beyond the frame but with the vertices in it is clipped, not refused
+    assert dtalign.coarse_polarity_search_scored(
+        dt <= 0.5, np.ones((32, 32, 2)), verts[:1], np.ones((1, 2)), (10**7, 10**7)
+    ).offset_vu == (0, 0)

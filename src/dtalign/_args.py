@@ -114,6 +114,27 @@ def check_coarse_inputs(
     return edge, poly, mv, mu, fraction
 
 
+#: Bounds on a vertex scan's work after its window is clipped: at most this
+#: many shifts, and at most this many (shift row or column) x vertex table
+#: entries (the basin scan's axis tables, ~17 bytes each). Far beyond any
+#: real search (a +-50 window over 20,000 vertices is 2e6 entries); they keep
+#: a polyline thrown far off the frame with a huge window from running for
+#: hours or exhausting memory.
+MAX_SCAN_SHIFTS = 1 << 26
+MAX_SCAN_TABLE = 1 << 26
+
+
+def _check_scan_size(mv: int, mu: int, n_vertices: int) -> None:
+    shifts = (2 * mv + 1) * (2 * mu + 1)
+    table = (2 * mv + 2 * mu + 2) * n_vertices
+    if shifts > MAX_SCAN_SHIFTS or table > MAX_SCAN_TABLE:
+        raise ValueError(
+            f"search_window_vu is too large for this polyline: {shifts} shifts of "
+            f"{n_vertices} vertices (at most {MAX_SCAN_SHIFTS} shifts and "
+            f"{MAX_SCAN_TABLE} shift-vertex pairs per axis)"
+        )
+
+
 class PolaritySearchArgs(NamedTuple):
     """Validated arguments of ``coarse_polarity_search_scored``."""
 
@@ -150,6 +171,7 @@ def check_polarity_search_inputs(
     mv, mu = check.search_window(search_window_vu)
     fraction = min_support_fraction_value(min_support_fraction)
     mv, mu = _clip_window_for(verts, mv, mu, e.shape)
+    _check_scan_size(mv, mu, verts.shape[0])
     return PolaritySearchArgs(check.mask2d(e, "edge_mask"), grad, verts, norms, mv, mu, fraction)
 
 
@@ -183,6 +205,7 @@ def check_basin_inputs(
     mv, mu = (int(max(min(m, float(1 << 53)), -1.0)) for m in (wv, wu))
     if mv >= 0 and mu >= 0:
         mv, mu = _clip_window_for(verts, mv, mu, dt.shape)
+        _check_scan_size(mv, mu, verts.shape[0])
     return BasinArgs(dt, verts, converged, mv, mu, radius, fraction)
 
 

@@ -343,15 +343,14 @@ def search_support(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
 
 
 @kernel
-def search_support_scored(edge, pv, pu, mv, mu, min_support):  # pragma: no cover - compiled
-    """``(dv, du, score)`` of the best shift for a row-major support ``(pv, pu)``.
+def overlap_tables(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
+    """``(overlap, counts)`` of every shift for a row-major support ``(pv, pu)``
+    (``counts`` empty when every shift keeps every pixel inside).
 
     Dense correlation (:func:`overlap_dense`) where it serves; else only the
     edge pixels within the window around the polyline's bounding box can
     score, so only that box of the edge mask is scanned.
     """
-    if pv.shape[0] == 0:
-        return 0, 0, 0.0
     h, w = edge.shape
     edge_flat, edge_words = flat_words(edge)
     if dense_ok(pv.shape[0], mu):
@@ -362,8 +361,35 @@ def search_support_scored(edge, pv, pu, mv, mu, min_support):  # pragma: no cove
             max(pu.min() - mu, 0), min(pu.max() + mu, w - 1),
         )
         overlap = overlap_sparse(pv, pu, row_starts(e_rows, h), e_cols, h, w, mv, mu)
-    counts = in_image_counts(pv, pu, h, w, mv, mu)
+    return overlap, in_image_counts(pv, pu, h, w, mv, mu)
+
+
+@kernel
+def search_support_scored(edge, pv, pu, mv, mu, min_support):  # pragma: no cover - compiled
+    """``(dv, du, score)`` of the best shift for a row-major support ``(pv, pu)``."""
+    if pv.shape[0] == 0:
+        return 0, 0, 0.0
+    overlap, counts = overlap_tables(edge, pv, pu, mv, mu)
     return best_scored(overlap, counts, pv.shape[0], mv, mu, min_support)
+
+
+@kernel
+def overlap_surface(edge, pv, pu, mv, mu, min_support):  # pragma: no cover - compiled
+    """Every shift's score ``overlap / n`` as :func:`best_scored` forms it,
+    ``(2 mv + 1, 2 mu + 1)``; NaN where the shift is not a candidate."""
+    nv = 2 * mv + 1
+    nu = 2 * mu + 1
+    surface = np.full((nv, nu), np.nan)
+    if pv.shape[0] == 0:
+        return surface
+    overlap, counts = overlap_tables(edge, pv, pu, mv, mu)
+    uniform = counts.shape[0] == 0
+    for a in range(nv):
+        for b in range(nu):
+            n = pv.shape[0] if uniform else counts[a, b]
+            if n > 0 and n >= min_support:
+                surface[a, b] = overlap[a, b] / n
+    return surface
 
 
 @kernel

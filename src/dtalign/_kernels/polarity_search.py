@@ -43,9 +43,10 @@ def _weight(edge, grad, r, c, nhv, nhu):  # pragma: no cover - compiled
 
 
 @kernel
-def _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support):  # pragma: no cover - compiled
+def _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support, surface):  # pragma: no cover - compiled
     """The general scan: per row shift, each column shift's in-bounds weights
-    gathered in vertex order, then summed."""
+    gathered in vertex order, then summed. Each candidate's score is also
+    written to ``surface`` unless it is empty."""
     h, w = edge.shape
     n = bv.shape[0]
     nu = 2 * mu + 1
@@ -71,6 +72,8 @@ def _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support):  # pragma:
             if k == 0 or k < min_support:
                 continue
             score = numpy_sum(weights[b], k) / k
+            if surface.shape[0] > 0:
+                surface[dv + mv, b] = score
             if better(score, dv, b - mu, best_score, best_dv, best_du):
                 best_score = score
                 best_dv = dv
@@ -150,7 +153,7 @@ def _edge_gradients(grad, row_start, e_cols, r_lo, r_hi):  # pragma: no cover - 
 
 
 @kernel
-def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu):  # pragma: no cover - compiled
+def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu, surface):  # pragma: no cover - compiled
     """Scores when every vertex stays inside the image under every shift.
 
     Vertex ``i`` sits at place ``i`` of NumPy's tree for every shift: in its
@@ -227,6 +230,8 @@ def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu):  # 
                     top -= 1
                     stack[top - 1] = stack[top - 1] + stack[top]
             score = (0.0 + stack[0]) / n
+            if surface.shape[0] > 0:
+                surface[a, b] = score
             if better(score, dv, b - mu, best_score, best_dv, best_du):
                 best_score = score
                 best_dv = dv
@@ -240,8 +245,24 @@ def polarity_search(edge, grad, pts, nrm, mv, mu, min_support):  # pragma: no co
 
     ``edge`` is a C-contiguous bool mask, ``grad`` its ``(H, W, 2)``
     gradient, ``pts``/``nrm`` finite ``(N, 2)`` with ``N > 0``; ``mv`` and
-    ``mu`` are already clipped to the image.
+    ``mu`` are already clipped.
     """
+    return polarity_scan(edge, grad, pts, nrm, mv, mu, min_support, np.zeros((0, 0)))
+
+
+@kernel
+def polarity_surface(edge, grad, pts, nrm, mv, mu, min_support):  # pragma: no cover - compiled
+    """Every shift's score as :func:`polarity_search` forms it,
+    ``(2 mv + 1, 2 mu + 1)``; NaN where the shift is not a candidate."""
+    surface = np.full((2 * mv + 1, 2 * mu + 1), np.nan)
+    polarity_scan(edge, grad, pts, nrm, mv, mu, min_support, surface)
+    return surface
+
+
+@kernel
+def polarity_scan(edge, grad, pts, nrm, mv, mu, min_support, surface):  # pragma: no cover - compiled
+    """:func:`polarity_search`, also writing each candidate's score to
+    ``surface`` unless it is empty."""
     h, w = edge.shape
     n = pts.shape[0]
     bv = np.empty(n)
@@ -259,7 +280,7 @@ def polarity_search(edge, grad, pts, nrm, mv, mu, min_support):  # pragma: no co
         nhu[i] = nrm[i, 1] / norm
         inside &= bv[i] - mv >= 0.0 and bv[i] + mv < h and bu[i] - mu >= 0.0 and bu[i] + mu < w
     if not inside:
-        return _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support)
+        return _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support, surface)
     # every vertex in bounds for every shift: n >= min_support everywhere
     r_lo = int(bv.min()) - mv
     r_hi = int(bv.max()) + mv
@@ -267,4 +288,5 @@ def polarity_search(edge, grad, pts, nrm, mv, mu, min_support):  # pragma: no co
     e_rows, e_cols = nonzero_in_box(
         flat, words, w, r_lo, r_hi, int(bu.min()) - mu, int(bu.max()) + mu
     )
-    return _sparse_scores(grad, edge, row_starts(e_rows, h), e_cols, bv, bu, nhv, nhu, mv, mu)
+    return _sparse_scores(grad, edge, row_starts(e_rows, h), e_cols, bv, bu, nhv, nhu, mv, mu,
+                          surface)
