@@ -224,8 +224,11 @@ _add(RIDGE, "weight_mask", "strings", np.full(N, "y"), TypeError, "weight_mask m
 
 # coarse search and the polyline mask
 for arg in ["edge_mask", "polyline_mask"]:
-    _add("coarse_ncc_search", arg, "1d", np.ones(48, bool), ValueError, f"{arg} must be 2-D")
-    _add("coarse_ncc_search", arg, "3d", np.ones((48, 48, 1), bool), ValueError, f"{arg} must be 2-D")
+    # SPEC 9: one message names both masks
+    _add("coarse_ncc_search", arg, "1d", np.ones(48, bool), ValueError,
+         "edge_mask and polyline_mask must be 2-D")
+    _add("coarse_ncc_search", arg, "3d", np.ones((48, 48, 1), bool), ValueError,
+         "edge_mask and polyline_mask must be 2-D")
     _add("coarse_ncc_search", arg, "shape", np.ones((48, 47), bool), ValueError, "shape mismatch")
     _add("coarse_ncc_search", arg, "nan", np.where(np.eye(48) > 0, NAN, 0.0), ValueError,
          f"{arg} must be finite")
@@ -346,7 +349,11 @@ def assert_lm_sane(res, n: int, p: int) -> None:
     assert all(math.isfinite(x) for x in res.offset_vu) and math.isfinite(res.rotation_rad)
     assert res.residuals_px.shape == (n,) and np.isfinite(res.residuals_px).all()
     assert res.weights.shape == (n,) and np.isfinite(res.weights).all() and (res.weights >= 0).all()
-    assert math.isfinite(res.raw_rms_px) and res.raw_rms_px >= 0  # +inf only for N = 0 (refused)
+    # SPEC 8.1: the RMS over the polarity-accepted vertices, +inf when none is
+    if res.polarity_rejected_count == n:
+        assert res.raw_rms_px == INF and res.degenerate
+    else:
+        assert math.isfinite(res.raw_rms_px) and res.raw_rms_px >= 0
     assert res.inlier_count == np.count_nonzero(res.weights > 0)
     assert isinstance(res.iterations, int) and res.iterations >= 0
     assert res.covariance.shape == (p, p)
@@ -476,8 +483,11 @@ def test_coarse_documented_results():
         assert got == ref.coarse_ncc_search(e, p, (3, 3))
         assert all(type(x) is int for x in got)
     assert f(np.eye(1, 9, 4), np.eye(1, 9, 1), (3, 3)) == (0, 3)
-    # numeric masks: nonzero is True
-    assert f(b.edge.astype(np.float32) * -3, b.pmask.astype(np.int16), (3, 3)) == f(b.edge, b.pmask, (3, 3))
+    # numeric masks: a 0/1 edge mask (any dtype) is the boolean one; the polyline
+    # mask's nonzero pixels count; other edge values are summed (SPEC 8.2)
+    assert f(b.edge.astype(np.float32), b.pmask.astype(np.int16) * -3, (3, 3)) == f(b.edge, b.pmask, (3, 3))
+    weighted = b.edge.astype(np.float32) * -3
+    assert f(weighted, b.pmask, (3, 3)) == ref.coarse_ncc_search(weighted, b.pmask, (3, 3))
 
 
 def test_polyline_mask_documented_results():
@@ -504,8 +514,9 @@ def test_small_function_documented_results():
     np.testing.assert_array_equal(w, [0, 0, 0, 0, 0, 1, 0])  # non-finite residuals get weight 0
     assert dtalign.tukey_biweight_weights(np.zeros(0)).shape == (0,)
     cov = dtalign.information_matrix_to_covariance
-    assert np.isposinf(cov(np.zeros((0, 3)), np.zeros(0))).all() and cov(np.zeros((0, 3)), np.zeros(0)).shape == (3, 3)
-    assert np.isposinf(cov(np.ones((4, 2)), np.zeros(4))).all()
+    # SPEC 2: no information is the zero matrix (the LM's degenerate result keeps +inf)
+    assert not cov(np.zeros((0, 3)), np.zeros(0)).any() and cov(np.zeros((0, 3)), np.zeros(0)).shape == (3, 3)
+    assert not cov(np.ones((4, 2)), np.zeros(4)).any()
     assert cov(np.zeros((3, 0)), np.ones(3)).shape == (0, 0)
     rank1 = cov(np.array([[1.0, 0.0], [2.0, 0.0]]), np.ones(2))
     np.testing.assert_allclose(rank1, [[0.2, 0.0], [0.0, 0.0]], rtol=1e-12)  # SPEC 6: null direction 0

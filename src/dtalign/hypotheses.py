@@ -1,0 +1,219 @@
+"""Several basins, one verdict: multi-start fits and the ambiguity figure (issue 17).
+
+The LM converges into the basin its seed picks; a wrong seed gives a
+confident wrong answer. Here each candidate pose (an LM fit from each of
+the K best distinct coarse seeds, and from the competing basin of the DT
+cost) is scored on one common footing, :func:`robust_cost`: the same
+vertices, the same prior sigmas, the polarity of each vertex judged at
+the pose being scored, and Tukey's bounded loss, so a pose is never
+cheaper for having rejected more vertices. The cheapest wins (ties go to
+the earlier hypothesis: the single search's seed first), and the best
+*rival basin* -- the cheapest hypothesis whose pose lies farther than
+:data:`BASIN_RADIUS_PX` from the winner's -- gives the ambiguity figure
+``(rival cost + floor) / (winner cost + floor)``: near 1, the image
+supports two poses about equally well.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C
+
+__all__ = [
+    "AMBIGUITY_THRESHOLD",
+    "BASIN_RADIUS_PX",
+    "Ambiguity",
+    "Hypothesis",
+    "ambiguity_of",
+    "robust_cost",
+]
+
+#: Two fitted poses closer than this are the same basin (the LM's own
+#: capture range on a DT is a few pixels; a 1.5 px ridge polish is a polish).
+BASIN_RADIUS_PX = 2.0
+
+#: A rival basin whose cost is within this factor of the winner's makes the
+#: fit ambiguous. Calibrated on :mod:`dtalign.robustness`: a same-polarity
+#: decoy edge costs 1.0-1.3x the true one, a clean unique fit's best rival
+#: several times more (docs/robustness.rst has the table).
+AMBIGUITY_THRESHOLD = 1.5
+
+#: Added to both costs of the ratio, per vertex: keeps a near-perfect fit
+#: (cost ~0 on a noiseless image) from making any rival look infinitely
+#: worse. 0.05 is the loss of a vertex 0.3 sigma off its edge.
+COST_FLOOR_PER_VERTEX = 0.05
+
+
+def tukey_rho(x: NDArray[np.float64], c: float) -> NDArray[np.float64]:
+    """Tukey's biweight loss ``(c^2/6) (1 - (1 - (x/c)^2)^3)``, ``c^2/6`` beyond ``c``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        s = np.minimum((x / c) ** 2, 1.0)
+    rho = (c * c / 6.0) * (1.0 - (1.0 - s) ** 3)
+    return np.where(np.isnan(rho), c * c / 6.0, rho)
+
+
+def robust_cost(
+    edge_dt: Any,
+    gradient_vu: Any,
+    vertices_vu: NDArray[np.float64],
+    normals_vu: NDArray[np.float64],
+    sigmas: NDArray[np.float64],
+    *,
+    offset_vu: tuple[float, float],
+    rotation_rad: float = 0.0,
+    pivot_vu: tuple[float, float] = (0.0, 0.0),
+    use_polarity: bool = True,
+    tukey_c: float = DEFAULT_TUKEY_C,
+) -> tuple[float, int]:
+    """The common-footing cost of a pose: ``sum rho(DT / sigma)`` and its inliers.
+
+    Every vertex counts: one whose normal disagrees with the gradient at the
+    pose (with ``use_polarity``) or that lies outside the image costs the
+    loss's maximum ``c^2 / 6``, as a vertex far from any edge does. Returns
+    ``(cost, inliers)``, inliers being the vertices below that maximum.
+    """
+    from .sampling import _rotate_directions, _rotate_vertices, sample_dt_bilinear
+    from .weights import polarity_filter
+
+    pts = _rotate_vertices(vertices_vu, pivot_vu, rotation_rad)
+    nrm = _rotate_directions(normals_vu, rotation_rad)
+    shifted = np.asarray(pts, dtype=np.float64) + np.asarray(offset_vu, dtype=np.float64)
+    h, w = np.shape(edge_dt)
+    inside = (
+        (shifted[:, 0] >= 0) & (shifted[:, 0] <= h - 1)
+        & (shifted[:, 1] >= 0) & (shifted[:, 1] <= w - 1)
+    )
+    r = sample_dt_bilinear(edge_dt, shifted)
+    rho = tukey_rho(r / sigmas, tukey_c)
+    worst = tukey_c * tukey_c / 6.0
+    rho = np.where(inside, rho, worst)
+    if use_polarity:
+        accepted = polarity_filter(shifted, nrm, gradient_vu)
+        rho = np.where(accepted, rho, worst)
+    return float(np.sum(rho)), int(np.count_nonzero(rho < worst))
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One candidate pose of a multi-start fit.
+
+    Attributes
+    ----------
+    source : str
+        ``'seed 1'``, ``'seed 2'``, ... (the coarse search's best first) or
+        ``'basin'`` (the competing basin of the DT cost).
+    seed_vu : tuple of int
+        The integer start.
+    coarse_score : float
+        The coarse score of the start (NaN for the basin start).
+    offset_vu : tuple of float
+        The fitted translation.
+    rotation_rad : float
+        The fitted rotation.
+    cost : float
+        :func:`robust_cost` at the fitted pose.
+    inliers : int
+        Vertices below the loss's maximum there.
+    converged : bool
+        Whether the LM from this start converged.
+    """
+
+    source: str
+    seed_vu: tuple[int, int]
+    coarse_score: float
+    offset_vu: tuple[float, float]
+    rotation_rad: float
+    cost: float
+    inliers: int
+    converged: bool
+
+
+@dataclass(frozen=True)
+class Ambiguity:
+    """How clearly the winning basin beats the best rival basin.
+
+    Attributes
+    ----------
+    ratio : float
+        ``(rival cost + floor) / (winner cost + floor)``; ``inf`` when no
+        hypothesis lies in another basin.
+    rival : Hypothesis or None
+        The best hypothesis outside the winner's basin.
+    ambiguous : bool
+        ``ratio < threshold``.
+    along_unobservable : bool
+        The rival's displacement lies along a direction the winner's
+        covariance cannot observe (a straight edge's along-edge axis): the
+        ambiguity is *along* the edge, not across it.
+    reason : str
+        One line for people ('' when not ambiguous).
+    """
+
+    ratio: float
+    rival: Hypothesis | None
+    ambiguous: bool
+    along_unobservable: bool
+    reason: str
+
+
+def ambiguity_of(
+    winner: Hypothesis,
+    hypotheses: tuple[Hypothesis, ...],
+    covariance: NDArray[np.float64],
+    n_vertices: int,
+    *,
+    threshold: float = AMBIGUITY_THRESHOLD,
+    rcond: float = DEFAULT_PINVH_RCOND,
+) -> Ambiguity:
+    """The ambiguity figure of ``winner`` among ``hypotheses`` (see the module)."""
+    rivals = [
+        h for h in hypotheses
+        if math.dist(h.offset_vu, winner.offset_vu) > BASIN_RADIUS_PX
+    ]
+    if not rivals:
+        return Ambiguity(math.inf, None, False, False, "")
+    rival = min(rivals, key=lambda h: h.cost)  # min keeps the first of equal costs
+    floor = COST_FLOOR_PER_VERTEX * n_vertices
+    ratio = (rival.cost + floor) / (winner.cost + floor)
+    ambiguous = ratio < threshold
+    d = np.subtract(rival.offset_vu, winner.offset_vu)
+    along = _along_null_space(d, covariance, rcond)
+    if not ambiguous:
+        reason = ""
+    elif along:
+        axis = d / np.hypot(d[0], d[1])
+        reason = (
+            f"a rival basin {float(np.hypot(d[0], d[1])):.1f} px away along "
+            f"(dv, du) = ({axis[0]:+.2f}, {axis[1]:+.2f}), a direction this fit cannot "
+            f"observe, costs {ratio:.2f}x the winner: ambiguous along the edge, not across it"
+        )
+    else:
+        reason = (
+            f"a rival basin at offset ({rival.offset_vu[0]:.1f}, {rival.offset_vu[1]:.1f}) "
+            f"costs only {ratio:.2f}x the winner (threshold {threshold:g}x): the image "
+            "supports two poses"
+        )
+    return Ambiguity(float(ratio), rival, bool(ambiguous), bool(along), reason)
+
+
+def _along_null_space(d: NDArray[np.float64], covariance: NDArray[np.float64], rcond: float) -> bool:
+    """Whether translation ``d`` lies (within 15 degrees) in the null space
+    of the translation block of ``covariance`` (its zero-variance directions)."""
+    cov = np.asarray(covariance, dtype=np.float64)[:2, :2]
+    if not np.isfinite(cov).all() or not np.hypot(d[0], d[1]) > 0:
+        return False
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    top = float(np.max(np.abs(vals)))
+    if top == 0.0:
+        return False
+    null = vecs[:, np.abs(vals) <= rcond * top * 1e3]
+    if null.shape[1] == 0:
+        return False
+    unit = d / np.hypot(d[0], d[1])
+    return bool(np.linalg.norm(null.T @ unit) >= math.cos(math.radians(15.0)))
