@@ -20,7 +20,8 @@ four lane-wise partial sums), and how the BLAS rounds depends on the CPU
 the reference itself moves by rounding from one machine to the next. A
 well-conditioned fit carries those ulps along without growing them; an
 ill-conditioned one does not (issue #14, item 1). Each case is therefore
-classified, on the compiled path alone (so the same way on any CPU), by
+classified from the compiled path's fits, whose sums do not go through the
+BLAS (the classification is the same under the three kernels), by
 
 * its *amplification*: how far its result moves, per px, when its start
   moves by 1e-9 px (an unconverged, chaotic fit multiplies it); and
