@@ -13,6 +13,10 @@ ridge on, polarity off, outliers, degenerate (every vertex rejected),
 ``max_iterations=0``, flat DT, polylines partly outside the image, random
 walks that follow no edge, and a handful of 1024 x 1024 scenes. Images
 are mostly 96-256 px so the whole sweep stays fast.
+
+Also here: the SPEC state of a pose (:func:`spec_state`) and the two
+conditioning measures that decide which fits are held to exact parity
+(issue #14; see ``test_parity``'s docstring).
 """
 
 from __future__ import annotations
@@ -23,9 +27,11 @@ from typing import Any
 
 import numpy as np
 
+from dtalign import reference as ref
 from dtalign.scenes import disc_scene, navigation_scene
 
-__all__ = ["IMAGES", "ImageSpec", "ParityCase", "build_cases", "make_image"]
+__all__ = ["AMPLIFICATION_MAX", "IMAGES", "KAPPA_MAX", "ImageSpec", "ParityCase", "build_cases",
+           "make_image", "scaled_condition", "spec_state"]
 
 
 @dataclass(frozen=True)
@@ -405,3 +411,63 @@ def build_cases() -> list[ParityCase]:
             rng = np.random.default_rng([7, f_index, i])
             cases.append(_make_case(family, i, rng, kinds))
     return cases + _large_cases()
+
+
+# ---------------------------------------------------------------------------
+# The SPEC state of a pose, and the conditioning of a fit
+# ---------------------------------------------------------------------------
+
+#: The paths' rounding differs by up to ~1e-13 px per step (measured on the
+#: converging fits of the parity sweep under three OpenBLAS kernels); a fit
+#: that amplifies a perturbation of its start at most 1e3-fold keeps that
+#: 1e-13 px below the 1e-9 px parity bar with a 10x margin.
+AMPLIFICATION_MAX = 1e3
+#: A solve loses ~kappa * 1e-16 of relative accuracy to rounding of ``H``;
+#: for steps of a few px to stay within 1e-9 px that is kappa <= ~1e6. Above
+#: it the system is near singular, and whether LU meets an exactly zero pivot
+#: (SPEC section 3 step 4: solve, or pinvh) depends on how ``H`` was rounded.
+KAPPA_MAX = 1e6
+
+
+def spec_state(dt: np.ndarray, vertices: np.ndarray, sigmas: np.ndarray, pol: np.ndarray,
+               pose: tuple[float, float, float], pivot: tuple[float, float], fit_rotation: bool,
+               c: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """SPEC section 2/3 residuals, weights and Jacobian at ``pose`` (NumPy)."""
+
+    def place(theta: float) -> np.ndarray:
+        if theta == 0.0:
+            v, u = vertices[:, 0], vertices[:, 1]
+        else:
+            co, si = math.cos(theta), math.sin(theta)
+            v = pivot[0] + co * (vertices[:, 0] - pivot[0]) - si * (vertices[:, 1] - pivot[1])
+            u = pivot[1] + si * (vertices[:, 0] - pivot[0]) + co * (vertices[:, 1] - pivot[1])
+        return np.stack([v + pose[0], u + pose[1]], axis=1)
+
+    pos = place(pose[2])
+    s = ref.sample_dt_bilinear
+    cols = [(s(dt, pos + [0.25, 0.0]) - s(dt, pos - [0.25, 0.0])) / 0.5,
+            (s(dt, pos + [0.0, 0.25]) - s(dt, pos - [0.0, 0.25])) / 0.5]
+    if fit_rotation:
+        cols.append((s(dt, place(pose[2] + 1e-3)) - s(dt, place(pose[2] - 1e-3))) / 2e-3)
+    r = np.where(pol, s(dt, pos), 1.0e6)
+    w = (1.0 / sigmas**2) * ref.tukey_biweight_weights(r / sigmas, c=c) * pol
+    return r, w, np.stack(cols, axis=1)
+
+
+def scaled_condition(jac: np.ndarray, w: np.ndarray) -> float:
+    """Condition number of ``D^-1/2 (J^T W J) D^-1/2``, ``D = diag(J^T W J)``.
+
+    The LM damps with ``lambda diag(H)``: scaled, the damped matrix is
+    ``S + lambda I`` with eigenvalues ``s_k + lambda``, so its condition
+    number is largest, ``kappa(S)``, at ``lambda = 0``. 1 where no vertex
+    has weight (no system is solved), inf where a parameter has no information.
+    """
+    if not (w > 0).any():
+        return 1.0
+    a = np.sqrt(w)[:, None] * jac
+    info = a.T @ a
+    d = np.sqrt(np.diag(info))
+    if not (d > 0).all():
+        return math.inf
+    ev = np.linalg.eigvalsh(info / d[:, None] / d[None, :])
+    return float(ev[-1] / ev[0]) if ev[0] > 0 else math.inf

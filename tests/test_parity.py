@@ -15,11 +15,28 @@ The bar (issue #2):
   1e-9 relative (``max|C - C_ref| / max|C_ref|``).
 
 The two paths sum the normal equations in different orders (BLAS versus
-four lane-wise partial sums), so a long or chaotic fit may end a few 1e-9 px apart:
-that is what the 99 % clause allows. A covariance evaluated at two poses
-that far apart differs by more than 1e-9 relative on an ill-conditioned
-fit, so the covariance-vs-reference bar is asserted where the poses agree
-to 1e-9 px; in every case the compiled covariance must instead equal, to
+four lane-wise partial sums), and how the BLAS rounds depends on the CPU
+(OpenBLAS picks a kernel per CPU: SkylakeX, Haswell, Sandybridge, ...), so
+the reference itself moves by rounding from one machine to the next. A
+well-conditioned fit carries those ulps along without growing them; an
+ill-conditioned one does not (issue #14, item 1). Each case is therefore
+classified from the compiled path's fits, whose sums do not go through the
+BLAS (the classification is the same under the three kernels), by
+
+* its *amplification*: how far its result moves, per px, when its start
+  moves by 1e-9 px (an unconverged, chaotic fit multiplies it); and
+* the Jacobi-scaled condition number of its information matrix ``J^T W J``
+  at the final pose, the worst case over the damping of the damped normal
+  matrix ``H + lambda diag(H)`` (scaled: ``S + lambda I``).
+
+A *well-conditioned* case (amplification <= :data:`AMPLIFICATION_MAX`,
+condition number <= :data:`KAPPA_MAX`) is held to the exact bar in every
+case: pose within 1e-9 px and covariance within 1e-9 relative of the
+reference. An ill-conditioned case keeps everything that holds whichever
+way rounding went: the discrete outcome, the pose within 1e-6 px, the inf
+pattern, and a covariance, residuals and weights that are the SPEC formulas
+at the compiled path's own final pose (``test_exact_parity_set`` prints
+and bounds the set). In every case the compiled covariance must equal, to
 1e-9 relative, the SPEC covariance at the compiled path's own final pose.
 
 Residuals and weights are compared with bounds derived from the pose
@@ -44,12 +61,33 @@ import numpy as np
 import pytest
 
 import dtalign
-from _parity_cases import ParityCase, build_cases, make_image
+from _parity_cases import (
+    AMPLIFICATION_MAX,
+    KAPPA_MAX,
+    ParityCase,
+    build_cases,
+    make_image,
+    scaled_condition,
+    spec_state,
+)
 from dtalign import reference as ref
 
 CASES = build_cases()
 LIPSCHITZ_DT = math.sqrt(2.0)
 TUKEY_SLOPE = 8.0 / (3.0 * math.sqrt(3.0))  # max over |x| <= 1 of |d/dx (1 - x^2)^2|
+
+#: The exact bar: pose (px) and covariance (relative) against the reference.
+POSE_EXACT_PX = 1e-9
+COV_EXACT_REL = 1e-9
+#: The bar every case meets, whatever the conditioning: a different accepted
+#: step moves the pose by ~1e-3 px or more, so this still catches a real divergence.
+POSE_ANY_PX = 1e-6
+#: The start is moved by the exact bar itself to measure the amplification.
+PROBE_PX = POSE_EXACT_PX
+#: The share of the sweep allowed to leave the exact set (measured: 6 of 322).
+ILL_CONDITIONED_SHARE_MAX = 0.03
+#: The discrete outcome that must be equal in every case (add new result flags here).
+DISCRETE_FIELDS = ("iterations", "converged", "degenerate", "inlier_count")
 
 
 @dataclass
@@ -64,6 +102,13 @@ class Outcome:
     cov_dev: float  # vs reference, max-norm relative
     self_cov_dev: float  # vs SPEC covariance at the compiled pose
     self_state_dev: float  # residuals / weights vs SPEC state at the compiled pose
+    amplification: float  # result movement per px of start movement (compiled path)
+    kappa: float  # Jacobi-scaled condition number of J^T W J at the compiled final pose
+
+    @property
+    def well_conditioned(self) -> bool:
+        """In the exact-parity set (see the module docstring)."""
+        return self.amplification <= AMPLIFICATION_MAX and self.kappa <= KAPPA_MAX
 
 
 def _rel_dev(a: np.ndarray, b: np.ndarray) -> float:
@@ -76,28 +121,10 @@ def _rel_dev(a: np.ndarray, b: np.ndarray) -> float:
     return diff / scale if scale > 0 else diff
 
 
-def _spec_state(dt, case: ParityCase, pol, pose, pivot, fit_rotation, c):
-    """SPEC section 2/3 residuals, weights and Jacobian at ``pose`` (NumPy)."""
-    pts = case.vertices
-
-    def place(theta: float) -> np.ndarray:
-        if theta == 0.0:
-            v, u = pts[:, 0], pts[:, 1]
-        else:
-            co, si = math.cos(theta), math.sin(theta)
-            v = pivot[0] + co * (pts[:, 0] - pivot[0]) - si * (pts[:, 1] - pivot[1])
-            u = pivot[1] + si * (pts[:, 0] - pivot[0]) + co * (pts[:, 1] - pivot[1])
-        return np.stack([v + pose[0], u + pose[1]], axis=1)
-
-    pos = place(pose[2])
-    s = ref.sample_dt_bilinear
-    cols = [(s(dt, pos + [0.25, 0.0]) - s(dt, pos - [0.25, 0.0])) / 0.5,
-            (s(dt, pos + [0.0, 0.25]) - s(dt, pos - [0.0, 0.25])) / 0.5]
-    if fit_rotation:
-        cols.append((s(dt, place(pose[2] + 1e-3)) - s(dt, place(pose[2] - 1e-3))) / 2e-3)
-    r = np.where(pol, s(dt, pos), 1.0e6)
-    w = (1.0 / case.sigmas**2) * ref.tukey_biweight_weights(r / case.sigmas, c=c) * pol
-    return r, w, np.stack(cols, axis=1)
+def _pose_dev(a: Any, b: Any, case: ParityCase) -> float:
+    """Max-norm pose difference in px (rotation times the pivot distance)."""
+    return max(abs(a.offset_vu[0] - b.offset_vu[0]), abs(a.offset_vu[1] - b.offset_vu[1]),
+               abs(a.rotation_rad - b.rotation_rad) * case.rotation_scale)
 
 
 class _Runner:
@@ -133,9 +160,13 @@ class _Runner:
                   image_gradient_vu=grad, initial_offset_vu=seed, **case.lm_kwargs)
         expected = ref.lm_subpixel_refine(**kw)
         actual = dtalign.lm_subpixel_refine(**kw)
-        pose_dev = max(abs(expected.offset_vu[0] - actual.offset_vu[0]),
-                       abs(expected.offset_vu[1] - actual.offset_vu[1]),
-                       abs(expected.rotation_rad - actual.rotation_rad) * case.rotation_scale)
+        pose_dev = _pose_dev(expected, actual, case)
+        # The amplification: the compiled fit from starts moved by PROBE_PX.
+        amplification = 0.0
+        for ev, eu in ((1, 0), (0, 1), (-1, 0), (0, -1)):
+            probe = dtalign.lm_subpixel_refine(
+                **{**kw, "initial_offset_vu": (seed[0] + ev * PROBE_PX, seed[1] + eu * PROBE_PX)})
+            amplification = max(amplification, _pose_dev(probe, actual, case) / PROBE_PX)
         # The SPEC state at the compiled path's own final pose.
         fit_rotation = bool(case.lm_kwargs.get("fit_rotation", False))
         pivot = case.lm_kwargs.get("pivot_vu")
@@ -147,7 +178,7 @@ class _Runner:
             pol = np.ones(case.vertices.shape[0], dtype=bool)
         pose = (*actual.offset_vu, actual.rotation_rad)
         c = case.lm_kwargs.get("tukey_c", dtalign.DEFAULT_TUKEY_C)
-        r, w, jac = _spec_state(dt, case, pol, pose, pivot, fit_rotation, c)
+        r, w, jac = spec_state(dt, case.vertices, case.sigmas, pol, pose, pivot, fit_rotation, c)
         self_state = max(_rel_dev(actual.residuals_px, r), _rel_dev(actual.weights, w))
         if actual.degenerate:
             self_cov = 0.0 if np.isposinf(actual.covariance).all() else math.inf
@@ -157,7 +188,7 @@ class _Runner:
             self_cov = _rel_dev(actual.covariance, spec_cov)
         return Outcome(case, (coarse_r, coarse_c), bool(np.array_equal(mask_r, mask_c)), seed,
                        expected, actual, pose_dev, _rel_dev(actual.covariance, expected.covariance),
-                       self_cov, self_state)
+                       self_cov, self_state, amplification, scaled_condition(jac, w))
 
 
 @pytest.fixture(scope="module")
@@ -165,20 +196,20 @@ def run(derivatives) -> _Runner:
     return _Runner(derivatives)
 
 
-@pytest.mark.parametrize("case", CASES, ids=[c.case_id for c in CASES])
-def test_lm_parity(case: ParityCase, run: _Runner) -> None:
-    out = run(case)
-    exp, act = out.expected, out.actual
+def assert_lm_parity(out: Outcome) -> None:
+    """The per-case bar of the module docstring (one place to extend)."""
+    case, exp, act = out.case, out.expected, out.actual
     assert out.masks_equal
     assert out.coarse[1] == out.coarse[0]
-    assert (act.iterations, act.converged, act.degenerate, act.inlier_count) == (
-        exp.iterations, exp.converged, exp.degenerate, exp.inlier_count)
-    assert out.pose_dev <= 1e-6
+    assert tuple(getattr(act, f) for f in DISCRETE_FIELDS) == tuple(getattr(exp, f) for f in DISCRETE_FIELDS)
+    assert out.pose_dev <= POSE_ANY_PX
     assert np.array_equal(np.isfinite(act.covariance), np.isfinite(exp.covariance))
     assert np.array_equal(np.isposinf(act.covariance), np.isposinf(exp.covariance))
-    if out.pose_dev <= 1e-9:
-        assert out.cov_dev <= 1e-9
-    assert out.self_cov_dev <= 1e-9
+    if out.well_conditioned:  # the exact set
+        assert out.pose_dev <= POSE_EXACT_PX
+        assert out.cov_dev <= COV_EXACT_REL
+    # whatever the conditioning: the SPEC formulas at the compiled path's own pose
+    assert out.self_cov_dev <= COV_EXACT_REL
     assert out.self_state_dev <= 1e-12
 
     # residuals and weights: bounds derived from the pose difference
@@ -205,22 +236,29 @@ def test_lm_parity(case: ParityCase, run: _Runner) -> None:
         assert act.rms_px == pytest.approx(math.sqrt(np.sum(w * r * r) / np.sum(w)), rel=1e-12)
 
 
+@pytest.mark.parametrize("case", CASES, ids=[c.case_id for c in CASES])
+def test_lm_parity(case: ParityCase, run: _Runner) -> None:
+    assert_lm_parity(run(case))
+
+
 def test_lm_parity_summary(run: _Runner) -> None:
     """The aggregate bar, and the measured figures (printed with ``-s``)."""
     outs = [run(c) for c in CASES]
     devs = np.array([o.pose_dev for o in outs])
-    within = devs <= 1e-9
+    within = devs <= POSE_EXACT_PX
+    well = np.array([o.well_conditioned for o in outs])
     cov_all = max(o.cov_dev for o in outs)
-    cov_close = max(o.cov_dev for o, ok in zip(outs, within, strict=True) if ok)
+    cov_well = max(o.cov_dev for o, ok in zip(outs, well, strict=True) if ok)
     families = sorted({o.case.family for o in outs})
     rms_dev = max(abs(o.actual.rms_px - o.expected.rms_px) for o in outs if not o.expected.degenerate)
     lines = [
         f"LM parity: {len(outs)} cases, {len(families)} families "
-        f"({sum(o.expected.degenerate for o in outs)} degenerate)",
+        f"({sum(o.expected.degenerate for o in outs)} degenerate, {int(well.sum())} well-conditioned)",
         f"  pose within 1e-9 px: {within.sum()}/{len(outs)} = {100 * within.mean():.2f} %"
         f"  (bit-identical: {100 * np.mean(devs == 0):.1f} %)",
-        f"  max pose deviation: {devs.max():.3e} px (case {outs[int(devs.argmax())].case.case_id})",
-        f"  max covariance rel. deviation: {cov_close:.3e} where pose within 1e-9 px,"
+        f"  max pose deviation: {devs.max():.3e} px (case {outs[int(devs.argmax())].case.case_id}),"
+        f" {devs[well].max():.3e} px over the well-conditioned cases",
+        f"  max covariance rel. deviation: {cov_well:.3e} over the well-conditioned cases,"
         f" {cov_all:.3e} over all cases",
         f"  max covariance rel. deviation vs SPEC at own pose: {max(o.self_cov_dev for o in outs):.3e}"
         f" (residuals/weights: {max(o.self_state_dev for o in outs):.3e})",
@@ -229,12 +267,51 @@ def test_lm_parity_summary(run: _Runner) -> None:
         f" max |d rms| {rms_dev:.3e} px",
     ]
     lines += [f"    over 1e-9 px: {o.case.case_id}: {o.pose_dev:.3e} px, cov {o.cov_dev:.2e}"
-              for o in outs if o.pose_dev > 1e-9]
+              for o in outs if o.pose_dev > POSE_EXACT_PX]
     print("\n" + "\n".join(lines))
     assert within.mean() >= 0.99
-    assert devs.max() <= 1e-6
+    assert devs.max() <= POSE_ANY_PX
     assert all(o.coarse[0] == o.coarse[1] for o in outs)
-    assert cov_close <= 1e-9
+    assert devs[well].max() <= POSE_EXACT_PX
+    assert cov_well <= COV_EXACT_REL
+
+
+def test_exact_parity_set(run: _Runner) -> None:
+    """How ill-conditioned a case must be to leave the exact-parity set.
+
+    A case leaves it when its fit amplifies a move of its start more than
+    :data:`AMPLIFICATION_MAX`-fold or its scaled information matrix has a
+    condition number above :data:`KAPPA_MAX` (module docstring). The
+    threshold is not a convenience: the cases below it are held to 1e-9 px
+    and 1e-9 relative (``test_lm_parity``), the set above it is bounded
+    here, and the measured margin to the threshold is printed (``-s``).
+    The condition number alone does not predict a departure: the polish of
+    a four-vertex fit that does not converge in its ten undamped steps
+    (``max_iterations_0-02-nav1``) multiplies rounding ~5x per step with
+    ``kappa`` ~ 21, which only the amplification sees.
+    """
+    outs = [run(c) for c in CASES]
+    ill = [o for o in outs if not o.well_conditioned]
+    well = [o for o in outs if o.well_conditioned]
+    lines = [f"exact-parity set: {len(well)}/{len(outs)} cases"
+             f" (amplification <= {AMPLIFICATION_MAX:.0e}, kappa <= {KAPPA_MAX:.0e});"
+             f" largest inside: amplification {max(o.amplification for o in well):.3g},"
+             f" kappa {max(o.kappa for o in well):.3g}"]
+    lines += [f"    outside: {o.case.case_id}: amplification {o.amplification:.3g}, kappa {o.kappa:.3g},"
+              f" pose {o.pose_dev:.2e} px, cov {o.cov_dev:.2e}" for o in ill]
+    print("\n" + "\n".join(lines))
+    assert len(ill) <= ILL_CONDITIONED_SHARE_MAX * len(outs)
+    # every fit that really amplifies rounding is classified so (non-vacuous:
+    # the sweep has such fits), and none of the exact set is near the threshold
+    assert any(o.amplification > AMPLIFICATION_MAX for o in outs)
+    assert max(o.amplification for o in well) <= AMPLIFICATION_MAX / 3
+    # the exact set is held to the exact bar (as test_lm_parity, in one place)
+    assert max(o.pose_dev for o in well) <= POSE_EXACT_PX
+    assert max(o.cov_dev for o in well) <= COV_EXACT_REL
+    # and the cases outside still meet what holds on either branch
+    for o in ill:
+        assert o.pose_dev <= POSE_ANY_PX
+        assert o.self_cov_dev <= COV_EXACT_REL and o.self_state_dev <= 1e-12
 
 
 def test_sweep_covers_its_families(run: _Runner) -> None:
@@ -428,21 +505,60 @@ def test_gradient_ridge_parity_summary(run: _Runner) -> None:
     assert devs.max() <= 1e-6
 
 
-def test_lm_parity_single_vertex_without_damping() -> None:
+def _spec_single_vertex(dt: np.ndarray, vertex: np.ndarray, sigma: float) -> tuple[np.ndarray, float, float]:
+    """``J``, ``r`` and ``w`` of one vertex at zero offset (SPEC sections 2-3)."""
+    s = ref.sample_dt_bilinear
+    pts = vertex[None, :]
+    jac = np.array([(s(dt, pts + [0.25, 0.0]) - s(dt, pts - [0.25, 0.0]))[0] / 0.5,
+                    (s(dt, pts + [0.0, 0.25]) - s(dt, pts - [0.0, 0.25]))[0] / 0.5])
+    r = float(s(dt, pts)[0])
+    w = float(ref.tukey_biweight_weights(np.array([r / sigma]))[0]) / sigma**2
+    return jac, r, w
+
+
+#: Relative residual of a solve of the undamped one-vertex system: LU with
+#: partial pivoting is backward stable, ``|H x + g| <= c eps |H| |x|`` with c
+#: of order 10 for a 2x2 system, whichever branch (solve or pinvh) it took
+#: (measured: 2.7e-16 under three OpenBLAS kernels).
+GN_RESIDUAL_REL = 1e-14
+
+
+def test_lm_single_vertex_without_damping_solves_the_rank_one_system() -> None:
     """One weighted vertex, damping 0: ``H = a a^T`` is singular up to rounding.
 
-    Whether ``solve`` is singular (SPEC section 3 step 4) is decided by the
-    rounding of the LU factorisation, so the compiled path must round as
-    ``numpy.linalg.solve`` does to pick the same branch and the same step.
+    Whether ``solve`` is singular (SPEC section 3 step 4) is decided by how
+    the LU factorisation rounds, which differs between CPUs (OpenBLAS's
+    SkylakeX kernel fuses multiply-adds, the compiled elimination does not):
+    one path may take pinvh's minimum-norm step and the other a step with a
+    large component along the null space of ``a^T``, 70 px away. Either is
+    SPEC: both solve the Gauss-Newton system ``a a^T x = -a s``, i.e.
+    ``a^T x = -s``, which is asserted for every accepted step, with the
+    same iterations, degenerate flag and inlier count.
     """
     vv, uu = np.mgrid[0:32, 0:32].astype(float)
     dt = np.hypot(vv - 3.3, uu - 2.1)  # distance to a point: J is never parallel to an axis
     rng = np.random.default_rng(0)
-    devs = []
+    moved = {"reference": 0, "compiled": 0}
     for _ in range(200):
-        kw = dict(vertices_vu=rng.uniform(8.0, 24.0, (1, 2)), normals_vu=[[1.0, 0.0]],
+        vertex = rng.uniform(8.0, 24.0, 2)
+        kw = dict(vertices_vu=vertex[None, :], normals_vu=[[1.0, 0.0]],
                   sigma_normal_per_vertex_px=[100.0], image_edge_dt=dt, use_polarity=False,
                   damping=0.0, max_iterations=1)
+        jac, r, w = _spec_single_vertex(dt, vertex, 100.0)
+        a, s = math.sqrt(w) * jac, math.sqrt(w) * r
         want, got = ref.lm_subpixel_refine(**kw), dtalign.lm_subpixel_refine(**kw)
-        devs.append(np.max(np.abs(np.subtract(want.offset_vu, got.offset_vu))))
-    assert max(devs) <= 1e-6
+        assert (got.iterations, got.degenerate, got.inlier_count) == (1, False, 1)
+        assert (want.iterations, want.degenerate, want.inlier_count) == (1, False, 1)
+        for name, res in (("reference", want), ("compiled", got)):
+            x = np.array(res.offset_vu)  # the seed is (0, 0): the pose is the step
+            assert np.isfinite(x).all()
+            if not x.any():  # the step was refused (SPEC step 6): the seed, not converged
+                assert not res.converged
+                continue
+            moved[name] += 1
+            residual = abs(float(a @ x) + s)
+            assert residual <= GN_RESIDUAL_REL * (np.linalg.norm(a) * np.linalg.norm(x) + abs(s)), name
+            # accepted because the cost fell (SPEC step 6: the weights of the seed state)
+            assert float(ref.sample_dt_bilinear(dt, vertex[None, :] + x)[0]) ** 2 < r**2
+            assert res.converged == (math.hypot(*x) < dtalign.DEFAULT_LM_STEP_TOLERANCE)
+    assert min(moved.values()) >= 100  # non-vacuous: most steps are accepted
