@@ -23,6 +23,7 @@ from .fitting import (
     sample_dt_bilinear,
     tukey_biweight_weights,
 )
+from .noise import estimate_noise_sigma
 from .image import (
     build_image_edge_dt,
     compute_all_image_derivatives,
@@ -39,6 +40,7 @@ __all__ = [
     "compute_all_image_derivatives",
     "find_secondary_dt_minimum",
     "compute_image_gradient_vu",
+    "estimate_noise_sigma",
     "gradient_ridge_refine",
     "information_matrix_to_covariance",
     "lm_subpixel_refine",
