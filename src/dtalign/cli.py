@@ -380,7 +380,6 @@ def _plain_progress(items: list[_Job]) -> Iterable[_Job]:
 
 def _table_single(job: _Job, poly: Any, fit: Any) -> str:
     d = fit.to_dict()
-    (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
     p = 3 if fit.fit_rotation else 2
     lines = [
         f"image        : {job.image}",

@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _validation as check
+from . import status as _status
 from ._constants import (
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,
@@ -50,7 +51,6 @@ from .observability import (
     null_directions,
     observable_rank,
 )
-from . import status as _status
 from .products import ImageProducts, _readonly, estimate_noise_sigma, prepare_image
 from .status import FitReason, FitStatus
 

@@ -23,12 +23,12 @@ from .fitting import (
     sample_dt_bilinear,
     tukey_biweight_weights,
 )
-from .noise import estimate_noise_sigma
 from .image import (
     build_image_edge_dt,
     compute_all_image_derivatives,
     compute_image_gradient_vu,
 )
+from .noise import estimate_noise_sigma
 
 __all__ = [
     "apply_translation",
