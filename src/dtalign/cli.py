@@ -263,8 +263,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             f"inliers {fit.inlier_count}/{len(poly)}"
         )
         if not fit.converged:
-            print("            (no accepted step fell below 0.001 px before the stop: the "
-                  "pose is the best found; the status says suspect)")
+            print("            (it stopped at the cap before an accepted step fell below "
+                  "0.001 px: the pose is the best found; see the docs)")
         print(f"status    : {fit.status}" + (
             f" ({', '.join(map(str, fit.reasons))})" if fit.reasons else ""))
         print(

@@ -348,9 +348,10 @@ class PolylineFit:
 
         The worst severity among :attr:`reasons`: ``failed`` when the pose is
         not a measurement (degenerate, every vertex polarity-rejected, seed
-        on the window edge); ``suspect`` when it should be checked (not
-        converged, most vertices polarity-rejected); ``ok`` otherwise, a
-        rank-deficient fit included (its unobservable sigmas are ``inf``).
+        on the window edge); ``suspect`` when it should be checked (most
+        vertices polarity-rejected); ``ok`` otherwise, with notes in
+        :attr:`reasons` for a fit that stopped before converging or that
+        is rank-deficient (its unobservable sigmas are ``inf``).
         """
         return _status.fit_status(_status.fit_problems(self))
 
