@@ -2,13 +2,14 @@
 
 Its specification is :func:`dtalign.reference.estimate_noise_sigma`: SciPy's
 convolution with Immerkaer's kernel, then two NumPy medians of about a
-million values. Here the filter writes the interior responses in one pass
+million values. Here the responses are computed where they are needed
 (summed in SciPy's order, so they are bit-identical), and each median is
 an exact selection: a sorted stride sample of the values brackets the
-wanted ranks, one pass counts the values below the bracket and gathers
-those inside it (a few percent of them), and a quickselect of the gathered
-values finishes. When the bracket misses (adversarial value orders), the
-quickselect runs on all the values instead; the result is the same.
+wanted ranks, one pass over the image counts the values below the bracket
+and gathers those inside it (~9 % of them), further passes shrink the
+gathered values in place, and a quickselect finishes. When a bracket
+misses (adversarial value orders, many ties), the quickselect runs on all
+the values instead; the result is the same.
 """
 
 from __future__ import annotations
@@ -57,6 +58,33 @@ def _response(img, i, j):  # pragma: no cover - compiled
 
 
 @kernel
+def _row_responses(img, i, row):  # pragma: no cover - compiled
+    """Immerkaer's responses of interior row ``i`` into ``row`` (``W - 2`` values).
+
+    Each response is :func:`_response`'s sum, in its order; the loop runs
+    over the pixels, so LLVM can compute several pixels per vector
+    instruction without reordering any pixel's own sum (each is a chain of
+    eight dependent adds: one pixel at a time is latency-bound, and the
+    more so when a hyperthread sibling shares the core).
+    """
+    up = img[i - 1]
+    mid = img[i]
+    dn = img[i + 1]
+    for j in range(row.shape[0]):
+        t = 0.0
+        t += up[j]
+        t += -2.0 * up[j + 1]
+        t += up[j + 2]
+        t += -2.0 * mid[j]
+        t += 4.0 * mid[j + 1]
+        t += -2.0 * mid[j + 2]
+        t += dn[j]
+        t += -2.0 * dn[j + 1]
+        t += dn[j + 2]
+        row[j] = t
+
+
+@kernel
 def immerkaer_interior(img, out):  # pragma: no cover - compiled
     """Immerkaer's response at every interior pixel, row by row.
 
@@ -64,11 +92,9 @@ def immerkaer_interior(img, out):  # pragma: no cover - compiled
     ``1 <= j < W - 1``.
     """
     h, w = img.shape
-    k = 0
+    wi = w - 2
     for i in range(1, h - 1):
-        for j in range(1, w - 1):
-            out[k] = _response(img, i, j)
-            k += 1
+        _row_responses(img, i, out[(i - 1) * wi : i * wi])
 
 
 @kernel
@@ -122,7 +148,7 @@ def _ranks_of_all(a, n, k0, k1):  # pragma: no cover - compiled
     return lo, hi
 
 
-@kernel
+@inline_kernel
 def _value(x, i, centre, deviations):  # pragma: no cover - compiled
     """``x[i]``, or ``abs(x[i] - centre)`` when selecting deviations."""
     if deviations:
@@ -130,78 +156,157 @@ def _value(x, i, centre, deviations):  # pragma: no cover - compiled
     return x[i]
 
 
-@kernel
-def _gather(x, n, k0, k1, centre, deviations, work):  # pragma: no cover - compiled
-    """One bracketing pass over the first ``n`` values (see :func:`_order_pair`).
+@inline_kernel
+def _image_value(img, i, j, centre, deviations):  # pragma: no cover - compiled
+    """The response at ``(i, j)``, or ``abs(response - centre)`` (as NumPy
+    computes ``np.abs(f - centre)``: the same two operations)."""
+    v = _response(img, i, j)
+    if deviations:
+        return abs(v - centre)
+    return v
 
-    Returns ``(m, below, ok)``: ``work[:m]`` holds the values inside a
-    bracket drawn from a stride sample, ``below`` values lie under it, and
-    ``ok`` says whether ranks ``k0..k1`` fall inside. ``work`` may be ``x``
-    itself (the pass writes behind where it reads).
+
+@kernel
+def _bracket(sample, n, k0, k1):  # pragma: no cover - compiled
+    """``(found, lo, hi)``: values of a sorted stride sample of ``n`` values
+    that bracket ranks ``k0..k1`` with :data:`BRACKET_SIGMAS` to spare."""
+    s = sample.shape[0]
+    half = BRACKET_SIGMAS * np.sqrt(s * 0.25) + 1.0
+    i_lo = int(k0 / n * s - half)
+    i_hi = int(k1 / n * s + half) + 1
+    if i_lo < 0 or i_hi >= s:
+        return False, 0.0, 0.0
+    return True, sample[i_lo], sample[i_hi]
+
+
+@kernel
+def _gather(x, n, k0, k1, work):  # pragma: no cover - compiled
+    """One bracketing pass over ``x[:n]``, in place when ``work`` is ``x``.
+
+    Returns ``(m, below, ok, touched)``: ``work[:m]`` holds the values
+    inside a bracket drawn from a stride sample, ``below`` values lie under
+    it, ``ok`` says whether ranks ``k0..k1`` fall inside, and ``touched``
+    whether ``work`` was written (the pass writes behind where it reads).
     """
     s = SAMPLE_SIZE
     sample = np.empty(s)
     stride = n / s
     for j in range(s):
-        sample[j] = _value(x, int(j * stride), centre, deviations)
+        sample[j] = x[int(j * stride)]
     sample.sort()
-    half = BRACKET_SIGMAS * np.sqrt(s * 0.25) + 1.0
-    i_lo = int(k0 / n * s - half)
-    i_hi = int(k1 / n * s + half) + 1
-    if i_lo < 0 or i_hi >= s:
-        return 0, 0, False
-    lo_v = sample[i_lo]
-    hi_v = sample[i_hi]
+    found, lo_v, hi_v = _bracket(sample, n, k0, k1)
+    if not found:
+        return 0, 0, False, False
     below = 0
     m = 0
     # branch-free: which side of the bracket a value falls is a coin toss,
     # and a mispredicted branch per value tripled the pass
     for i in range(n):
-        v = _value(x, i, centre, deviations)
+        v = x[i]
         below += v < lo_v
         work[m] = v
         m += (v >= lo_v) & (v <= hi_v)
+    return m, below, below <= k0 and k1 < below + m, True
+
+
+@kernel
+def _gather_image(img, k0, k1, centre, deviations, work):  # pragma: no cover - compiled
+    """:func:`_gather` of the image's responses (or their deviations), computed
+    a row at a time: no array of a million responses is written and read
+    back. ``work`` must hold as many values as the image has responses.
+    """
+    h, w = img.shape
+    wi = w - 2
+    n = (h - 2) * wi
+    s = SAMPLE_SIZE
+    sample = np.empty(s)
+    stride = n / s
+    for j in range(s):
+        idx = int(j * stride)
+        sample[j] = _image_value(img, idx // wi + 1, idx % wi + 1, centre, deviations)
+    sample.sort()
+    found, lo_v, hi_v = _bracket(sample, n, k0, k1)
+    if not found:
+        return 0, 0, False
+    below = 0
+    m = 0
+    row = np.empty(wi)
+    for i in range(1, h - 1):
+        _row_responses(img, i, row)
+        if deviations:
+            for j in range(wi):
+                row[j] = abs(row[j] - centre)
+        for j in range(wi):
+            v = row[j]
+            below += v < lo_v
+            work[m] = v
+            m += (v >= lo_v) & (v <= hi_v)
     return m, below, below <= k0 and k1 < below + m
+
+
+@kernel
+def _refine(work, m, below, k0, k1):  # pragma: no cover - compiled
+    """Ranks ``k0, k1`` of all the values, ``work[:m]`` holding those of ranks
+    ``below ..``: bracketing passes in place down to :data:`DIRECT_SELECT_MAX`
+    values, then a quickselect. Returns ``(ok, a, b)``; ``ok`` is False when
+    a pass missed after overwriting ``work`` (start again from all values)."""
+    rounds = 0
+    while m > DIRECT_SELECT_MAX and rounds < MAX_ROUNDS:
+        rounds += 1
+        m2, b2, ok, touched = _gather(work, m, k0 - below, k1 - below, work)
+        if not ok:
+            if touched:
+                return False, 0.0, 0.0
+            break  # the sample's bracket left the sample: select among all m
+        if m2 == m:  # ties: the bracket is one value; select among them
+            break
+        m = m2
+        below += b2
+    a, b = _ranks_of_all(work, m, k0 - below, k1 - below)
+    return True, a, b
 
 
 @kernel
 def _order_pair(x, k0, k1, centre, deviations, work):  # pragma: no cover - compiled
     """Elements of rank ``k0`` and ``k1`` (``k0`` or ``k0 + 1``) of the values.
 
-    The values are ``x`` or, with ``deviations``, ``abs(x - centre)``
-    (computed exactly as NumPy computes ``np.abs(x - centre)``); ``x`` is
-    not modified, ``work`` (as long as ``x``) is scratch. Bracketing passes
-    shrink the candidates to at most :data:`DIRECT_SELECT_MAX` (two passes
-    for a million values), then a quickselect finishes.
+    The values are ``x`` or, with ``deviations``, ``abs(x - centre)``;
+    ``x`` is not modified, ``work`` (as long as ``x``) is scratch.
     """
     n = x.shape[0]
-    m = n
-    below = 0
-    ok = False
-    if n > DIRECT_SELECT_MAX:
-        m, below, ok = _gather(x, n, k0, k1, centre, deviations, work)
+    for i in range(n):
+        work[i] = _value(x, i, centre, deviations)
+    ok, a, b = _refine(work, n, 0, k0, k1)
     if not ok:
         for i in range(n):
             work[i] = _value(x, i, centre, deviations)
-        m = n
-        below = 0
-    rounds = 0
-    while m > DIRECT_SELECT_MAX and rounds < MAX_ROUNDS:
-        rounds += 1
-        m2, b2, ok = _gather(work, m, k0 - below, k1 - below, 0.0, False, work)
-        if ok and m2 == m:  # ties: the bracket is one value; select among them
-            break
-        if not ok:
-            # the gathered values were overwritten only by themselves: redo
-            # the selection on all the values
-            for i in range(n):
-                work[i] = _value(x, i, centre, deviations)
-            m = n
-            below = 0
-            break
-        m = m2
-        below += b2
-    return _ranks_of_all(work, m, k0 - below, k1 - below)
+        a, b = _ranks_of_all(work, n, k0, k1)
+    return a, b
+
+
+@kernel
+def _image_order_pair(img, k0, k1, centre, deviations):  # pragma: no cover - compiled
+    """:func:`_order_pair` of the image's responses (or their deviations).
+
+    One bracketing pass over the image gathers ~9 % of the values; only
+    when that misses are all the values written out and selected.
+    """
+    h, w = img.shape
+    n = (h - 2) * (w - 2)
+    # (as long as all the values, but only the gathered ~9 % are written:
+    # the rest of the pages are never touched)
+    work = np.empty(n)
+    if n > DIRECT_SELECT_MAX:
+        m, below, ok = _gather_image(img, k0, k1, centre, deviations, work)
+        if ok:
+            ok, a, b = _refine(work, m, below, k0, k1)
+            if ok:
+                return a, b
+    immerkaer_interior(img, work)
+    if deviations:
+        for k in range(n):
+            work[k] = abs(work[k] - centre)
+    return _ranks_of_all(work, n, k0, k1)
 
 
 @kernel
@@ -215,27 +320,27 @@ def noise_statistics(img):  # pragma: no cover - compiled
     """
     h, w = img.shape
     n = (h - 2) * (w - 2)
-    f = np.empty(n)
-    work = np.empty(n)
     k1 = n // 2
     k0 = k1 if n % 2 else k1 - 1
-    immerkaer_interior(img, f)
-    a, b = _order_pair(f, k0, k1, 0.0, False, work)
+    a, b = _image_order_pair(img, k0, k1, 0.0, False)
     centre = a if k0 == k1 else (a + b) / 2.0
-    a, b = _order_pair(f, k0, k1, centre, True, work)
+    a, b = _image_order_pair(img, k0, k1, centre, True)
     mad = a if k0 == k1 else (a + b) / 2.0
     mean_abs = 0.0
     if not mad > 0.0:
         # Neumaier's compensated sum: within an ulp or two of NumPy's pairwise one
         total = 0.0
         comp = 0.0
-        for i in range(n):
-            v = abs(f[i])
-            t = total + v
-            if abs(total) >= v:
-                comp += (total - t) + v
-            else:
-                comp += (v - t) + total
-            total = t
+        row = np.empty(w - 2)
+        for i in range(1, h - 1):
+            _row_responses(img, i, row)
+            for j in range(w - 2):
+                v = abs(row[j])
+                t = total + v
+                if abs(total) >= v:
+                    comp += (total - t) + v
+                else:
+                    comp += (v - t) + total
+                total = t
         mean_abs = (total + comp) / n
     return centre, mad, mean_abs
