@@ -430,8 +430,9 @@ def _offset_line(fit: Any) -> str:
     parts = [f"along ({e[0]:.4f}, {e[1]:.4f}): {_fmt(x, 4)} ± {_fmt(sd, 4)} px"
              for e, x, sd in observed]
     p = 3 if fit.fit_rotation else 2
+    # no (dv, du) here: along the unmeasured direction it is the seed's, not a measurement
     return (f"offset       : rank {fit.observable_rank} of {p}: " + "; ".join(parts)
-            + f" (1 sigma); (dv, du) = ({_fmt(dv, 4)}, {_fmt(du, 4)}) px, not measured along "
+            + " (1 sigma); not measured along "
             + " and ".join(f"({float(e[0]) + 0.0:.4f}, {float(e[1]) + 0.0:.4f})"
                            for e in fit.unobservable_directions if abs(e[0]) + abs(e[1]) > 1e-6))
 
