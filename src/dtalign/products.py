@@ -83,6 +83,12 @@ def estimate_noise_sigma(image: Any) -> float:
     used instead: ``sqrt(pi / 2) * mean(|x|) / 6``, Immerkaer's original
     estimator.
 
+    The work is compiled (:mod:`dtalign._kernels.noise`: the responses a
+    row at a time, exact selection medians) and gives the value of its
+    NumPy/SciPy definition, :func:`dtalign.reference.estimate_noise_sigma`
+    (bit for bit in the tests; the contract is 1e-12 relative), in a
+    fraction of its time (``estimate_noise_sigma`` benchmark row).
+
     Parameters
     ----------
     image : array_like, shape (H, W)
