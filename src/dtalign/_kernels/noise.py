@@ -236,9 +236,13 @@ def _gather_image(img, k0, k1, centre, deviations, work):  # pragma: no cover - 
         if deviations:
             for j in range(wi):
                 row[j] = abs(row[j] - centre)
+        # the count vectorises on its own; the gather is a chain through m
+        b = 0
+        for j in range(wi):
+            b += row[j] < lo_v
+        below += b
         for j in range(wi):
             v = row[j]
-            below += v < lo_v
             work[m] = v
             m += (v >= lo_v) & (v <= hi_v)
     return m, below, below <= k0 and k1 < below + m
