@@ -34,7 +34,6 @@ from ._constants import (
     DEFAULT_RIDGE_SAMPLE_STEP_PX,
     POLARITY_PENALTY_RESIDUAL,
 )
-from .observability import _sigma_list, _sigmas_from_cov
 from .products import ImageProducts
 
 if TYPE_CHECKING:
@@ -341,11 +340,9 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
         offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
     ))
     t3 = time.perf_counter()
-    sd = _sigma_list(lm.covariance)
     fit_rotation = shared.lm.fit_rotation
     return d.PolylineFit(
-        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, sigma_vu=(sd[0], sd[1]),
-        sigma_rotation_rad=sd[2] if fit_rotation else None, coarse_offset_vu=coarse,
+        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, coarse_offset_vu=coarse,
         at_window_edge=_at_window_edge(coarse[0], coarse[1], shared.window),
         lm=lm, search_window_vu=shared.window, fit_rotation=fit_rotation, pivot_vu=it.pivot,
         pivot_distance_px=float(it.distance), noise_sigma=shared.products.noise_sigma,
@@ -490,7 +487,6 @@ def _wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int,
     pts, nrm = batch.pts, batch.nrm
     # Per-fit values as Python scalars in bulk, and read-only arrays whose
     # slices each fit keeps: a few microseconds per fit under the GIL.
-    sig_l = _sigmas_from_cov(covs[lo:hi]).tolist()
     bounds = batch.starts[lo : hi + 1].tolist()
     fit_rotation = a.fit_rotation
     common = {
@@ -499,8 +495,8 @@ def _wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int,
     }
     timings = p.timings_s
     fits = []
-    for j, (pose, (dv, du), sd, n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
-        poses[lo:hi].tolist(), coarse[lo:hi].tolist(), sig_l, iterations[lo:hi].tolist(),
+    for j, (pose, (dv, du), n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
+        poses[lo:hi].tolist(), coarse[lo:hi].tolist(), iterations[lo:hi].tolist(),
         converged[lo:hi].tolist(), rms[lo:hi].tolist(), raw_rms[lo:hi].tolist(),
         inliers[lo:hi].tolist(), degenerate[lo:hi].tolist(), batch.pivots[lo:hi].tolist(),
         batch.distances[lo:hi].tolist(), strict=True,
@@ -519,8 +515,7 @@ def _wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int,
         )
         fit = object.__new__(PolylineFit)
         fit.__dict__.update(
-            common, offset_vu=lm.offset_vu, rotation_rad=pose[2], sigma_vu=(sd[0], sd[1]),
-            sigma_rotation_rad=sd[2] if fit_rotation else None, coarse_offset_vu=(dv, du),
+            common, offset_vu=lm.offset_vu, rotation_rad=pose[2], coarse_offset_vu=(dv, du),
             at_window_edge=_at_window_edge(dv, du, shared.window), lm=lm,
             pivot_vu=(pv[0], pv[1]), pivot_distance_px=dist,
             vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], timings_s=dict(timings),

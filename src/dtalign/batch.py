@@ -50,6 +50,7 @@ import numpy as np
 from . import _fitjobs
 from ._image_args import ImageDerivativesConfig
 from .pipeline import ImageProducts, PolylineFit, fit_polyline_products, prepare_image
+from .status import log_fits
 
 __all__ = ["DEFAULT_WORKERS", "fit_images", "fit_many", "map_ordered", "results_equal"]
 
@@ -352,7 +353,9 @@ def fit_many(
     n = _check_workers(workers)
     _check_options(options)
     parts = [_polyline_parts(item, i) for i, item in enumerate(polylines)]
-    return _fit_parts(products, parts, search_window_vu, options, n)
+    fits = _fit_parts(products, parts, search_window_vu, options, n)
+    log_fits(fits)  # failed and suspect fits at WARNING (dtalign.status)
+    return fits
 
 
 def _fit_parts(
@@ -477,7 +480,11 @@ def fit_images(
         for i, item in enumerate(items)
     ]
     if executor == "thread" or n == 1 or len(jobs) <= 1:
-        return map_ordered(_fit_image, jobs, workers=n)
-    pool: Executor
-    with ProcessPoolExecutor(max_workers=min(n, len(jobs), os.cpu_count() or 1)) as pool:
-        return list(pool.map(_fit_image, jobs))
+        out = map_ordered(_fit_image, jobs, workers=n)
+    else:
+        pool: Executor
+        with ProcessPoolExecutor(max_workers=min(n, len(jobs), os.cpu_count() or 1)) as pool:
+            out = list(pool.map(_fit_image, jobs))
+    for i, fits in enumerate(out):  # logged here, in the caller's process
+        log_fits(fits, f"items[{i}].polylines")
+    return out

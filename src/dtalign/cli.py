@@ -12,7 +12,10 @@ Subcommands:
 
 Errors are printed as one line, ``dtalign: error: ...``, with exit status
 1 (2 for a malformed command line). A batch never stops on one bad image:
-it reports it, goes on, and exits 1 at the end if anything failed.
+it reports it, goes on, and exits 1 at the end if anything failed. A fit
+whose status is ``failed`` (:mod:`dtalign.status`) gives exit status 3
+(:data:`EXIT_FIT_FAILED`) when nothing else went wrong; failed and suspect
+fits are also reported on standard error as ``dtalign: warning: ...``.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import argparse
 import glob
 import importlib
 import json
+import logging
 import math
 import os
 import sys
@@ -33,6 +37,28 @@ from typing import Any
 __all__ = ["build_parser", "main"]
 
 PROG = "dtalign"
+
+#: Exit status when every input was read and fitted but some fit failed
+#: (its status is "failed": degenerate, all vertices polarity-rejected, or
+#: the seed on the window edge); 1 stays "an error stopped the work".
+EXIT_FIT_FAILED = 3
+
+
+class _Warnings(logging.Handler):
+    """Prints the ``dtalign`` logger's records as ``dtalign: warning: LABEL: ...``.
+
+    ``label`` names the input being fitted (the pipeline's message does not
+    know the file); the stream is looked up at each record, so the handler
+    follows a replaced ``sys.stderr``.
+    """
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.label = ""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        where = f"{self.label}: " if self.label else ""
+        print(f"{PROG}: {record.levelname.lower()}: {where}{record.getMessage()}", file=sys.stderr)
 
 
 class CLIError(Exception):
@@ -156,12 +182,21 @@ def build_parser() -> argparse.ArgumentParser:
 # ---------------------------------------------------------------------------
 
 
+_WARNINGS = _Warnings()
+
+
+def _log_label(label: str) -> None:
+    """Name the input the next pipeline warnings are about."""
+    _WARNINGS.label = label
+
+
 def _fmt(x: float, digits: int = 3) -> str:
     return f"{x:.{digits}f}" if math.isfinite(x) else ("inf" if x > 0 else "-inf")
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from . import pipeline, scenes
+    from ._constants import DEFAULT_LM_MAX_ITERATIONS
 
     if args.n_vertices < 3:
         raise CLIError(f"--n-vertices must be >= 3, got {args.n_vertices}")
@@ -187,6 +222,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             fit_rotation=args.rotation is not None,
             pivot_vu=scene.pivot_vu,
             pivot_distance_px=scene.pivot_distance_px if args.rotation is not None else None,
+            trust_region_px=1.0,
         )
     noise_est = pipeline.estimate_noise_sigma(scene.image)
     t = fit.timings_s
@@ -209,20 +245,28 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print(f", rotation {scene.true_rotation_rad:.5f} rad" if args.rotation is not None else "")
         print(f"coarse    : offset (dv, du) = {fit.coarse_offset_vu} (window ±{args.window})")
         (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
+        (sv2, su2) = fit.sigma_vu_scaled
         print(f"fitted    : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)")
+        print(f"scaled    : ± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (1 sigma scaled by the residuals, "
+              f"variance factor {_fmt(fit.variance_factor, 4)})")
         if fit.fit_rotation:
             print(f"rotation  : {fit.rotation_rad:.6f} ± {_fmt(fit.sigma_rotation_rad or 0.0, 6)} rad")
         print(f"error     : dv {dv - tv:+.4f}, du {du - tu:+.4f} px")
         if fit.observable_rank < (3 if fit.fit_rotation else 2):
             print(
                 f"observable: rank {fit.observable_rank}: a circle turned about its centre "
-                "looks the same, so its rotation is not measured (its sigma reads the DT's "
-                "pixel grid, not the geometry)"
+                "looks the same, so its rotation is not measured (sigma inf)"
             )
         print(
-            f"LM        : {fit.lm.iterations} iterations, converged={fit.converged}, "
-            f"rms {_fmt(fit.rms_px)} px, inliers {fit.inlier_count}/{len(poly)}"
+            f"LM        : {fit.lm.iterations} iterations (cap {DEFAULT_LM_MAX_ITERATIONS}), "
+            f"converged={fit.converged}, rms {_fmt(fit.rms_px)} px, "
+            f"inliers {fit.inlier_count}/{len(poly)}"
         )
+        if not fit.converged:
+            print("            (it stopped at the cap before an accepted step fell below "
+                  "0.001 px: the pose is the best found; see the docs)")
+        print(f"status    : {fit.status}" + (
+            f" ({', '.join(map(str, fit.reasons))})" if fit.reasons else ""))
         print(
             f"wall time : derivatives {t.get('derivatives', 0.0) * 1e3:.1f} ms, "
             f"coarse {t.get('coarse', 0.0) * 1e3:.1f} ms, lm {t.get('lm', 0.0) * 1e3:.1f} ms"
@@ -336,14 +380,13 @@ def _plain_progress(items: list[_Job]) -> Iterable[_Job]:
 
 def _table_single(job: _Job, poly: Any, fit: Any) -> str:
     d = fit.to_dict()
-    (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
     p = 3 if fit.fit_rotation else 2
     lines = [
         f"image        : {job.image}",
         f"polyline     : {job.polyline} ({len(poly)} vertices)",
         f"noise sigma  : {fit.noise_sigma:.4g}",
         f"coarse       : (dv, du) = {fit.coarse_offset_vu}, window ±{fit.search_window_vu}",
-        f"offset       : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)",
+        _offset_line(fit),
     ]
     if fit.fit_rotation:
         lines.append(
@@ -361,8 +404,7 @@ def _table_single(job: _Job, poly: Any, fit: Any) -> str:
         f"LM           : {fit.lm.iterations} iterations, converged={fit.converged}, "
         f"degenerate={fit.degenerate}",
     ]
-    if fit.at_window_edge:
-        lines.append("WARNING      : the coarse seed is on the search-window edge: widen --window")
+    lines.append(f"status       : {fit.status_message}")
     t = fit.timings_s
     lines.append(
         "wall time    : "
@@ -371,13 +413,39 @@ def _table_single(job: _Job, poly: Any, fit: Any) -> str:
     return "\n".join(lines)
 
 
+def _offset_line(fit: Any) -> str:
+    """The main line: the offset where the fit observes it, with the rank.
+
+    A fully observed fit gives ``dv = ... ± ...   du = ... ± ...``; a
+    rank-deficient one leads with the offset along each observed direction
+    and says which direction is not measured (no finite sigma there).
+    """
+    (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
+    if fit.degenerate:
+        return f"offset       : none measured (degenerate; the coarse seed is {fit.coarse_offset_vu})"
+    observed = fit.observable_offset()
+    if len(observed) == 2 and math.isfinite(sv) and math.isfinite(su):
+        return (f"offset       : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± "
+                f"{_fmt(su, 4)} px (1 sigma)")
+    parts = [f"along ({e[0]:.4f}, {e[1]:.4f}): {_fmt(x, 4)} ± {_fmt(sd, 4)} px"
+             for e, x, sd in observed]
+    p = 3 if fit.fit_rotation else 2
+    # no (dv, du) here: along the unmeasured direction it is the seed's, not a measurement
+    return (f"offset       : rank {fit.observable_rank} of {p}: " + "; ".join(parts)
+            + " (1 sigma); not measured along "
+            + " and ".join(f"({float(e[0]) + 0.0:.4f}, {float(e[1]) + 0.0:.4f})"
+                           for e in fit.unobservable_directions if abs(e[0]) + abs(e[1]) > 1e-6))
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     window = _window(args.window)
     jobs, batch = _jobs(args)
     results: list[dict[str, Any]] = []
     failures = 0
+    failed_fits = 0
     show_progress = batch and not args.no_progress and not args.json
     for job in _progress(jobs, show_progress):
+        _log_label(str(job.image))
         try:
             image, poly, fit = _fit_one(job, args, window)
             if args.plot:
@@ -395,6 +463,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             continue
         entry = {"image": str(job.image), "polyline": str(job.polyline), **fit.to_dict()}
         results.append(entry)
+        failed_fits += fit.failed
         if not args.json and not batch:
             print(_table_single(job, poly, fit))
     if args.json:
@@ -404,6 +473,10 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if failures:
         print(f"{PROG}: {failures} of {len(jobs)} image(s) failed", file=sys.stderr)
         return 1
+    if failed_fits:
+        print(f"{PROG}: {failed_fits} of {len(jobs)} fit(s) failed (status 'failed')",
+              file=sys.stderr)
+        return EXIT_FIT_FAILED
     return 0
 
 
@@ -419,9 +492,7 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
         def f(x: Any, d: int) -> str:
             return x if isinstance(x, str) else f"{x:.{d}f}"
 
-        status = "ok" if not r["at_window_edge"] else "at window edge"
-        if r["degenerate"]:
-            status = "degenerate"
+        status = r["status"] + (f" ({', '.join(r['reasons'])})" if r["reasons"] else "")
         rows.append(
             f"{name:<32} {f(r['offset_vu'][0], 3):>9} {f(r['offset_vu'][1], 3):>9} "
             f"{f(r['sigma_vu'][0], 4):>8} {f(r['sigma_vu'][1], 4):>8} {r['observable_rank']:>4} "
@@ -497,6 +568,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     handlers = {"demo": _cmd_demo, "fit": _cmd_fit, "overlay": _cmd_overlay, "bench": _cmd_bench}
+    log = logging.getLogger("dtalign")
+    log.addHandler(_WARNINGS)
+    _log_label(args.command if args.command == "demo" else "")
     try:
         return handlers[args.command](args)
     except CLIError as exc:
@@ -507,3 +581,5 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(_one_line(exc))
     except KeyboardInterrupt:
         return _fail("interrupted")
+    finally:
+        log.removeHandler(_WARNINGS)

@@ -233,6 +233,15 @@ def compute_all_image_derivatives(
     image = check_image(image_ext)
     noise = check_noise_sigma(image_noise_sigma)
     cfg = resolve_config(config)
+    return _all_derivatives(image, noise, cfg)
+
+
+def _all_derivatives(
+    image: FloatArray, noise: float, cfg: ImageDerivativesConfig
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`compute_all_image_derivatives` of arguments it has checked (the
+    pipeline checks the image once per call); the smoothing check is a few
+    scalar comparisons and runs on both paths."""
     smoothing_sigma(cfg.image_gradient_sigma_px, image.shape, "config.image_gradient_sigma_px")
     threshold = cfg.edge_threshold_k_sigma * max(noise, NOISE_SIGMA_FLOOR)
     half_width = cfg.dt_half_width_px

@@ -29,6 +29,8 @@ TARGETS: dict[str, float | None] = {
     "lm_n20000": 30.0,
     "lm_outliers": None,
     "end_to_end": 10.0,
+    "estimate_noise_sigma": 3.0,
+    "fit_polyline": None,
 }
 WORKLOADS: tuple[str, ...] = tuple(TARGETS)
 DESCRIPTIONS = {
@@ -46,9 +48,15 @@ DESCRIPTIONS = {
     "lm_n20000": "LM translation, N=20,000",
     "lm_outliers": "LM N=200, 10% outliers displaced 30 px",
     "end_to_end": "derivatives + (mask, coarse +-30, LM tr=1) x 3 polylines",
+    "estimate_noise_sigma": "estimate_noise_sigma, 1024x1024 disc",
+    "fit_polyline": "fit_polyline, noise estimated, disc N=200, +-30, tr=1",
 }
 #: Section names accepted by ``--only`` besides the workloads.
-SECTIONS = ("batch", "startup", "memory")
+SECTIONS = ("noise_overhead", "batch", "startup", "memory")
+#: ``fit_polyline`` with the noise estimated may take at most this many
+#: times the same call with the noise given (the estimate must be cheap
+#: beside the derivatives it feeds).
+NOISE_OVERHEAD_TARGET = 1.3
 BATCH_TARGET = 1.8
 BATCH_FITS = 64
 IMPORT_TARGET_S = 0.5
@@ -150,8 +158,46 @@ def end_to_end(api: Any, scene: Any, window: tuple[int, int] = (30, 30)) -> list
     return fits
 
 
+def fit_polyline_keywords(inputs: Inputs) -> dict[str, Any]:
+    """The ``fit_polyline`` call of the ``fit_polyline`` rows (disc limb, production settings)."""
+    p = inputs.lm["lm_n200"]
+    return {
+        "vertices_vu": p["vertices_vu"], "normals_vu": p["normals_vu"],
+        "sigmas": p["sigma_normal_per_vertex_px"], "search_window_vu": (30, 30),
+        "trust_region_px": 1.0,
+    }
+
+
+def reference_fit_polyline(image: Any, vertices_vu: Any, normals_vu: Any, sigmas: Any, *,
+                           search_window_vu: tuple[int, int], noise_sigma: float | None = None,
+                           trust_region_px: float | None = None) -> Any:
+    """What :func:`dtalign.pipeline.fit_polyline` computes, from :mod:`dtalign.reference`.
+
+    Noise estimate, derivatives, polyline mask, coarse search, LM; returns
+    the :class:`~dtalign.LMRefineResult`.
+    """
+    from .. import reference as ref
+
+    noise = ref.estimate_noise_sigma(image) if noise_sigma is None else noise_sigma
+    _, dt, grad = ref.compute_all_image_derivatives(image, noise)
+    seed = ref.coarse_ncc_search(dt <= 0.5, ref.build_polyline_mask(vertices_vu, dt.shape),
+                                 search_window_vu)
+    return ref.lm_subpixel_refine(
+        vertices_vu=vertices_vu, normals_vu=normals_vu, sigma_normal_per_vertex_px=sigmas,
+        image_edge_dt=dt, image_gradient_vu=grad,
+        initial_offset_vu=(float(seed[0]), float(seed[1])), trust_region_px=trust_region_px,
+    )
+
+
 def workload_call(name: str, api: Any, inputs: Inputs) -> Callable[[], Any]:
     """A no-argument callable running workload ``name`` with ``api`` (a module)."""
+    if name == "estimate_noise_sigma":
+        return lambda: api.estimate_noise_sigma(inputs.image)
+    if name == "fit_polyline":
+        kw = fit_polyline_keywords(inputs)
+        if api.__name__.endswith("reference"):
+            return lambda: reference_fit_polyline(inputs.image, **kw)
+        return lambda: api.fit_polyline(inputs.image, **kw).lm
     if name == "derivatives_1024":
         return lambda: api.compute_all_image_derivatives(inputs.image, inputs.noise_sigma)
     if name in ("coarse_30", "coarse_50"):

@@ -28,6 +28,7 @@ from .image import (
     compute_all_image_derivatives,
     compute_image_gradient_vu,
 )
+from .noise import estimate_noise_sigma
 
 __all__ = [
     "apply_translation",
@@ -39,6 +40,7 @@ __all__ = [
     "compute_all_image_derivatives",
     "find_secondary_dt_minimum",
     "compute_image_gradient_vu",
+    "estimate_noise_sigma",
     "gradient_ridge_refine",
     "information_matrix_to_covariance",
     "lm_subpixel_refine",

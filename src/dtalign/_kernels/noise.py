@@ -1,0 +1,350 @@
+"""The noise estimate of :func:`dtalign.products.estimate_noise_sigma`, compiled.
+
+Its specification is :func:`dtalign.reference.estimate_noise_sigma`: SciPy's
+convolution with Immerkaer's kernel, then two NumPy medians of about a
+million values. Here the responses are computed where they are needed
+(summed in SciPy's order, so they are bit-identical), and each median is
+an exact selection: a sorted stride sample of the values brackets the
+wanted ranks, one pass over the image counts the values below the bracket
+and gathers those inside it (~9 % of them), further passes shrink the
+gathered values in place, and a quickselect finishes. When a bracket
+misses (adversarial value orders, many ties), the quickselect runs on all
+the values instead; the result is the same.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._jit import inline_kernel, kernel
+
+#: Values up to this many are selected directly (a sample would not pay).
+DIRECT_SELECT_MAX = 16384
+
+#: Sample size of the bracket: its sort costs ~0.3 ms, and the bracket of
+#: ``+-BRACKET_SIGMAS`` sample standard deviations then holds ~9 % of the values.
+SAMPLE_SIZE = 4096
+
+#: Bracketing passes over the gathered values before the quickselect takes
+#: whatever is left (each pass keeps ~9 % of random values; ties keep more).
+MAX_ROUNDS = 4
+
+#: Half-width of the bracket in binomial standard deviations of a sample
+#: rank (sqrt(s p (1 - p)) <= 32 for s = 4096): a miss costs a full
+#: quickselect, and at 6 sigma it does not happen by chance.
+BRACKET_SIGMAS = 6.0
+
+
+@inline_kernel
+def _response(img, i, j):  # pragma: no cover - compiled
+    """Immerkaer's response at interior pixel ``(i, j)``, summed as SciPy sums it.
+
+    The nine products are added to 0.0 in the kernel's row-major order, as
+    SciPy's ``correlate`` adds them (the kernel is symmetric, so
+    ``convolve`` is the same); the weights are powers of two, so every
+    product is exact and the sums round alike: bit-identical responses.
+    """
+    t = 0.0
+    t += img[i - 1, j - 1]
+    t += -2.0 * img[i - 1, j]
+    t += img[i - 1, j + 1]
+    t += -2.0 * img[i, j - 1]
+    t += 4.0 * img[i, j]
+    t += -2.0 * img[i, j + 1]
+    t += img[i + 1, j - 1]
+    t += -2.0 * img[i + 1, j]
+    t += img[i + 1, j + 1]
+    return t
+
+
+@kernel
+def _row_responses(img, i, row):  # pragma: no cover - compiled
+    """Immerkaer's responses of interior row ``i`` into ``row`` (``W - 2`` values).
+
+    Each response is :func:`_response`'s sum, in its order; the loop runs
+    over the pixels, so LLVM can compute several pixels per vector
+    instruction without reordering any pixel's own sum (each is a chain of
+    eight dependent adds: one pixel at a time is latency-bound, and the
+    more so when a hyperthread sibling shares the core).
+    """
+    up = img[i - 1]
+    mid = img[i]
+    dn = img[i + 1]
+    for j in range(row.shape[0]):
+        t = 0.0
+        t += up[j]
+        t += -2.0 * up[j + 1]
+        t += up[j + 2]
+        t += -2.0 * mid[j]
+        t += 4.0 * mid[j + 1]
+        t += -2.0 * mid[j + 2]
+        t += dn[j]
+        t += -2.0 * dn[j + 1]
+        t += dn[j + 2]
+        row[j] = t
+
+
+@kernel
+def immerkaer_interior(img, out):  # pragma: no cover - compiled
+    """Immerkaer's response at every interior pixel, row by row.
+
+    ``out[(i - 1) * (W - 2) + (j - 1)]`` for ``1 <= i < H - 1``,
+    ``1 <= j < W - 1``.
+    """
+    h, w = img.shape
+    wi = w - 2
+    for i in range(1, h - 1):
+        _row_responses(img, i, out[(i - 1) * wi : i * wi])
+
+
+@kernel
+def _quickselect(a, lo, hi, k):  # pragma: no cover - compiled
+    """Reorder ``a[lo:hi]`` so that ``a[k]`` is its element of rank ``k - lo``.
+
+    Elements left of ``k`` are ``<= a[k]``, right of it ``>= a[k]``
+    (Hoare partition around the median of three).
+    """
+    hi -= 1
+    while hi > lo:
+        mid = (lo + hi) // 2
+        # median of three into a[mid]
+        if a[mid] < a[lo]:
+            a[mid], a[lo] = a[lo], a[mid]
+        if a[hi] < a[lo]:
+            a[hi], a[lo] = a[lo], a[hi]
+        if a[hi] < a[mid]:
+            a[hi], a[mid] = a[mid], a[hi]
+        pivot = a[mid]
+        i = lo
+        j = hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            return
+
+
+@kernel
+def _ranks_of_all(a, n, k0, k1):  # pragma: no cover - compiled
+    """Elements of rank ``k0`` and ``k1 = k0`` or ``k0 + 1`` of ``a[:n]`` (reordered)."""
+    _quickselect(a, 0, n, k0)
+    lo = a[k0]
+    if k1 == k0:
+        return lo, lo
+    hi = a[k0 + 1]
+    for i in range(k0 + 2, n):
+        if a[i] < hi:
+            hi = a[i]
+    return lo, hi
+
+
+@inline_kernel
+def _value(x, i, centre, deviations):  # pragma: no cover - compiled
+    """``x[i]``, or ``abs(x[i] - centre)`` when selecting deviations."""
+    if deviations:
+        return abs(x[i] - centre)
+    return x[i]
+
+
+@inline_kernel
+def _image_value(img, i, j, centre, deviations):  # pragma: no cover - compiled
+    """The response at ``(i, j)``, or ``abs(response - centre)`` (as NumPy
+    computes ``np.abs(f - centre)``: the same two operations)."""
+    v = _response(img, i, j)
+    if deviations:
+        return abs(v - centre)
+    return v
+
+
+@kernel
+def _bracket(sample, n, k0, k1):  # pragma: no cover - compiled
+    """``(found, lo, hi)``: values of a sorted stride sample of ``n`` values
+    that bracket ranks ``k0..k1`` with :data:`BRACKET_SIGMAS` to spare."""
+    s = sample.shape[0]
+    half = BRACKET_SIGMAS * np.sqrt(s * 0.25) + 1.0
+    i_lo = int(k0 / n * s - half)
+    i_hi = int(k1 / n * s + half) + 1
+    if i_lo < 0 or i_hi >= s:
+        return False, 0.0, 0.0
+    return True, sample[i_lo], sample[i_hi]
+
+
+@kernel
+def _gather(x, n, k0, k1, work):  # pragma: no cover - compiled
+    """One bracketing pass over ``x[:n]``, in place when ``work`` is ``x``.
+
+    Returns ``(m, below, ok, touched)``: ``work[:m]`` holds the values
+    inside a bracket drawn from a stride sample, ``below`` values lie under
+    it, ``ok`` says whether ranks ``k0..k1`` fall inside, and ``touched``
+    whether ``work`` was written (the pass writes behind where it reads).
+    """
+    s = SAMPLE_SIZE
+    sample = np.empty(s)
+    stride = n / s
+    for j in range(s):
+        sample[j] = x[int(j * stride)]
+    sample.sort()
+    found, lo_v, hi_v = _bracket(sample, n, k0, k1)
+    if not found:
+        return 0, 0, False, False
+    below = 0
+    m = 0
+    # branch-free: which side of the bracket a value falls is a coin toss,
+    # and a mispredicted branch per value tripled the pass
+    for i in range(n):
+        v = x[i]
+        below += v < lo_v
+        work[m] = v
+        m += (v >= lo_v) & (v <= hi_v)
+    return m, below, below <= k0 and k1 < below + m, True
+
+
+@kernel
+def _gather_image(img, k0, k1, centre, deviations, work):  # pragma: no cover - compiled
+    """:func:`_gather` of the image's responses (or their deviations), computed
+    a row at a time: no array of a million responses is written and read
+    back. ``work`` must hold as many values as the image has responses.
+    """
+    h, w = img.shape
+    wi = w - 2
+    n = (h - 2) * wi
+    s = SAMPLE_SIZE
+    sample = np.empty(s)
+    stride = n / s
+    for j in range(s):
+        idx = int(j * stride)
+        sample[j] = _image_value(img, idx // wi + 1, idx % wi + 1, centre, deviations)
+    sample.sort()
+    found, lo_v, hi_v = _bracket(sample, n, k0, k1)
+    if not found:
+        return 0, 0, False
+    below = 0
+    m = 0
+    row = np.empty(wi)
+    for i in range(1, h - 1):
+        _row_responses(img, i, row)
+        if deviations:
+            for j in range(wi):
+                row[j] = abs(row[j] - centre)
+        # the count vectorises on its own; the gather is a chain through m
+        b = 0
+        for j in range(wi):
+            b += row[j] < lo_v
+        below += b
+        for j in range(wi):
+            v = row[j]
+            work[m] = v
+            m += (v >= lo_v) & (v <= hi_v)
+    return m, below, below <= k0 and k1 < below + m
+
+
+@kernel
+def _refine(work, m, below, k0, k1):  # pragma: no cover - compiled
+    """Ranks ``k0, k1`` of all the values, ``work[:m]`` holding those of ranks
+    ``below ..``: bracketing passes in place down to :data:`DIRECT_SELECT_MAX`
+    values, then a quickselect. Returns ``(ok, a, b)``; ``ok`` is False when
+    a pass missed after overwriting ``work`` (start again from all values)."""
+    rounds = 0
+    while m > DIRECT_SELECT_MAX and rounds < MAX_ROUNDS:
+        rounds += 1
+        m2, b2, ok, touched = _gather(work, m, k0 - below, k1 - below, work)
+        if not ok:
+            if touched:
+                return False, 0.0, 0.0
+            break  # the sample's bracket left the sample: select among all m
+        if m2 == m:  # ties: the bracket is one value; select among them
+            break
+        m = m2
+        below += b2
+    a, b = _ranks_of_all(work, m, k0 - below, k1 - below)
+    return True, a, b
+
+
+@kernel
+def _order_pair(x, k0, k1, centre, deviations, work):  # pragma: no cover - compiled
+    """Elements of rank ``k0`` and ``k1`` (``k0`` or ``k0 + 1``) of the values.
+
+    The values are ``x`` or, with ``deviations``, ``abs(x - centre)``;
+    ``x`` is not modified, ``work`` (as long as ``x``) is scratch.
+    """
+    n = x.shape[0]
+    for i in range(n):
+        work[i] = _value(x, i, centre, deviations)
+    ok, a, b = _refine(work, n, 0, k0, k1)
+    if not ok:
+        for i in range(n):
+            work[i] = _value(x, i, centre, deviations)
+        a, b = _ranks_of_all(work, n, k0, k1)
+    return a, b
+
+
+@kernel
+def _image_order_pair(img, k0, k1, centre, deviations):  # pragma: no cover - compiled
+    """:func:`_order_pair` of the image's responses (or their deviations).
+
+    One bracketing pass over the image gathers ~9 % of the values; only
+    when that misses are all the values written out and selected.
+    """
+    h, w = img.shape
+    n = (h - 2) * (w - 2)
+    # (as long as all the values, but only the gathered ~9 % are written:
+    # the rest of the pages are never touched)
+    work = np.empty(n)
+    if n > DIRECT_SELECT_MAX:
+        m, below, ok = _gather_image(img, k0, k1, centre, deviations, work)
+        if ok:
+            ok, a, b = _refine(work, m, below, k0, k1)
+            if ok:
+                return a, b
+    immerkaer_interior(img, work)
+    if deviations:
+        for k in range(n):
+            work[k] = abs(work[k] - centre)
+    return _ranks_of_all(work, n, k0, k1)
+
+
+@kernel
+def noise_statistics(img):  # pragma: no cover - compiled
+    """``(median, mad, mean_abs)`` of Immerkaer's interior responses (H, W >= 3).
+
+    ``median`` and ``mad`` equal ``np.median(f)`` and
+    ``np.median(np.abs(f - median))`` exactly (the middle element, or the
+    mean of the two middle ones as ``(a + b) / 2``); ``mean_abs`` is
+    ``mean(abs(f))`` (compensated sum), computed only when ``mad`` is 0.
+    """
+    h, w = img.shape
+    n = (h - 2) * (w - 2)
+    k1 = n // 2
+    k0 = k1 if n % 2 else k1 - 1
+    a, b = _image_order_pair(img, k0, k1, 0.0, False)
+    centre = a if k0 == k1 else (a + b) / 2.0
+    a, b = _image_order_pair(img, k0, k1, centre, True)
+    mad = a if k0 == k1 else (a + b) / 2.0
+    mean_abs = 0.0
+    if not mad > 0.0:
+        # Neumaier's compensated sum: within an ulp or two of NumPy's pairwise one
+        total = 0.0
+        comp = 0.0
+        row = np.empty(w - 2)
+        for i in range(1, h - 1):
+            _row_responses(img, i, row)
+            for j in range(w - 2):
+                v = abs(row[j])
+                t = total + v
+                if abs(total) >= v:
+                    comp += (total - t) + v
+                else:
+                    comp += (v - t) + total
+                total = t
+        mean_abs = (total + comp) / n
+    return centre, mad, mean_abs

@@ -1,0 +1,236 @@
+"""Fits that say when they failed: status, reasons, the ``dtalign`` logger, the CLI exit code.
+
+Each case is one of issue 15's silent failures: a polyline outside the
+image, flipped or zero normals, a noise sigma so high no edge survives, a
+seed on the window edge. On the old code each returned the coarse seed
+with 0 inliers and nothing said so.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import dtalign
+from dtalign import scenes
+from dtalign.batch import fit_images, fit_many
+from dtalign.io import save_polyline_csv
+from dtalign.pipeline import fit_polyline, fit_polyline_products, prepare_image
+from dtalign.scenes import Polyline
+from dtalign.status import FitReason, FitStatus
+
+TRUE = (3.4, -2.2)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return scenes.disc_scene(shape=(200, 200), radius=50.0, n_vertices=100, offset_vu=TRUE)
+
+
+@pytest.fixture(scope="module")
+def products(scene):
+    return prepare_image(scene.image, scene.noise_sigma)
+
+
+def _fit(products, scene, vertices=None, normals=None, **kw):
+    p = scene.polyline
+    kw.setdefault("search_window_vu", (8, 8))
+    return fit_polyline_products(
+        products, p.vertices_vu if vertices is None else vertices,
+        p.normals_vu if normals is None else normals, p.sigmas, **kw,
+    )
+
+
+def _warnings(caplog):
+    return [r for r in caplog.records if r.name == "dtalign" and r.levelno == logging.WARNING]
+
+
+def test_a_clean_fit_is_ok_and_logs_nothing(products, scene, caplog):
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    fit = _fit(products, scene)
+    assert fit.status == "ok" and fit.status is FitStatus.OK and not fit.failed
+    # the LM ends at its damping bound on this small disc: a note, not a problem
+    assert fit.reasons == (FitReason.NOT_CONVERGED,)
+    assert fit.status_message.startswith("ok: not converged")
+    assert not _warnings(caplog)
+    assert np.allclose(fit.offset_vu, TRUE, atol=0.1)
+
+
+def test_polyline_outside_the_image_fails_with_a_warning(products, scene, caplog):
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    fit = _fit(products, scene, vertices=scene.polyline.vertices_vu + 1000.0)
+    assert fit.status == "failed" and fit.failed
+    assert FitReason.DEGENERATE in fit.reasons
+    (record,) = _warnings(caplog)
+    assert "failed" in record.getMessage() and "degenerate" in record.getMessage()
+    assert "inside the image" in fit.status_message
+    assert "outside the image" in fit.status_message  # no gradient there: polarity-rejected
+
+
+def test_flipped_normals_fail_every_vertex_polarity_rejected(products, scene, caplog):
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    fit = _fit(products, scene, normals=-scene.polyline.normals_vu)
+    assert fit.status == "failed"
+    assert fit.reasons == (FitReason.DEGENERATE, FitReason.ALL_POLARITY_REJECTED)
+    assert fit.polarity_rejected_count == len(scene.polyline)
+    (record,) = _warnings(caplog)
+    assert "normals point the wrong way" in record.getMessage()
+
+
+def test_zero_normals_fail(products, scene):
+    fit = _fit(products, scene, normals=np.zeros_like(scene.polyline.normals_vu))
+    assert fit.status == "failed" and "all_polarity_rejected" in fit.reasons
+
+
+def test_noise_sigma_so_high_no_edge_survives_fails(scene, caplog):
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    p = scene.polyline
+    fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas,
+                       search_window_vu=(8, 8), noise_sigma=1e4)
+    assert fit.status == "failed" and FitReason.DEGENERATE in fit.reasons
+    assert "noise sigma 1e+04" in fit.status_message
+    assert len(_warnings(caplog)) == 1
+
+
+def test_most_vertices_polarity_rejected_is_suspect_with_the_normals_hint(products, scene, caplog):
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    normals = scene.polyline.normals_vu.copy()
+    normals[:70] *= -1.0
+    fit = _fit(products, scene, normals=normals)
+    assert fit.status == "suspect" and not fit.failed
+    assert FitReason.MOST_POLARITY_REJECTED in fit.reasons
+    assert "70 of 100 vertices polarity-rejected" in fit.status_message
+    assert "normals may point the wrong way" in _warnings(caplog)[0].getMessage()
+
+
+def test_seed_on_the_window_edge_fails(products, scene, caplog):
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    fit = _fit(products, scene, search_window_vu=(2, 2))
+    assert fit.at_window_edge
+    assert fit.status == "failed" and FitReason.AT_WINDOW_EDGE in fit.reasons
+    assert "widen search_window_vu" in _warnings(caplog)[0].getMessage()
+
+
+def test_not_converged_is_a_note_logged_at_info(products, scene, caplog):
+    caplog.set_level(logging.INFO, logger="dtalign")
+    fit = _fit(products, scene, max_iterations=2)
+    assert not fit.converged
+    assert fit.reasons == (FitReason.NOT_CONVERGED,) and fit.status == "ok"
+    assert "2 iterations" in fit.status_message
+    assert not _warnings(caplog)
+    assert any(r.levelno == logging.INFO and "not converged" in r.getMessage()
+               for r in caplog.records)
+
+
+def test_rank_deficient_ring_is_a_note():
+    nav = scenes.navigation_scene(shape=(512, 512), radius=80.0)
+    products = prepare_image(nav.image, nav.noise_sigma)
+    ring = nav.polylines[2]
+    fit = fit_polyline_products(products, ring.vertices_vu, ring.normals_vu, ring.sigmas,
+                                search_window_vu=(12, 12), max_iterations=200)
+    assert FitReason.RANK_DEFICIENT in fit.reasons and fit.status == "ok"
+    assert "observable rank 1 of 2" in fit.status_message
+
+
+def test_status_values_are_documented_strings():
+    assert [s.value for s in FitStatus] == ["ok", "suspect", "failed"]
+    assert {r.value for r in FitReason} == {
+        "degenerate", "all_polarity_rejected", "at_window_edge", "most_polarity_rejected",
+        "not_converged", "rank_deficient",
+    }
+    assert str(FitReason.DEGENERATE) == "degenerate" and FitStatus.FAILED == "failed"
+
+
+def test_to_dict_carries_the_status(products, scene):
+    d = _fit(products, scene, normals=-scene.polyline.normals_vu).to_dict()
+    assert d["status"] == "failed"
+    assert d["reasons"] == ["degenerate", "all_polarity_rejected"]
+    json.dumps(d)
+
+
+def test_drop_in_functions_stay_silent(products, scene, caplog):
+    caplog.set_level(logging.DEBUG, logger="dtalign")
+    p = scene.polyline
+    result = dtalign.lm_subpixel_refine(
+        vertices_vu=p.vertices_vu, normals_vu=-p.normals_vu, sigma_normal_per_vertex_px=p.sigmas,
+        image_edge_dt=products.edge_dt, image_gradient_vu=products.gradient_vu,
+        initial_offset_vu=(3.0, -2.0),
+    )
+    assert result.degenerate
+    assert not [r for r in caplog.records if r.name.startswith("dtalign")]
+
+
+def test_fit_many_reports_each_bad_polyline(products, scene, caplog):
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    p = scene.polyline
+    good = (p.vertices_vu, p.normals_vu, p.sigmas)
+    bad = (p.vertices_vu, -p.normals_vu, p.sigmas)
+    fits = fit_many(products, [good, bad, good], search_window_vu=(8, 8), workers=2)
+    assert [f.status for f in fits] == ["ok", "failed", "ok"]
+    (record,) = _warnings(caplog)
+    assert record.getMessage().startswith("polylines[1] failed")
+
+
+def test_fit_images_reports_in_the_calling_process(scene, caplog):
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    p = scene.polyline
+    flipped = Polyline("flipped", p.vertices_vu, -p.normals_vu, p.sigmas)
+    items = [(scene.image, scene.noise_sigma, [p]), (scene.image, scene.noise_sigma, [p, flipped])]
+    out = fit_images(items, search_window_vu=(8, 8), workers=2)
+    assert [[f.status for f in fits] for fits in out] == [["ok"], ["ok", "failed"]]
+    (record,) = _warnings(caplog)
+    assert record.getMessage().startswith("items[1].polylines[1] failed")
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def _python_m(*argv, cwd):
+    env = dict(os.environ)
+    src = str(Path(dtalign.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run([sys.executable, "-m", "dtalign", *argv], capture_output=True,
+                          text=True, cwd=cwd, env=env, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, scene):
+    d = tmp_path_factory.mktemp("status_cli")
+    np.save(d / "disc.npy", scene.image)
+    p = scene.polyline
+    save_polyline_csv(d / "disc.csv", p)
+    save_polyline_csv(d / "flipped.csv", Polyline("flipped", p.vertices_vu, -p.normals_vu, p.sigmas))
+    return d
+
+
+def test_cli_exits_3_and_prints_the_reason_when_a_fit_failed(files):
+    proc = _python_m("fit", "disc.npy", "flipped.csv", "--window", "8", cwd=files)
+    assert proc.returncode == 3, proc.stderr
+    status = [line for line in proc.stdout.splitlines() if line.startswith("status")]
+    assert len(status) == 1 and "failed" in status[0] and "polarity-rejected" in status[0]
+    assert "dtalign: warning: disc.npy: fit failed" in proc.stderr
+    assert "1 of 1 fit(s) failed" in proc.stderr
+
+
+def test_cli_batch_exits_3_with_the_reason_on_the_fit_line(files):
+    proc = _python_m("fit", "disc.npy", "disc.csv", "disc.npy", "flipped.csv", "--window", "8",
+                     "--no-progress", cwd=files)
+    assert proc.returncode == 3, proc.stderr
+    rows = [line for line in proc.stdout.splitlines() if line.startswith("disc.npy")]
+    assert len(rows) == 2
+    assert rows[0].split("  ")[-1].startswith("ok")
+    assert "failed (degenerate, all_polarity_rejected)" in rows[1]
+
+
+def test_cli_exits_0_for_a_sound_fit(files):
+    proc = _python_m("fit", "disc.npy", "disc.csv", "--window", "8", "--json", cwd=files)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["status"] == "ok"
+    assert "warning" not in proc.stderr
