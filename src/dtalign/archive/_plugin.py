@@ -27,3 +27,19 @@ class WarmNumba(WorkerPlugin):
         from .tasks import warm_up
 
         await asyncio.get_running_loop().run_in_executor(None, warm_up)
+
+
+def dask_setup(worker: Any) -> None:
+    """Worker preload of the LocalCluster :func:`~dtalign.archive.run` starts: ignore Ctrl-C.
+
+    A terminal's Ctrl-C reaches every process of its group, the workers
+    too. The client is the one to handle it (store what has arrived, then
+    close the cluster); a worker that died of it first would only print
+    tracebacks. Imported when each worker process starts (a replacement
+    for a killed one included), in its main thread.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)

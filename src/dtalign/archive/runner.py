@@ -16,6 +16,7 @@ Dask (``distributed``) is imported only when :func:`run` is called.
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import signal
 import sys
@@ -103,7 +104,8 @@ class RunSummary:
         )
         if self.skipped_failed:
             text += f", {self.skipped_failed} failed earlier (--retry-failed to redo)"
-        text += f"; {self.elapsed_s:.1f} s on {self.workers} worker(s); store {self.store}"
+        text += (f"; {self.elapsed_s:.1f} s on {self.workers} worker(s) (warm-up {self.warm_s:.1f} s); "
+                 f"store {self.store}")
         return text + (" (interrupted)" if self.interrupted else "")
 
 
@@ -136,10 +138,38 @@ def _client(client: Any, scheduler: str | None, workers: int | None) -> Iterator
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(f"workers must be an int >= 1, got {workers!r}")
     # Processes, one thread each: a worker per core, no GIL shared between fits.
-    with distributed.LocalCluster(
-        n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-    ) as cluster, distributed.Client(cluster) as c:
+    # A terminal's Ctrl-C reaches the workers too; this process handles it (stores
+    # what has arrived, closes the cluster), so the workers ignore it: the ones
+    # started now inherit SIG_IGN, a replacement started later sets it in the
+    # preload (dtalign.archive._plugin.dask_setup).
+    # No dashboard; the scheduler's HTTP routes on a free port, not on 8787.
+    with _sigint_ignored():
+        cluster = distributed.LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"}, preload=["dtalign.archive._plugin"],
+        )
+    with cluster, distributed.Client(cluster) as c:
+        c._dtalign_owned = True  # _execute: closing it stops the tasks
         yield c
+
+
+def _quiet_logs() -> None:
+    """Only errors that matter from Dask's loggers: a cluster closed on purpose
+    (after Ctrl-C) logs its cancelled tasks and closed comms at length."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT in the block (main thread only: elsewhere there is no handler to set)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager
@@ -391,7 +421,12 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
     except BaseException as exc:
         summary.interrupted = isinstance(exc, KeyboardInterrupt)
         writer.flush()  # everything that arrived is kept, whatever stopped the run
-        client.cancel(list(futures))
+        if getattr(client, "_dtalign_owned", False):  # our LocalCluster: it closes next
+            _quiet_logs()
+            with contextlib.suppress(Exception):
+                client.run(_quiet_logs)
+        else:  # someone else's cluster: free it of this run's tasks
+            client.cancel(list(futures))
         raise
     finally:
         bar.close()
