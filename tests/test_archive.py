@@ -265,3 +265,26 @@ def test_make_example_writes_a_manifest_the_reader_accepts(example):
         assert all(Path(p).is_file() for p in item.polyline_paths)
     truth = [json.loads(x) for x in (Path(example).parent / "truth.jsonl").read_text().splitlines()]
     assert [t["id"] for t in truth] == ["f000", "f001"]
+
+
+def test_docs_list_every_store_column():
+    from dtalign.archive.store import FAILURE_COLUMNS, RESULT_COLUMNS
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "campaign.rst")
+    if not page.is_file():
+        pytest.skip("docs/ not shipped with this install")
+    text = page.read_text()
+    missing = [name for name, _, _ in RESULT_COLUMNS + FAILURE_COLUMNS if f"``{name}``" not in text]
+    assert missing == []
+
+
+def test_cli_make_example_then_usage_errors(tmp_path, capsys):
+    from dtalign.cli import main
+
+    assert main(["archive", "--make-example", str(tmp_path / "c"), "--frames", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "dtalign archive" in out and (tmp_path / "c" / "manifest.jsonl").is_file()
+    assert main(["archive", str(tmp_path / "c" / "manifest.jsonl")]) == 1
+    assert "needs MANIFEST and --out STORE" in capsys.readouterr().err
+    assert main(["archive", "nope.jsonl", "--out", str(tmp_path / "s")]) == 1
+    assert "manifest not found: nope.jsonl" in capsys.readouterr().err

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +56,8 @@ def make_example(
     root = Path(directory)
     (root / "frames").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    records, truth = [], []
+    records: list[dict[str, Any]] = []
+    truth: list[dict[str, Any]] = []
     for k in range(frames):
         offset = (float(rng.uniform(-_MAX_OFFSET_PX, _MAX_OFFSET_PX)),
                   float(rng.uniform(-_MAX_OFFSET_PX, _MAX_OFFSET_PX)))
@@ -63,7 +65,7 @@ def make_example(
                                  seed=seed * 100_003 + k)
         name = f"f{k:03d}"
         np.save(root / "frames" / f"{name}.npy", scene.image)
-        polys = []
+        polys: list[str] = []
         for p in scene.polylines:
             rel = f"frames/{name}-{p.name}.csv"
             save_polyline_csv(root / rel, p)
@@ -73,9 +75,9 @@ def make_example(
         truth.append({"id": name, "true_offset_v": offset[0], "true_offset_u": offset[1]})
     if broken:
         (root / "frames" / "corrupt.npy").write_bytes(b"this is not an image")
-        polys = records[0]["polylines"]
-        records.append({"id": "missing", "image": "frames/missing.npy", "polylines": polys})
-        records.append({"id": "corrupt", "image": "frames/corrupt.npy", "polylines": polys})
+        first = records[0]["polylines"]
+        records.append({"id": "missing", "image": "frames/missing.npy", "polylines": first})
+        records.append({"id": "corrupt", "image": "frames/corrupt.npy", "polylines": first})
     with open(root / "truth.jsonl", "w", encoding="utf-8") as fh:
         fh.writelines(json.dumps(t) + "\n" for t in truth)
     return write_manifest(root / "manifest.jsonl", records)

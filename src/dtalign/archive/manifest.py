@@ -210,6 +210,7 @@ def _mapping(value: Any, name: str, where: str) -> dict[str, Any]:
 
 
 def _polylines(value: Any, where: str) -> tuple[str, ...]:
+    paths: Sequence[Any]
     if isinstance(value, str):
         paths = [p.strip() for p in value.split(CSV_POLYLINE_SEPARATOR)]
     elif isinstance(value, (list, tuple)):

@@ -48,7 +48,7 @@ DESCRIPTIONS = {
     "end_to_end": "derivatives + (mask, coarse +-30, LM tr=1) x 3 polylines",
 }
 #: Section names accepted by ``--only`` besides the workloads.
-SECTIONS = ("batch", "startup", "memory")
+SECTIONS = ("batch", "startup", "memory", "archive")
 BATCH_TARGET = 1.8
 BATCH_FITS = 64
 IMPORT_TARGET_S = 0.5
