@@ -133,7 +133,7 @@ def test_run_stores_every_item_once_and_records_bad_images(cluster, frames, tmp_
     assert "missing.npy" in failures["missing"]["error"]
     assert "corrupt.npy" in failures["corrupt"]["error"]
     workers = set(Store(store).results(["worker"])["worker"].to_pylist())
-    assert workers <= set(client.scheduler_info(n_workers=-1)["workers"])
+    assert workers <= set(client.nthreads())
 
     # Resumption: nothing to do; failed items stay failed until asked.
     again = run(manifest, store, client, progress=False)

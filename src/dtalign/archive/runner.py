@@ -378,7 +378,7 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
              progress: bool, warm: bool, flush_items: int, flush_seconds: float,
              max_pending: int) -> None:
     distributed = _dask()
-    summary.workers = len(client.scheduler_info(n_workers=-1).get("workers", {}))
+    summary.workers = len(client.nthreads())
     if warm:
         from ._plugin import WarmNumba
 
