@@ -288,3 +288,13 @@ def test_cli_make_example_then_usage_errors(tmp_path, capsys):
     assert "needs MANIFEST and --out STORE" in capsys.readouterr().err
     assert main(["archive", "nope.jsonl", "--out", str(tmp_path / "s")]) == 1
     assert "manifest not found: nope.jsonl" in capsys.readouterr().err
+
+
+def test_cli_window_is_checked(tmp_path, capsys):
+    from dtalign.cli import main
+
+    manifest = write_manifest(tmp_path / "m.jsonl", [{"image": "a.npy", "polylines": "a.csv"}])
+    assert main(["archive", str(manifest), "--out", str(tmp_path / "s"), "--window", "x"]) == 1
+    assert "--window takes one int or two" in capsys.readouterr().err
+    assert main(["archive", str(manifest), "--out", str(tmp_path / "s"), "--window", "1,2,3"]) == 1
+    assert "window must be an int or a list of two ints" in capsys.readouterr().err

@@ -37,8 +37,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, metavar="N",
                    help="worker processes of the local cluster (default: one per CPU)")
     p.add_argument("--retry-failed", action="store_true", help="also redo the failed items")
-    p.add_argument("--window", type=int, nargs="+", metavar="N",
-                   help="default search margin (one int, or V U) for items without one")
+    p.add_argument("--window", metavar="V[,U]",
+                   help="default search margin for items without one: 30, or 30,20")
     p.add_argument("--flush-every", type=int, default=None, metavar="ITEMS",
                    help="write a store part every ITEMS items (default 32)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -69,8 +69,13 @@ def command(args: argparse.Namespace) -> int:
         return 0
     if not args.manifest or not args.out:
         raise ValueError("archive needs MANIFEST and --out STORE (or --make-example DIR)")
-    if args.window is not None and len(args.window) not in (1, 2):
-        raise ValueError(f"--window takes one or two ints, got {len(args.window)}")
+    window = None
+    if args.window is not None:
+        try:
+            window = [int(x) for x in args.window.split(",")]
+        except ValueError:
+            raise ValueError(f"--window takes one int or two separated by a comma, got "
+                             f"{args.window!r}") from None
     if args.scheduler and args.workers is not None:
         raise ValueError("--workers starts a local cluster; with --scheduler the cluster's "
                          "own workers are used")
@@ -80,7 +85,7 @@ def command(args: argparse.Namespace) -> int:
     try:
         summary = run(
             args.manifest, args.out, scheduler=args.scheduler, workers=args.workers,
-            window=args.window, retry_failed=args.retry_failed,
+            window=window, retry_failed=args.retry_failed,
             progress=not args.no_progress, **extra,
         )
     except KeyboardInterrupt:

@@ -156,7 +156,7 @@ def _client(client: Any, scheduler: str | None, workers: int | None) -> Iterator
 def _quiet_logs() -> None:
     """Only errors that matter from Dask's loggers: a cluster closed on purpose
     (after Ctrl-C) logs its cancelled tasks and closed comms at length."""
-    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
 
 
 @contextlib.contextmanager
@@ -425,8 +425,10 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
             _quiet_logs()
             with contextlib.suppress(Exception):
                 client.run(_quiet_logs)
-        else:  # someone else's cluster: free it of this run's tasks
-            client.cancel(list(futures))
+        # Free the cluster of this run's tasks (on our own, this also leaves the
+        # scheduler nothing to report to a client that is closing).
+        client.cancel(list(futures))
+        futures.clear()
         raise
     finally:
         bar.close()
