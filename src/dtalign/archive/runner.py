@@ -162,7 +162,8 @@ def _quiet_logs() -> None:
 @contextlib.contextmanager
 def _sigint_ignored() -> Iterator[None]:
     """Ignore SIGINT in the block (main thread only: elsewhere there is no handler to set)."""
-    if threading.current_thread() is not threading.main_thread():
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is None):  # a handler set outside Python: keep it
         yield
         return
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -181,7 +182,8 @@ def _defer_sigint() -> Iterator[None]:
     Signal handlers belong to the main thread; elsewhere there is no
     KeyboardInterrupt to defer.
     """
-    if threading.current_thread() is not threading.main_thread():
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is None):  # a handler set outside Python: keep it
         yield
         return
     pending: list[Any] = []
