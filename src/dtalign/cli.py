@@ -8,7 +8,8 @@ Subcommands:
   the polyline CSV of the same stem);
 * ``overlay PNG``: split a Cassini summary PNG into an image (.npy) and
   its traced model overlay (polyline CSV), ready for ``fit``;
-* ``bench``: the quick benchmark table.
+* ``bench``: the quick benchmark table;
+* ``archive MANIFEST --out STORE``: a campaign on Dask (:mod:`dtalign.archive`).
 
 Errors are printed as one line, ``dtalign: error: ...``, with exit status
 1 (2 for a malformed command line). A batch never stops on one bad image:
@@ -174,6 +175,11 @@ def build_parser() -> argparse.ArgumentParser:
         add_help=False,
     )
     bench.add_argument("args", nargs=argparse.REMAINDER)
+
+    # archive: campaigns on Dask; the parser and command live in dtalign.archive.cli.
+    from .archive import cli as archive_cli
+
+    archive_cli.add_parser(sub)
     return parser
 
 
@@ -542,6 +548,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return int(result or 0)
 
 
+def _cmd_archive(args: argparse.Namespace) -> int:
+    from .archive import cli as archive_cli
+
+    return archive_cli.command(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``dtalign`` command line; returns the exit status.
 
@@ -567,7 +579,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    handlers = {"demo": _cmd_demo, "fit": _cmd_fit, "overlay": _cmd_overlay, "bench": _cmd_bench}
+    handlers = {"demo": _cmd_demo, "fit": _cmd_fit, "overlay": _cmd_overlay, "bench": _cmd_bench,
+                "archive": _cmd_archive}
     log = logging.getLogger("dtalign")
     log.addHandler(_WARNINGS)
     _log_label(args.command if args.command == "demo" else "")

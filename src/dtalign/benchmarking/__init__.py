@@ -14,7 +14,11 @@ Besides the workloads the table has the batch throughput of
 subprocesses (``import dtalign``; the first fit with a warm on-disk cache;
 with ``--startup full`` also the first-run compile time and a check that a
 read-only install still caches), and two memory checks (image-sized
-temporaries of the derivatives; LM peak on a 512 and a 2048 DT).
+temporaries of the derivatives; LM peak on a 512 and a 2048 DT). Full runs
+(or ``--only archive``) add the campaign rows of
+:mod:`~dtalign.benchmarking.archive`: :func:`dtalign.archive.run` on a
+LocalCluster of 2 processes against the serial loop, and the store's cost
+per item (skipped without Dask).
 
 Nothing global is configured: the kernels are single-threaded.
 
@@ -37,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 # ``name as name``: re-exported, unused here (the former single module had them).
+from .archive import measure_archive
 from .memory import _memory_rows, measure_memory
 from .startup import _startup_rows, measure_startup
 from .timing import HEADER as HEADER
@@ -106,7 +111,9 @@ def run(
         Start-up section depth; default "quick" with ``quick``, else "full"
         (adds the cold compile and the read-only install check).
     """
-    wanted = set(only) if only else set(WORKLOADS) | set(SECTIONS)
+    # The campaign section starts a Dask cluster: full runs, or when asked for.
+    default = set(WORKLOADS) | set(SECTIONS) - ({"archive"} if quick else set())
+    wanted = set(only) if only else default
     unknown = wanted - set(WORKLOADS) - set(SECTIONS)
     if unknown:
         raise ValueError(f"unknown workload(s): {', '.join(sorted(unknown))}")
@@ -135,6 +142,8 @@ def run(
             memory = measure_memory() if "memory" in wanted else None
             if memory is not None:
                 rows += _memory_rows(memory)
+            if "archive" in wanted:
+                rows += measure_archive()
     finally:
         log.setLevel(level)
     start = None

@@ -52,7 +52,7 @@ DESCRIPTIONS = {
     "fit_polyline": "fit_polyline, noise estimated, disc N=200, +-30, tr=1",
 }
 #: Section names accepted by ``--only`` besides the workloads.
-SECTIONS = ("noise_overhead", "batch", "startup", "memory")
+SECTIONS = ("noise_overhead", "batch", "startup", "memory", "archive")
 #: ``fit_polyline`` with the noise estimated may take at most this many
 #: times the same call with the noise given (the estimate must be cheap
 #: beside the derivatives it feeds).

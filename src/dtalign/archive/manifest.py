@@ -1,0 +1,393 @@
+"""The campaign manifest: which images to fit, with which polylines and options.
+
+A manifest is a text file with one **item** (one image) per record, in one
+of two formats chosen by the file's suffix:
+
+* **JSON lines** (``.jsonl``, ``.ndjson``): one JSON object per line::
+
+    {"image": "frames/f000.npy", "polylines": ["frames/f000-limb.csv", "frames/f000-ring.csv"],
+     "noise_sigma": 2.0, "window": [30, 20], "options": {"trust_region_px": 1.0}}
+
+* **CSV** (``.csv``): a header row naming the same fields; ``polylines``
+  holds one or more paths separated by ``;``, ``window`` one int or two
+  separated by a space, ``options`` a JSON object::
+
+    id,image,polylines,noise_sigma,window,options
+    f000,frames/f000.npy,frames/f000-limb.csv;frames/f000-ring.csv,2.0,30 20,"{""trust_region_px"": 1.0}"
+
+Fields (only ``image`` and ``polylines`` are required):
+
+``id``
+    The item's name in the results store, unique in the manifest; the
+    ``image`` path as written when absent.
+``image``
+    The image file (anything :func:`dtalign.io.load_image` reads).
+``polylines``
+    One polyline CSV path, or a list of them
+    (:func:`dtalign.io.load_polyline_csv`). Each is fitted separately
+    against the image's products and gives one row of results.
+``noise_sigma``
+    The image noise sigma; estimated from the image when absent or null.
+``window``
+    Coarse-search margin: an int for both axes or ``[mv, mu]``; the
+    campaign's default (30) when absent.
+``options``
+    Keyword options of :func:`dtalign.pipeline.fit_polyline_products`
+    (``fit_rotation``, ``trust_region_px``, ``use_polarity``, ...), over
+    the campaign's defaults.
+``config``
+    Fields of :class:`dtalign.ImageDerivativesConfig` for this image.
+
+Relative paths are relative to the manifest's folder. Blank lines, and
+lines starting with ``#``, are skipped. Reading checks the structure of
+every record (types, unknown fields and options, duplicate ids) and names
+the line of the first bad one; whether the files exist and the values fit
+is found out when the item runs, and a bad item goes to the store's
+failures table without stopping the campaign.
+
+This module imports neither Dask nor pyarrow.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import inspect
+import json
+import math
+import numbers
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["DEFAULT_WINDOW", "FIELDS", "Item", "read_manifest", "write_manifest"]
+
+PathLike = str | os.PathLike[str]
+
+#: The coarse-search margin of an item that gives none: the CLI's default.
+DEFAULT_WINDOW = (30, 30)
+
+#: The fields a manifest record may have.
+FIELDS = ("id", "image", "polylines", "noise_sigma", "window", "options", "config")
+
+#: Suffixes read as JSON lines; ``.csv`` is read as CSV.
+_JSONL_SUFFIXES = (".jsonl", ".ndjson", ".json")
+
+#: Separator of several polyline paths in one CSV cell (``,`` is the column separator).
+CSV_POLYLINE_SEPARATOR = ";"
+
+#: The ImageDerivativesConfig fields a record's ``config`` may set.
+_CONFIG_FIELDS = ("image_gradient_sigma_px", "edge_threshold_k_sigma", "dt_half_width_px")
+
+
+def fit_option_names() -> frozenset[str]:
+    """Keyword options :func:`dtalign.pipeline.fit_polyline_products` accepts (not the window)."""
+    from ..pipeline import fit_polyline_products
+
+    return frozenset(
+        name
+        for name, p in inspect.signature(fit_polyline_products).parameters.items()
+        if p.kind is inspect.Parameter.KEYWORD_ONLY and name != "search_window_vu"
+    )
+
+
+@dataclass(frozen=True)
+class Item:
+    """One image of a campaign and what to fit on it.
+
+    Attributes
+    ----------
+    id : str
+        Unique name of the item in the store.
+    image : str
+        The image path as the manifest writes it.
+    polylines : tuple of str
+        The polyline CSV paths as the manifest writes them.
+    image_path : str
+        ``image`` resolved against the manifest's folder (what a worker reads).
+    polyline_paths : tuple of str
+        ``polylines`` resolved likewise.
+    noise_sigma : float or None
+        The noise sigma, None to estimate it.
+    window : tuple of int
+        The coarse-search margin ``(mv, mu)``.
+    options : dict
+        Fit options (campaign defaults merged with the item's own).
+    config : dict
+        :class:`~dtalign.ImageDerivativesConfig` fields (empty: defaults).
+    line : int
+        The manifest line the item came from (for messages).
+    """
+
+    id: str
+    image: str
+    polylines: tuple[str, ...]
+    image_path: str
+    polyline_paths: tuple[str, ...]
+    noise_sigma: float | None = None
+    window: tuple[int, int] = DEFAULT_WINDOW
+    options: dict[str, Any] = field(default_factory=dict)
+    config: dict[str, float] = field(default_factory=dict)
+    line: int = 0
+
+    @property
+    def fingerprint(self) -> str:
+        """A short hash of what the item asks for (files, noise, window, options).
+
+        The store records it with each result, so a re-run can tell that an
+        item id now means something else.
+        """
+        payload = json.dumps(
+            [self.image, list(self.polylines), self.noise_sigma, list(self.window),
+             sorted(self.options.items()), sorted(self.config.items())],
+            sort_keys=True, default=repr,
+        )
+        return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+    def to_record(self) -> dict[str, Any]:
+        """The item as a manifest record (the paths as written)."""
+        rec: dict[str, Any] = {"id": self.id, "image": self.image, "polylines": list(self.polylines)}
+        if self.noise_sigma is not None:
+            rec["noise_sigma"] = self.noise_sigma
+        rec["window"] = list(self.window)
+        if self.options:
+            rec["options"] = dict(self.options)
+        if self.config:
+            rec["config"] = dict(self.config)
+        return rec
+
+
+def _where(path: Path, line: int) -> str:
+    return f"manifest {path} line {line}"
+
+
+def _window(value: Any, where: str) -> tuple[int, int]:
+    if isinstance(value, str):
+        parts = value.replace(",", " ").split()
+        try:
+            value = [int(p) for p in parts]
+        except ValueError:
+            raise ValueError(f"{where}: window must be one or two ints, got {value!r}") from None
+    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+        value = [value, value]
+    if (
+        not isinstance(value, (list, tuple))
+        or len(value) not in (1, 2)
+        or any(isinstance(v, bool) or not isinstance(v, numbers.Integral) for v in value)
+    ):
+        raise ValueError(f"{where}: window must be an int or a list of two ints, got {value!r}")
+    mv, mu = (value[0], value[0]) if len(value) == 1 else (value[0], value[1])
+    if mv < 0 or mu < 0:
+        raise ValueError(f"{where}: window must be non-negative, got {value!r}")
+    return int(mv), int(mu)
+
+
+def _noise(value: Any, where: str) -> float | None:
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return None
+    try:
+        sigma = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: noise_sigma must be a number, got {value!r}") from None
+    if not math.isfinite(sigma) or sigma < 0.0:
+        raise ValueError(f"{where}: noise_sigma must be finite and >= 0, got {value!r}")
+    return sigma
+
+
+def _mapping(value: Any, name: str, where: str) -> dict[str, Any]:
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return {}
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{where}: {name} is not a JSON object: {exc.msg}") from None
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{where}: {name} must be an object, got {type(value).__name__}")
+    return dict(value)
+
+
+def _polylines(value: Any, where: str) -> tuple[str, ...]:
+    paths: Sequence[Any]
+    if isinstance(value, str):
+        paths = [p.strip() for p in value.split(CSV_POLYLINE_SEPARATOR)]
+    elif isinstance(value, (list, tuple)):
+        paths = value
+    else:
+        raise ValueError(f"{where}: polylines must be a path or a list of paths")
+    if not paths or any(not isinstance(p, str) or not p.strip() for p in paths):
+        raise ValueError(f"{where}: polylines must hold one or more non-empty paths")
+    return tuple(p.strip() for p in paths)
+
+
+def _resolve(base: Path, p: str) -> str:
+    path = Path(p).expanduser()
+    return str(path if path.is_absolute() else base / path)
+
+
+def _item(
+    record: Any, base: Path, where: str, line: int, defaults: Mapping[str, Any],
+    option_names: frozenset[str],
+) -> Item:
+    if not isinstance(record, Mapping):
+        raise ValueError(f"{where}: a record must be an object, got {type(record).__name__}")
+    unknown = sorted(set(record) - set(FIELDS))
+    if unknown:
+        raise ValueError(
+            f"{where}: unknown field(s) {', '.join(map(repr, unknown))}; known: {', '.join(FIELDS)}"
+        )
+    image = record.get("image")
+    if not isinstance(image, str) or not image.strip():
+        raise ValueError(f"{where}: image must be a non-empty path")
+    image = image.strip()
+    if record.get("polylines") is None:
+        raise ValueError(f"{where}: polylines is missing")
+    polylines = _polylines(record["polylines"], where)
+    item_id = record.get("id")
+    if item_id is None or (isinstance(item_id, str) and not item_id.strip()):
+        item_id = image
+    if not isinstance(item_id, (str, int)) or isinstance(item_id, bool):
+        raise ValueError(f"{where}: id must be a string, got {type(item_id).__name__}")
+    options = {**defaults.get("options", {}), **_mapping(record.get("options"), "options", where)}
+    bad = sorted(set(options) - option_names)
+    if bad:
+        raise ValueError(
+            f"{where}: unknown fit option(s) {', '.join(map(repr, bad))}; "
+            f"accepted: {', '.join(sorted(option_names))}"
+        )
+    config = _mapping(record.get("config"), "config", where)
+    bad = sorted(set(config) - set(_CONFIG_FIELDS))
+    if bad:
+        raise ValueError(
+            f"{where}: unknown config field(s) {', '.join(map(repr, bad))}; "
+            f"accepted: {', '.join(_CONFIG_FIELDS)}"
+        )
+    window = record.get("window")
+    if window is None or (isinstance(window, str) and not window.strip()):
+        window = defaults.get("window", DEFAULT_WINDOW)
+    return Item(
+        id=str(item_id).strip(),
+        image=image,
+        polylines=polylines,
+        image_path=_resolve(base, image),
+        polyline_paths=tuple(_resolve(base, p) for p in polylines),
+        noise_sigma=_noise(record.get("noise_sigma"), where),
+        window=_window(window, where),
+        options=options,
+        config=config,
+        line=line,
+    )
+
+
+def _records(path: Path) -> Iterable[tuple[int, Any]]:
+    suffix = path.suffix.lower()
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"cannot read manifest {path}: {exc}") from None
+    if suffix in _JSONL_SUFFIXES:
+        for number, line in enumerate(text.splitlines(), 1):
+            if not line.strip() or line.lstrip().startswith("#"):
+                continue
+            try:
+                yield number, json.loads(line)
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"{_where(path, number)}: not JSON: {exc.msg}") from None
+    elif suffix == ".csv":
+        lines = [
+            (n, ln) for n, ln in enumerate(text.splitlines(), 1)
+            if ln.strip() and not ln.lstrip().startswith("#")
+        ]
+        if not lines:
+            raise ValueError(f"manifest {path} is empty: need a header with image,polylines")
+        rows = list(csv.reader([ln for _, ln in lines]))
+        header = [c.strip().lower() for c in rows[0]]
+        for (number, _), row in zip(lines[1:], rows[1:], strict=True):
+            if len(row) > len(header):
+                raise ValueError(
+                    f"{_where(path, number)}: {len(row)} cells, but the header has {len(header)}"
+                )
+            yield number, {h: c for h, c in zip(header, row, strict=False) if c.strip() != ""}
+    else:
+        raise ValueError(
+            f"manifest {path}: unknown format {suffix or '(no suffix)'!r}; "
+            "use .jsonl (JSON lines) or .csv"
+        )
+
+
+def read_manifest(
+    path: PathLike, *, window: Any = None, options: Mapping[str, Any] | None = None
+) -> list[Item]:
+    """Read and check a campaign manifest.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``.jsonl`` / ``.ndjson`` (JSON lines) or ``.csv`` manifest (see
+        the module documentation for the fields).
+    window : int or tuple of int, optional
+        Default coarse-search margin of items that give none (30).
+    options : dict, optional
+        Default fit options; an item's own ``options`` override them.
+
+    Returns
+    -------
+    list of Item
+        In manifest order.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the manifest does not exist.
+    ValueError
+        On a malformed record (the message names the manifest and line), a
+        duplicate id, an unknown fit option, or an empty manifest.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"manifest not found: {p}")
+    names = fit_option_names()
+    defaults: dict[str, Any] = {}
+    if window is not None:
+        defaults["window"] = _window(window, "window")
+    if options:
+        bad = sorted(set(options) - names)
+        if bad:
+            raise ValueError(
+                f"unknown fit option(s) {', '.join(map(repr, bad))}; accepted: {', '.join(sorted(names))}"
+            )
+        defaults["options"] = dict(options)
+    base = p.resolve().parent
+    items: list[Item] = []
+    seen: dict[str, int] = {}
+    for number, record in _records(p):
+        item = _item(record, base, _where(p, number), number, defaults, names)
+        if item.id in seen:
+            raise ValueError(
+                f"{_where(p, number)}: duplicate id {item.id!r} (first on line {seen[item.id]})"
+            )
+        seen[item.id] = number
+        items.append(item)
+    if not items:
+        raise ValueError(f"manifest {p} has no items")
+    return items
+
+
+def write_manifest(path: PathLike, records: Sequence[Mapping[str, Any]]) -> Path:
+    """Write records (dicts with the manifest fields) as a JSON-lines manifest.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
+    p = Path(path)
+    with open(p, "w", encoding="utf-8") as fh:
+        for rec in records:
+            unknown = sorted(set(rec) - set(FIELDS))
+            if unknown:
+                raise ValueError(f"unknown manifest field(s) {', '.join(map(repr, unknown))}")
+            fh.write(json.dumps(dict(rec)) + "\n")
+    return p

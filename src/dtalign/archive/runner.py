@@ -1,0 +1,436 @@
+"""Running a campaign on Dask: :func:`run`.
+
+The client submits one task per missing item (:func:`~dtalign.archive.tasks.fit_item`,
+which reads, prepares and fits the image on the worker), takes the results
+as they complete, and appends them to the store in batches of whole items.
+Dask retries the tasks of a worker that dies (up to
+``distributed.scheduler.allowed-failures`` times, 3 by default, before it
+reports ``KilledWorker``, which is recorded as the item's failure); an
+item's own error (a missing or corrupt file, a bad option) comes back as a
+failure row. Ctrl-C writes what has arrived, cancels the rest and
+re-raises :class:`KeyboardInterrupt`; running again resumes.
+
+Dask (``distributed``) is imported only when :func:`run` is called.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .manifest import Item, read_manifest
+from .store import Store
+from .tasks import failure_row, fit_item
+
+__all__ = ["RunSummary", "run"]
+
+PathLike = str | os.PathLike[str]
+
+#: Items per store part: a part every 32 items keeps the store's cost far
+#: below a fit's and loses at most 32 items of work on a hard crash.
+DEFAULT_FLUSH_ITEMS = 32
+
+#: ...or every 10 s, whichever comes first, so a slow campaign still lands
+#: its results on disk often.
+DEFAULT_FLUSH_SECONDS = 10.0
+
+#: Tasks submitted ahead of the results: enough to keep any cluster busy,
+#: few enough that the client and scheduler hold no campaign-sized state.
+DEFAULT_MAX_PENDING = 1000
+
+
+@dataclass
+class RunSummary:
+    """What a :func:`run` did.
+
+    Attributes
+    ----------
+    store : str
+        The store's folder.
+    items : int
+        Items in the manifest.
+    skipped_done, skipped_failed : int
+        Items already done (skipped), and already failed (skipped without
+        ``retry_failed``).
+    submitted : int
+        Items run this time.
+    done, failed : int
+        Of those, the items stored with results, and with a failure.
+    rows : int
+        Result rows written (one per polyline).
+    interrupted : bool
+        True when Ctrl-C stopped the run (the store holds what had finished).
+    elapsed_s, warm_s, store_s : float
+        Wall time of the run, of the workers' warm-up, and spent writing
+        the store.
+    store_parts : int
+        Part files written.
+    workers : int
+        Workers at the start.
+    run_id : str
+        Recorded in every row written.
+    """
+
+    store: str
+    items: int
+    skipped_done: int = 0
+    skipped_failed: int = 0
+    submitted: int = 0
+    done: int = 0
+    failed: int = 0
+    rows: int = 0
+    interrupted: bool = False
+    elapsed_s: float = 0.0
+    warm_s: float = 0.0
+    store_s: float = 0.0
+    store_parts: int = 0
+    workers: int = 0
+    run_id: str = field(default_factory=lambda: uuid.uuid4().hex[:12])
+
+    def __str__(self) -> str:
+        text = (
+            f"{self.done} item(s) done, {self.failed} failed ({self.rows} result rows), "
+            f"{self.skipped_done} already done"
+        )
+        if self.skipped_failed:
+            text += f", {self.skipped_failed} failed earlier (--retry-failed to redo)"
+        text += (f"; {self.elapsed_s:.1f} s on {self.workers} worker(s) (warm-up {self.warm_s:.1f} s); "
+                 f"store {self.store}")
+        return text + (" (interrupted)" if self.interrupted else "")
+
+
+def _dask() -> Any:
+    try:
+        import distributed
+    except ImportError:
+        raise ImportError(
+            "running a campaign needs Dask: pip install 'dtalign[dask]'"
+        ) from None
+    return distributed
+
+
+@contextlib.contextmanager
+def _client(client: Any, scheduler: str | None, workers: int | None) -> Iterator[Any]:
+    """The client to use: the caller's, one for ``scheduler``, or a new LocalCluster."""
+    if client is not None:
+        if scheduler is not None or workers is not None:
+            raise ValueError("give client, or scheduler / workers, not both")
+        yield client
+        return
+    distributed = _dask()
+    if scheduler is not None:
+        if workers is not None:
+            raise ValueError("workers applies to a local cluster, not to an existing scheduler")
+        with distributed.Client(scheduler) as c:
+            yield c
+        return
+    n = (os.cpu_count() or 1) if workers is None else workers
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"workers must be an int >= 1, got {workers!r}")
+    # Processes, one thread each: a worker per core, no GIL shared between fits.
+    # A terminal's Ctrl-C reaches the workers too; this process handles it (stores
+    # what has arrived, closes the cluster), so the workers ignore it: the ones
+    # started now inherit SIG_IGN, a replacement started later sets it in the
+    # preload (dtalign.archive._plugin.dask_setup).
+    # No dashboard; the scheduler's HTTP routes on a free port, not on 8787.
+    with _sigint_ignored():
+        cluster = distributed.LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"}, preload=["dtalign.archive._plugin"],
+        )
+    with cluster, distributed.Client(cluster) as c:
+        c._dtalign_owned = True  # _execute: closing it stops the tasks
+        yield c
+
+
+def _quiet_logs() -> None:
+    """Only errors that matter from Dask's loggers: a cluster closed on purpose
+    (after Ctrl-C) logs its cancelled tasks and closed comms at length."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT in the block (main thread only: elsewhere there is no handler to set)."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is None):  # a handler set outside Python: keep it
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _defer_sigint() -> Iterator[None]:
+    """Hold a Ctrl-C back until the block is over (a store write and its bookkeeping).
+
+    Without it an interrupt between a part's rename and the bookkeeping
+    after it would make the clean-up write those rows a second time.
+    Signal handlers belong to the main thread; elsewhere there is no
+    KeyboardInterrupt to defer.
+    """
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is None):  # a handler set outside Python: keep it
+        yield
+        return
+    pending: list[Any] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if pending:
+            raise KeyboardInterrupt
+
+
+class _Writer:
+    """Buffers whole items and appends them to the store in parts."""
+
+    def __init__(self, store: Store, summary: RunSummary, flush_items: int,
+                 flush_seconds: float) -> None:
+        self.store, self.summary = store, summary
+        self.flush_items, self.flush_seconds = flush_items, flush_seconds
+        self.results: list[dict[str, Any]] = []
+        self.failures: list[dict[str, Any]] = []
+        self.items = 0
+        self.last = time.monotonic()
+        self.written: set[str] = set()
+
+    def add(self, item_id: str, results: list[dict[str, Any]], failure: dict[str, Any] | None
+            ) -> None:
+        if item_id in self.written:  # a task never lands twice
+            return
+        self.written.add(item_id)
+        self.results.extend(results)
+        if failure is not None:
+            self.failures.append(failure)
+        self.items += 1
+        if self.items >= self.flush_items or time.monotonic() - self.last >= self.flush_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self.items:
+            return
+        with _defer_sigint():
+            t0 = time.perf_counter()
+            self.store.append(self.results, self.failures)
+            s = self.summary
+            s.store_s += time.perf_counter() - t0
+            s.store_parts += bool(self.results) + bool(self.failures)
+            s.rows += len(self.results)
+            s.failed += len(self.failures)
+            s.done += self.items - len(self.failures)
+            self.results, self.failures, self.items = [], [], 0
+            self.last = time.monotonic()
+
+
+def _progress(total: int, enabled: bool) -> Any:
+    if enabled:
+        try:
+            from tqdm import tqdm
+
+            return tqdm(total=total, desc="campaign", unit="image", file=sys.stderr,
+                        dynamic_ncols=True)
+        except ImportError:
+            pass
+
+    class _Silent:
+        def update(self, n: int = 1) -> None:
+            pass
+
+        def set_postfix_str(self, s: str) -> None:
+            pass
+
+        def close(self) -> None:
+            pass
+
+    return _Silent()
+
+
+def _plan(items: Sequence[Item], store: Store, retry_failed: bool, summary: RunSummary
+          ) -> list[Item]:
+    done = store.fingerprints()
+    failed = store.failed_ids()
+    changed = [i for i in items if i.id in done and done[i.id] != i.fingerprint]
+    if changed:
+        raise ValueError(
+            f"store {store.path} holds results for item {changed[0].id!r} (and "
+            f"{len(changed) - 1} more) from a different manifest entry: its files, noise, "
+            "window or options changed; write to a new store"
+        )
+    todo = []
+    for item in items:
+        if item.id in done:
+            summary.skipped_done += 1
+        elif item.id in failed and not retry_failed:
+            summary.skipped_failed += 1
+        else:
+            todo.append(item)
+    return todo
+
+
+def run(
+    manifest: PathLike | Sequence[Item],
+    store: PathLike | Store,
+    client: Any = None,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    window: Any = None,
+    options: Mapping[str, Any] | None = None,
+    retry_failed: bool = False,
+    progress: bool = True,
+    warm: bool = True,
+    flush_items: int = DEFAULT_FLUSH_ITEMS,
+    flush_seconds: float = DEFAULT_FLUSH_SECONDS,
+    max_pending: int = DEFAULT_MAX_PENDING,
+) -> RunSummary:
+    """Fit every missing item of a campaign on Dask and store the results.
+
+    Parameters
+    ----------
+    manifest : str, path-like or sequence of Item
+        A manifest file (:mod:`dtalign.archive.manifest`) or its items.
+    store : str, path-like or Store
+        The results store's folder (created when missing). Items it holds
+        already are skipped.
+    client : distributed.Client, optional
+        Run on this client's cluster (left open).
+    scheduler : str, optional
+        Address of an existing scheduler (``tcp://host:8786``) to connect
+        to, when no ``client`` is given.
+    workers : int, optional
+        Worker processes of the LocalCluster started when neither
+        ``client`` nor ``scheduler`` is given (one thread each); the CPU
+        count by default.
+    window, options
+        Defaults for items that give none: the coarse-search margin (30)
+        and fit options (:func:`dtalign.pipeline.fit_polyline_products`
+        keywords). Only used when ``manifest`` is a file.
+    retry_failed : bool, optional
+        Also run the items the store holds as failed.
+    progress : bool, optional
+        A tqdm progress bar on standard error (rate and ETA).
+    warm : bool, optional
+        Load (or compile) the kernels once on every worker before the
+        tasks run, and on every worker that joins later.
+    flush_items, flush_seconds : optional
+        Write a store part every this many items or seconds, whichever
+        comes first (32 items, 10 s); at the end, on an error and on Ctrl-C.
+    max_pending : int, optional
+        Tasks in flight at once (1000).
+
+    Returns
+    -------
+    RunSummary
+
+    Raises
+    ------
+    KeyboardInterrupt
+        On Ctrl-C, after the results that had arrived are stored and the
+        rest cancelled.
+    ValueError
+        On a malformed manifest, conflicting arguments, or a store whose
+        done items were made from different manifest entries.
+    ImportError
+        Without Dask or pyarrow (``pip install 'dtalign[dask]'``).
+    StoreBusyError
+        If another run is writing to the store.
+    """
+    t_start = time.perf_counter()
+    if isinstance(manifest, (str, os.PathLike)):
+        items = read_manifest(manifest, window=window, options=options)
+    else:
+        items = list(manifest)
+        if not all(isinstance(i, Item) for i in items):
+            raise TypeError("manifest must be a path or a sequence of dtalign.archive.Item")
+        if len({i.id for i in items}) != len(items):
+            raise ValueError("manifest items must have unique ids")
+    for name, value in (("flush_items", flush_items), ("max_pending", max_pending)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    st = store if isinstance(store, Store) else Store(store)
+    summary = RunSummary(store=str(Path(st.path)), items=len(items))
+    with st.lock():
+        todo = _plan(items, st, retry_failed, summary)
+        summary.submitted = len(todo)
+        if todo:
+            with _client(client, scheduler, workers) as c:
+                _execute(c, todo, st, summary, progress=progress, warm=warm,
+                         flush_items=flush_items, flush_seconds=float(flush_seconds),
+                         max_pending=max_pending)
+    summary.elapsed_s = time.perf_counter() - t_start
+    return summary
+
+
+def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *,
+             progress: bool, warm: bool, flush_items: int, flush_seconds: float,
+             max_pending: int) -> None:
+    distributed = _dask()
+    summary.workers = len(client.nthreads())
+    if warm:
+        from ._plugin import WarmNumba
+
+        t0 = time.perf_counter()
+        client.register_plugin(WarmNumba())
+        summary.warm_s = time.perf_counter() - t0
+    writer = _Writer(store, summary, flush_items, flush_seconds)
+    bar = _progress(len(todo), progress)
+    queue = iter(enumerate(todo))
+    futures: dict[Any, Item] = {}
+    completed = distributed.as_completed()
+
+    def submit(n: int) -> None:
+        for _ in range(n):
+            nxt = next(queue, None)
+            if nxt is None:
+                return
+            index, item = nxt
+            fut = client.submit(fit_item, item, summary.run_id,
+                                key=f"dtalign-fit-{summary.run_id}-{index}")
+            futures[fut] = item
+            completed.add(fut)
+
+    try:
+        submit(max_pending)
+        for fut in completed:
+            item = futures.pop(fut)
+            if fut.status == "finished":
+                payload = fut.result()
+                writer.add(item.id, payload["results"], payload["failure"])
+            elif fut.status == "error":  # the task never returned: KilledWorker and the like
+                writer.add(item.id, [], failure_row(item, fut.exception(), summary.run_id))
+            # "cancelled": nothing is stored; the item runs again next time
+            fut.release()
+            bar.update(1)
+            if summary.failed or writer.failures:
+                bar.set_postfix_str(f"{summary.failed + len(writer.failures)} failed")
+            submit(1)
+        writer.flush()
+    except BaseException as exc:
+        summary.interrupted = isinstance(exc, KeyboardInterrupt)
+        writer.flush()  # everything that arrived is kept, whatever stopped the run
+        if getattr(client, "_dtalign_owned", False):  # our LocalCluster: it closes next
+            _quiet_logs()
+            with contextlib.suppress(Exception):
+                client.run(_quiet_logs)
+        # Free the cluster of this run's tasks (on our own, this also leaves the
+        # scheduler nothing to report to a client that is closing).
+        client.cancel(list(futures))
+        futures.clear()
+        raise
+    finally:
+        bar.close()

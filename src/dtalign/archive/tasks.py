@@ -1,0 +1,229 @@
+"""What one task does on a worker: read, prepare and fit one image.
+
+:func:`fit_item` is the function Dask runs, once per manifest item. It
+reads the image and its polylines on the worker (only the item's paths
+travel from the client), computes the image's products once with
+:func:`dtalign.pipeline.prepare_image`, fits each polyline with
+:func:`dtalign.pipeline.fit_polyline_products`, and returns plain rows
+for the store. An error of the item (a missing or corrupt file, a bad
+option) is returned as a failure row, not raised, so the campaign goes on
+and the message names the file. It imports no Dask: the same function is
+the serial loop of the benchmark.
+"""
+
+from __future__ import annotations
+
+import datetime
+import importlib
+import math
+import os
+import socket
+import time
+from typing import Any
+
+import numpy as np
+
+from .manifest import Item
+
+__all__ = ["fit_item", "fit_rows", "warm_up"]
+
+
+def _version() -> str:
+    # Looked up at call time: nothing inside the package imports its root at import time.
+    return str(getattr(importlib.import_module("dtalign"), "__version__", "unknown"))
+
+
+def _worker_name() -> str:
+    """``host:pid`` of this process, or the Dask worker's address when in one."""
+    try:
+        from distributed import get_worker  # only present where Dask is
+
+        return str(get_worker().address)
+    except (ImportError, ValueError):
+        return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def _now() -> datetime.datetime:
+    return datetime.datetime.now(datetime.timezone.utc)
+
+
+def _status(fit: Any) -> tuple[str | None, list[str] | None]:
+    """The fit's status and reasons, if its result type has them.
+
+    Read with getattr: the status is being added to
+    :class:`~dtalign.pipeline.PolylineFit` separately, as a string, an enum
+    or a record with ``reasons``; any of these is stored as text.
+    """
+    status = getattr(fit, "status", None)
+    reasons = getattr(fit, "reasons", None)
+    if reasons is None and status is not None:
+        reasons = getattr(status, "reasons", None)
+    if status is not None and not isinstance(status, str):
+        for attr in ("value", "name", "code", "label"):
+            value = getattr(status, attr, None)
+            if isinstance(value, str):
+                status = value
+                break
+        else:
+            status = str(status)
+    if reasons is not None:
+        reasons = [str(r.value if hasattr(r, "value") else r) for r in reasons]
+    return status, reasons
+
+
+def _f(x: Any) -> float:
+    return float(x)
+
+
+def fit_rows(item: Item, fits: list[Any], timings: dict[str, Any], *, run_id: str) -> list[dict[str, Any]]:
+    """Store rows for an item's fits (one per polyline), in polyline order.
+
+    Parameters
+    ----------
+    item : Item
+        The manifest item.
+    fits : list of PolylineFit
+        One per polyline of ``item``.
+    timings : dict
+        ``read_s``, ``prepare_s``, ``item_s``, ``fit_s`` (a list, one per
+        fit), ``worker``, ``noise_sigma_estimated``, ``finished_at``.
+    run_id : str
+        The run writing the rows.
+    """
+    version = _version()
+    rows = []
+    for k, (path, fit) in enumerate(zip(item.polylines, fits, strict=True)):
+        cov = np.asarray(fit.covariance, dtype=np.float64)
+        rot = cov.shape[0] == 3
+        status, reasons = _status(fit)
+        rows.append({
+            "item_id": item.id, "image": item.image, "polyline": path, "polyline_index": k,
+            "offset_v": _f(fit.offset_vu[0]), "offset_u": _f(fit.offset_vu[1]),
+            "rotation_rad": _f(fit.rotation_rad),
+            "sigma_v": _f(fit.sigma_vu[0]), "sigma_u": _f(fit.sigma_vu[1]),
+            "sigma_rotation_rad": None if fit.sigma_rotation_rad is None
+            else _f(fit.sigma_rotation_rad),
+            "cov_vv": _f(cov[0, 0]), "cov_vu": _f(cov[0, 1]), "cov_uu": _f(cov[1, 1]),
+            "cov_vr": _f(cov[0, 2]) if rot else None, "cov_ur": _f(cov[1, 2]) if rot else None,
+            "cov_rr": _f(cov[2, 2]) if rot else None,
+            "coarse_dv": int(fit.coarse_offset_vu[0]), "coarse_du": int(fit.coarse_offset_vu[1]),
+            "at_window_edge": bool(fit.at_window_edge), "converged": bool(fit.converged),
+            "degenerate": bool(fit.degenerate), "iterations": int(fit.lm.iterations),
+            "rms_px": _f(fit.rms_px), "raw_rms_px": _f(fit.lm.raw_rms_px),
+            "inlier_count": int(fit.inlier_count),
+            "n_vertices": int(np.asarray(fit.lm.residuals_px).shape[0]),
+            "polarity_rejected_count": int(getattr(fit.lm, "polarity_rejected_count", 0)),
+            "observable_rank": int(fit.observable_rank),
+            "status": status, "reasons": reasons,
+            "noise_sigma": _f(fit.noise_sigma),
+            "noise_sigma_estimated": bool(timings.get("noise_sigma_estimated", False)),
+            "fit_rotation": bool(fit.fit_rotation),
+            "window_v": int(item.window[0]), "window_u": int(item.window[1]),
+            "read_s": timings.get("read_s"), "prepare_s": timings.get("prepare_s"),
+            "fit_s": timings["fit_s"][k] if "fit_s" in timings else None,
+            "item_s": timings.get("item_s"), "worker": timings.get("worker"),
+            "dtalign_version": version, "item_fingerprint": item.fingerprint,
+            "run_id": run_id, "finished_at": timings.get("finished_at"),
+        })
+    return rows
+
+
+def _failure(item: Item, stage: str, exc: BaseException, run_id: str, worker: str | None,
+             version: str | None) -> dict[str, Any]:
+    message = str(exc).strip().replace("\n", " ") or type(exc).__name__
+    return {
+        "item_id": item.id, "image": item.image, "polylines": list(item.polylines),
+        "stage": stage, "error_type": type(exc).__name__, "error": message,
+        "worker": worker, "dtalign_version": version, "item_fingerprint": item.fingerprint,
+        "run_id": run_id, "failed_at": _now(),
+    }
+
+
+def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
+    """Read, prepare and fit one manifest item; never raises for the item's own errors.
+
+    Parameters
+    ----------
+    item : Item
+        The image, its polylines and options.
+    run_id : str, optional
+        Recorded in the rows.
+
+    Returns
+    -------
+    dict
+        ``{"item_id", "results": [rows], "failure": row or None}``: either
+        one result row per polyline, or one failure row whose ``stage``
+        says where it failed (``read``, ``prepare`` or ``fit``) and whose
+        ``error`` names the file or polyline.
+    """
+    from .. import io, pipeline
+    from ..image import ImageDerivativesConfig
+
+    worker = _worker_name()
+    t0 = time.perf_counter()
+    stage = "read"
+    try:
+        image = io.load_image(item.image_path)
+        polylines = [io.load_polyline_csv(p) for p in item.polyline_paths]
+        t1 = time.perf_counter()
+        stage = "prepare"
+        config = ImageDerivativesConfig(**item.config) if item.config else None
+        products = pipeline.prepare_image(image, item.noise_sigma, config=config)
+        t2 = time.perf_counter()
+        stage = "fit"
+        fits, fit_s = [], []
+        for path, poly in zip(item.polylines, polylines, strict=True):
+            ta = time.perf_counter()
+            try:
+                fits.append(pipeline.fit_polyline_products(
+                    products, poly.vertices_vu, poly.normals_vu, poly.sigmas,
+                    search_window_vu=item.window, **item.options,
+                ))
+            except (TypeError, ValueError) as exc:
+                raise type(exc)(f"polyline {path}: {exc}") from None
+            fit_s.append(time.perf_counter() - ta)
+        t3 = time.perf_counter()
+    except Exception as exc:  # the item's own error: recorded, the campaign goes on
+        return {"item_id": item.id, "results": [],
+                "failure": _failure(item, stage, exc, run_id, worker, _version())}
+    timings = {
+        "read_s": t1 - t0, "prepare_s": t2 - t1, "fit_s": fit_s, "item_s": t3 - t0,
+        "worker": worker, "noise_sigma_estimated": products.noise_sigma_estimated,
+        "finished_at": _now(),
+    }
+    return {"item_id": item.id, "results": fit_rows(item, fits, timings, run_id=run_id),
+            "failure": None}
+
+
+def failure_row(item: Item, exc: BaseException, run_id: str) -> dict[str, Any]:
+    """A failure row for an item whose task never returned (its worker died, ...)."""
+    return _failure(item, "worker", exc, run_id, None, None)
+
+
+#: A small scene the warm-up fits: big enough for every code path, quick once compiled.
+_WARM_SHAPE = (96, 96)
+
+
+def warm_up() -> float:
+    """Compile, or load from Numba's on-disk cache, the kernels a task uses.
+
+    Runs a few fits on a small synthetic disc: translation, trust region,
+    rotation with the ridge polish. Returns the seconds it took.
+    """
+    from .. import pipeline, scenes
+
+    t0 = time.perf_counter()
+    scene = scenes.disc_scene(shape=_WARM_SHAPE, radius=30.0, n_vertices=32, search_window=3)
+    p = scene.polyline
+    for noise in (scene.noise_sigma, None):
+        products = pipeline.prepare_image(scene.image, noise)
+        for options in ({}, {"trust_region_px": 1.0},
+                        {"fit_rotation": True, "final_gradient_ridge": True}):
+            fit = pipeline.fit_polyline_products(
+                products, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(3, 3),
+                **options,
+            )
+            if not math.isfinite(fit.offset_vu[0]):  # pragma: no cover - a broken build
+                raise RuntimeError("warm-up fit returned a non-finite offset")
+    return time.perf_counter() - t0
