@@ -140,10 +140,11 @@ def test_rank_deficient_ring_is_a_note():
 
 
 def test_status_values_are_documented_strings():
-    assert [s.value for s in FitStatus] == ["ok", "suspect", "failed"]
+    # in order of severity; "ambiguous": a rival basin across the edge (issue 17)
+    assert [s.value for s in FitStatus] == ["ok", "suspect", "ambiguous", "failed"]
     assert {r.value for r in FitReason} == {
         "degenerate", "all_polarity_rejected", "at_window_edge", "most_polarity_rejected",
-        "not_converged", "rank_deficient",
+        "ambiguous", "not_converged", "ambiguous_along_edge", "rank_deficient",
     }
     assert str(FitReason.DEGENERATE) == "degenerate" and FitStatus.FAILED == "failed"
 

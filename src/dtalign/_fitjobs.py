@@ -328,12 +328,18 @@ def _at_window_edge(dv: int, du: int, window: tuple[int, int]) -> bool:
 def fit_one(shared: Plan, it: Item) -> PolylineFit:
     """Coarse search, then LM, timed separately (``coarse`` and ``lm``)."""
     d = _deps()
-    p = shared.products
     t1 = time.perf_counter()
     # (plan() refused an empty image: the LM checks need a non-empty DT)
     sv, su = d.coarse.support_of_vertices(it.vertices, shared.h, shared.w)
     dv, du = d.coarse.search_support(shared.edge, sv, su, shared.mv, shared.mu)
-    coarse = (int(dv), int(du))
+    return fit_from(shared, it, (int(dv), int(du)), time.perf_counter() - t1)
+
+
+def fit_from(shared: Plan, it: Item, coarse: tuple[int, int], coarse_s: float = 0.0) -> PolylineFit:
+    """The LM from the integer seed ``coarse`` (a multi-start's other starts
+    too), as a :class:`PolylineFit`; ``coarse_s`` is the seed's search time."""
+    d = _deps()
+    p = shared.products
     t2 = time.perf_counter()
     lm = d._fit(shared.lm._replace(
         vertices=it.vertices, normals=it.normals, sigmas=it.sigmas,
@@ -347,7 +353,7 @@ def fit_one(shared: Plan, it: Item) -> PolylineFit:
         lm=lm, search_window_vu=shared.window, fit_rotation=fit_rotation, pivot_vu=it.pivot,
         pivot_distance_px=float(it.distance), noise_sigma=shared.products.noise_sigma,
         vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
-        tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": t2 - t1, "lm": t3 - t2},
+        tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": coarse_s, "lm": t3 - t2},
     )
 
 

@@ -42,7 +42,7 @@ import numbers
 import os
 import threading
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, TypeVar
 
 import numpy as np
@@ -380,7 +380,37 @@ def _fit_parts(
     fits = _fitjobs.fit_batch(shared, batch, workers=workers)
     if error is not None:
         raise error
+    from .hypotheses import check_seeds
+
+    seeds = check_seeds(options.get("seeds", _FIT_DEFAULTS["seeds"]))
+    if options.get("ambiguity", _FIT_DEFAULTS["ambiguity"]) or seeds > 1:
+        fits = _examine_all(shared, batch, fits, seeds, workers)
     return fits
+
+
+def _examine_all(shared: Any, batch: Any, fits: list[PolylineFit], seeds: int,
+                 workers: int) -> list[PolylineFit]:
+    """The one-call pipeline's examination of rival basins
+    (:func:`dtalign.hypotheses.examine`) for each fit, on ``workers`` threads
+    (its scans and fits are compiled and release the GIL)."""
+    from . import hypotheses
+
+    bounds = batch.starts.tolist()
+
+    def one(j: int) -> PolylineFit:
+        s, e = bounds[j], bounds[j + 1]
+        item = _fitjobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
+                             (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
+                             float(batch.distances[j]))
+        return hypotheses.examine(
+            fits[j], shared, item, seeds=seeds,
+            refit=lambda seed: _fitjobs.fit_from(shared, item, seed),
+        )
+
+    if workers == 1 or len(fits) == 1:
+        return [one(j) for j in range(len(fits))]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(one, range(len(fits))))
 
 
 def _plan_batch(
@@ -391,6 +421,9 @@ def _plan_batch(
     first bad polyline (None if none): :func:`dtalign._fitjobs.plan`, then
     :func:`~dtalign._fitjobs.prepare`."""
     kw = {**_FIT_DEFAULTS, **options}
+    # the one-call pipeline's examination of rival basins is not the compiled loop's
+    kw.pop("seeds")
+    kw.pop("ambiguity")
     shared, first = _fitjobs.plan(
         products, *parts[0], search_window_vu=window, fit_rotation=kw.pop("fit_rotation"),
         pivot_vu=kw.pop("pivot_vu"), pivot_distance_px=kw.pop("pivot_distance_px"),

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C
+from ._constants import DEFAULT_TUKEY_C
 
 __all__ = [
     "AMBIGUITY_THRESHOLD",
@@ -165,13 +165,17 @@ class Ambiguity:
 def ambiguity_of(
     winner: Hypothesis,
     hypotheses: tuple[Hypothesis, ...],
-    covariance: NDArray[np.float64],
+    unobservable: NDArray[np.float64],
     n_vertices: int,
     *,
     threshold: float = AMBIGUITY_THRESHOLD,
-    rcond: float = DEFAULT_PINVH_RCOND,
 ) -> Ambiguity:
-    """The ambiguity figure of ``winner`` among ``hypotheses`` (see the module)."""
+    """The ambiguity figure of ``winner`` among ``hypotheses`` (see the module).
+
+    ``unobservable`` holds the winner's unobservable pose directions as rows
+    (:attr:`dtalign.pipeline.PolylineFit.unobservable_directions`); a rival
+    displaced along them is ambiguity along the edge, not across it.
+    """
     rivals = [
         h for h in hypotheses
         if math.dist(h.offset_vu, winner.offset_vu) > BASIN_RADIUS_PX
@@ -183,7 +187,7 @@ def ambiguity_of(
     ratio = (rival.cost + floor) / (winner.cost + floor)
     ambiguous = ratio < threshold
     d = np.subtract(rival.offset_vu, winner.offset_vu)
-    along = _along_null_space(d, covariance, rcond)
+    along = _along(d, unobservable)
     if not ambiguous:
         reason = ""
     elif along:
@@ -202,18 +206,98 @@ def ambiguity_of(
     return Ambiguity(float(ratio), rival, bool(ambiguous), bool(along), reason)
 
 
-def _along_null_space(d: NDArray[np.float64], covariance: NDArray[np.float64], rcond: float) -> bool:
-    """Whether translation ``d`` lies (within 15 degrees) in the null space
-    of the translation block of ``covariance`` (its zero-variance directions)."""
-    cov = np.asarray(covariance, dtype=np.float64)[:2, :2]
-    if not np.isfinite(cov).all() or not np.hypot(d[0], d[1]) > 0:
+def _along(d: NDArray[np.float64], unobservable: NDArray[np.float64]) -> bool:
+    """Whether translation ``d`` lies within 15 degrees of the span of the
+    translation parts of the ``unobservable`` directions."""
+    dirs = np.asarray(unobservable, dtype=np.float64).reshape(-1, np.shape(unobservable)[-1] if np.size(unobservable) else 2)
+    length = float(np.hypot(d[0], d[1]))
+    if dirs.shape[0] == 0 or not length > 0:
         return False
-    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
-    top = float(np.max(np.abs(vals)))
-    if top == 0.0:
-        return False
-    null = vecs[:, np.abs(vals) <= rcond * top * 1e3]
-    if null.shape[1] == 0:
-        return False
-    unit = d / np.hypot(d[0], d[1])
-    return bool(np.linalg.norm(null.T @ unit) >= math.cos(math.radians(15.0)))
+    basis, _ = np.linalg.qr(dirs[:, :2].T)  # orthonormal span of the translation parts
+    return bool(np.linalg.norm(basis.T @ (d / length)) >= math.cos(math.radians(15.0)))
+
+
+#: How many starts the one-call pipeline fits by default: 1, the coarse
+#: search's seed (multi-start is opt-in; ``seeds=3`` in
+#: :func:`dtalign.pipeline.fit_polyline_products`).
+DEFAULT_SEEDS = 1
+
+
+def check_seeds(seeds: Any) -> int:
+    """The number of starts: a positive int."""
+    if isinstance(seeds, bool) or not isinstance(seeds, (int, np.integer)) or seeds < 1:
+        raise ValueError(f"seeds must be a positive int; got {seeds!r}")
+    return int(seeds)
+
+
+def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
+    """The pipeline's fit, examined against rival basins (and, with ``seeds > 1``,
+    replaced by the cheapest of several starts).
+
+    The starts: the fit's own coarse seed; the next ``seeds - 1`` distinct
+    peaks of the coarse score surface (:func:`dtalign.seeds.top_k_seeds`; at
+    least the second, for the ambiguity figure); and the competing basin of
+    the DT cost (:func:`dtalign.find_secondary_dt_minimum` outside
+    :data:`BASIN_RADIUS_PX`). Each is fitted by the same LM (``refit(seed)``
+    gives a :class:`~dtalign.pipeline.PolylineFit`) and costed by
+    :func:`robust_cost`. With one seed the fit itself is kept whatever the
+    costs (results stay those of the single start); with more, the cheapest
+    of the coarse starts and the basin start wins, ties to the earlier. The
+    returned fit carries every hypothesis and its :class:`Ambiguity`.
+    """
+    import dataclasses
+    import time
+
+    from .basin import find_secondary_dt_minimum
+    from .sampling import _rotate_vertices
+    from .seeds import top_k_seeds
+
+    t0 = time.perf_counter()
+    products = shared.products
+    lm = shared.lm
+    window = shared.window
+    dt, grad = products.edge_dt, products.gradient_vu
+    n = item.vertices.shape[0]
+
+    def cost_of(f: Any) -> tuple[float, int]:
+        return robust_cost(
+            dt, grad, item.vertices, item.normals, item.sigmas, offset_vu=f.offset_vu,
+            rotation_rad=f.rotation_rad, pivot_vu=item.pivot, use_polarity=lm.use_polarity,
+            tukey_c=lm.tukey_c,
+        )
+
+    fits = [("seed 1", fit.coarse_offset_vu, math.nan, fit)]
+    peaks = top_k_seeds(shared.edge, item.vertices, window, k=max(seeds, 2),
+                        min_support_fraction=0.0)
+    for j, peak in enumerate(peaks[1:], start=2):
+        if peak.offset_vu != fit.coarse_offset_vu:
+            fits.append((f"seed {j}", peak.offset_vu, peak.score, refit(peak.offset_vu)))
+    if not fit.lm.degenerate:
+        placed = _rotate_vertices(item.vertices, item.pivot, fit.rotation_rad)
+        rival = find_secondary_dt_minimum(
+            dt, placed, converged_offset_vu=fit.offset_vu, search_window_vu=window,
+            exclude_radius_px=BASIN_RADIUS_PX, min_support_fraction=0.5,
+        )
+        if rival is not None:
+            fits.append(("basin", rival.offset_vu, math.nan, refit(rival.offset_vu)))
+    hypotheses = []
+    for source, seed, score, f in fits:
+        cost, inliers = cost_of(f)
+        hypotheses.append(Hypothesis(
+            source=source, seed_vu=(int(seed[0]), int(seed[1])), coarse_score=float(score),
+            offset_vu=f.offset_vu, rotation_rad=f.rotation_rad, cost=cost, inliers=inliers,
+            converged=bool(f.lm.converged),
+        ))
+    best = 0
+    if seeds > 1:
+        for j, h in enumerate(hypotheses):
+            if h.cost < hypotheses[best].cost:
+                best = j
+    chosen = fits[best][3]
+    amb = ambiguity_of(hypotheses[best], tuple(hypotheses),
+                       np.asarray(chosen.unobservable_directions), n)
+    timings = dict(chosen.timings_s)
+    timings["hypotheses"] = time.perf_counter() - t0
+    return dataclasses.replace(
+        chosen, hypotheses=tuple(hypotheses), ambiguity=amb, timings_s=timings
+    )

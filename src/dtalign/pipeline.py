@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _validation as check
+from . import hypotheses as _hypotheses
 from . import status as _status
 from ._constants import (
     DEFAULT_LM_DAMPING,
@@ -43,6 +44,7 @@ from ._constants import (
 )
 from ._image_args import ImageDerivativesConfig
 from ._results import LMRefineResult
+from .hypotheses import Ambiguity, Hypothesis
 from .observability import (
     _sigma_list,
     _sigmas_from_cov,
@@ -115,6 +117,13 @@ class PolylineFit:
         the products were computed here, ``coarse``, ``lm``). Fits of
         :func:`dtalign.batch.fit_many` have ``fit`` instead of ``coarse`` and
         ``lm``: the threads' compiled time divided by the call's fits.
+    hypotheses : tuple of Hypothesis
+        Every pose considered (:mod:`dtalign.hypotheses`): the fit from the
+        coarse seed first, then the other starts; empty when not examined.
+    ambiguity : Ambiguity or None
+        How clearly this basin beats the best rival basin (its ``ratio``,
+        the rival, and whether the rival lies along an unobservable
+        direction); None when not examined.
 
     Whether to trust the fit is read from these fields by :attr:`status`,
     :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.status`);
@@ -140,6 +149,8 @@ class PolylineFit:
     pinvh_rcond: float = DEFAULT_PINVH_RCOND
     tukey_c: float = DEFAULT_TUKEY_C
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
+    hypotheses: tuple[Hypothesis, ...] = field(default=(), repr=False)
+    ambiguity: Ambiguity | None = None
 
     def __post_init__(self) -> None:
         for name in ("vertices_vu", "normals_vu"):
@@ -451,6 +462,17 @@ class PolylineFit:
             "status": str(self.status),
             "reasons": [str(r) for r in self.reasons],
             "status_message": self.status_message,
+            "ambiguity_ratio": None if self.ambiguity is None else num(self.ambiguity.ratio),
+            "ambiguity_rival_offset_vu": (
+                None if self.ambiguity is None or self.ambiguity.rival is None
+                else [num(x) for x in self.ambiguity.rival.offset_vu]
+            ),
+            "hypotheses": [
+                {"source": h.source, "seed_vu": list(h.seed_vu), "offset_vu": list(h.offset_vu),
+                 "rotation_rad": h.rotation_rad, "cost": num(h.cost), "inliers": h.inliers,
+                 "converged": h.converged}
+                for h in self.hypotheses
+            ],
             "covariance": [[num(float(x)) for x in row] for row in cov],
             "normal_covariance": [
                 [num(float(x)) for x in row] for row in np.asarray(self.normal_covariance)
@@ -501,6 +523,8 @@ def fit_polyline_products(
     step_tolerance_px: float = DEFAULT_LM_STEP_TOLERANCE,
     tukey_c: float = DEFAULT_TUKEY_C,
     pinvh_rcond: float = DEFAULT_PINVH_RCOND,
+    seeds: int = _hypotheses.DEFAULT_SEEDS,
+    ambiguity: bool = True,
 ) -> PolylineFit:
     """Fit one polyline against precomputed image products.
 
@@ -543,6 +567,17 @@ def fit_polyline_products(
         Run the gradient-ridge polish after the LM.
     initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
         Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
+    seeds : int, optional
+        Starts of a multi-start fit (:mod:`dtalign.hypotheses`): the LM runs
+        from the ``seeds`` best distinct coarse peaks and from the competing
+        basin of the DT cost, and the cheapest pose on a common footing wins.
+        1 (the default) keeps the single start's pose.
+    ambiguity : bool, optional
+        Examine the fit against its best rival basin (the second coarse
+        peak and the competing basin, each fitted): the result's
+        :attr:`~PolylineFit.ambiguity` and :attr:`~PolylineFit.hypotheses`,
+        and the status ``ambiguous`` when a rival across the edge costs
+        nearly as little. About 1 ms per fit; False skips it.
 
     Returns
     -------
@@ -559,6 +594,7 @@ def fit_polyline_products(
     """
     from . import _fitjobs
 
+    seeds = _hypotheses.check_seeds(seeds)
     shared, item = _fitjobs.plan(
         products, vertices_vu, normals_vu, sigmas, search_window_vu=search_window_vu,
         fit_rotation=fit_rotation, pivot_vu=pivot_vu, pivot_distance_px=pivot_distance_px,
@@ -571,6 +607,11 @@ def fit_polyline_products(
         },
     )
     fit = _fitjobs.fit_one(shared, item)
+    if ambiguity or seeds > 1:
+        fit = _hypotheses.examine(
+            fit, shared, item, seeds=seeds,
+            refit=lambda seed: _fitjobs.fit_from(shared, item, seed),
+        )
     _status.log_fit(fit)
     return fit
 
@@ -597,6 +638,8 @@ def fit_polyline(
     step_tolerance_px: float = DEFAULT_LM_STEP_TOLERANCE,
     tukey_c: float = DEFAULT_TUKEY_C,
     pinvh_rcond: float = DEFAULT_PINVH_RCOND,
+    seeds: int = _hypotheses.DEFAULT_SEEDS,
+    ambiguity: bool = True,
 ) -> PolylineFit:
     """Fit a model polyline to an image in one call.
 
@@ -626,6 +669,17 @@ def fit_polyline(
         LM options: see :func:`fit_polyline_products`.
     initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
         Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
+    seeds : int, optional
+        Starts of a multi-start fit (:mod:`dtalign.hypotheses`): the LM runs
+        from the ``seeds`` best distinct coarse peaks and from the competing
+        basin of the DT cost, and the cheapest pose on a common footing wins.
+        1 (the default) keeps the single start's pose.
+    ambiguity : bool, optional
+        Examine the fit against its best rival basin (the second coarse
+        peak and the competing basin, each fitted): the result's
+        :attr:`~PolylineFit.ambiguity` and :attr:`~PolylineFit.hypotheses`,
+        and the status ``ambiguous`` when a rival across the edge costs
+        nearly as little. About 1 ms per fit; False skips it.
 
     Returns
     -------
@@ -662,4 +716,6 @@ def fit_polyline(
         step_tolerance_px=step_tolerance_px,
         tukey_c=tukey_c,
         pinvh_rcond=pinvh_rcond,
+        seeds=seeds,
+        ambiguity=ambiguity,
     )

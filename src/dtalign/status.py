@@ -64,6 +64,9 @@ class FitStatus(str, enum.Enum):
     ``SUSPECT``
         The pose is a measurement but should be checked: most vertices were
         polarity-rejected.
+    ``AMBIGUOUS``
+        Another basin, across the edge, fits the image about as well
+        (:attr:`FitReason.AMBIGUOUS`): the pose may be the wrong one of two.
     ``FAILED``
         The pose is not a measurement of the image: no vertex kept any
         weight, or the coarse seed is on the search-window edge (the true
@@ -72,6 +75,7 @@ class FitStatus(str, enum.Enum):
 
     OK = "ok"
     SUSPECT = "suspect"
+    AMBIGUOUS = "ambiguous"
     FAILED = "failed"
 
     def __str__(self) -> str:
@@ -106,6 +110,18 @@ class FitReason(str, enum.Enum):
         limbs the LM often creeps on past 30 iterations (the disc demo
         converges at 66, 0.005 px from where the cap stopped it); the
         result does not record the cap, so the two endings look alike.
+    ``AMBIGUOUS`` (ambiguous)
+        A rival basin -- a pose fitted from another coarse peak or from the
+        competing basin of the DT cost, farther than
+        :data:`~dtalign.hypotheses.BASIN_RADIUS_PX` away -- costs less than
+        :data:`~dtalign.hypotheses.AMBIGUITY_THRESHOLD` times this one on the
+        common footing of :func:`~dtalign.hypotheses.robust_cost`: two
+        parallel edges of the same polarity, a decoy edge. See
+        :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.
+    ``AMBIGUOUS_ALONG_EDGE`` (note: the status stays ``OK``)
+        The rival basin lies along a direction the fit cannot observe (a
+        straight edge's along-edge shift): the pose is ambiguous along the
+        edge, which its ``inf`` sigma there already says, not across it.
     ``RANK_DEFICIENT`` (note: the status stays ``OK``)
         The polyline's geometry leaves some pose direction unmeasured (a
         straight edge: the along-edge shift; a circle: its rotation). The
@@ -117,7 +133,9 @@ class FitReason(str, enum.Enum):
     ALL_POLARITY_REJECTED = "all_polarity_rejected"
     AT_WINDOW_EDGE = "at_window_edge"
     MOST_POLARITY_REJECTED = "most_polarity_rejected"
+    AMBIGUOUS = "ambiguous"
     NOT_CONVERGED = "not_converged"
+    AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
     RANK_DEFICIENT = "rank_deficient"
 
     def __str__(self) -> str:
@@ -130,11 +148,13 @@ SEVERITY: dict[FitReason, FitStatus] = {
     FitReason.ALL_POLARITY_REJECTED: FitStatus.FAILED,
     FitReason.AT_WINDOW_EDGE: FitStatus.FAILED,
     FitReason.MOST_POLARITY_REJECTED: FitStatus.SUSPECT,
+    FitReason.AMBIGUOUS: FitStatus.AMBIGUOUS,
     FitReason.NOT_CONVERGED: FitStatus.OK,
+    FitReason.AMBIGUOUS_ALONG_EDGE: FitStatus.OK,
     FitReason.RANK_DEFICIENT: FitStatus.OK,
 }
 
-_ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.FAILED)
+_ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.AMBIGUOUS, FitStatus.FAILED)
 
 
 def _n_vertices(fit: Any) -> int:
@@ -176,8 +196,13 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
         return tuple(out)
     if 2 * rejected > n:
         out.append(FitReason.MOST_POLARITY_REJECTED)
+    ambiguity = getattr(fit, "ambiguity", None)
+    if ambiguity is not None and ambiguity.ambiguous and not ambiguity.along_unobservable:
+        out.append(FitReason.AMBIGUOUS)
     if not lm.converged:
         out.append(FitReason.NOT_CONVERGED)
+    if ambiguity is not None and ambiguity.ambiguous and ambiguity.along_unobservable:
+        out.append(FitReason.AMBIGUOUS_ALONG_EDGE)
     return tuple(out)
 
 
@@ -230,6 +255,8 @@ def _explain(fit: Any, reason: FitReason) -> str:
             f"{k} of {n} vertices polarity-rejected: the normals may point the wrong way "
             "(they must point up the image gradient, toward the brighter side)"
         )
+    if reason in (FitReason.AMBIGUOUS, FitReason.AMBIGUOUS_ALONG_EDGE):
+        return f"{reason}: {fit.ambiguity.reason}"
     if reason is FitReason.NOT_CONVERGED:
         return (
             f"not converged: the LM stopped after {lm.iterations} iterations, at its cap "
