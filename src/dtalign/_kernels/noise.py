@@ -156,16 +156,6 @@ def _value(x, i, centre, deviations):  # pragma: no cover - compiled
     return x[i]
 
 
-@inline_kernel
-def _image_value(img, i, j, centre, deviations):  # pragma: no cover - compiled
-    """The response at ``(i, j)``, or ``abs(response - centre)`` (as NumPy
-    computes ``np.abs(f - centre)``: the same two operations)."""
-    v = _response(img, i, j)
-    if deviations:
-        return abs(v - centre)
-    return v
-
-
 @kernel
 def _bracket(sample, n, k0, k1):  # pragma: no cover - compiled
     """``(found, lo, hi)``: values of a sorted stride sample of ``n`` values
@@ -210,10 +200,12 @@ def _gather(x, n, k0, k1, work):  # pragma: no cover - compiled
 
 
 @kernel
-def _gather_image(img, k0, k1, centre, deviations, work):  # pragma: no cover - compiled
-    """:func:`_gather` of the image's responses (or their deviations), computed
-    a row at a time: no array of a million responses is written and read
-    back. ``work`` must hold as many values as the image has responses.
+def _sample_responses(img):  # pragma: no cover - compiled
+    """:data:`SAMPLE_SIZE` responses at evenly strided pixels (``n > SAMPLE_SIZE``).
+
+    Drawn once per estimate and shared by both medians: each sampled pixel
+    is three cache misses into the image, ~12k of them, a sizeable part of
+    a pass when the memory is shared with other processes.
     """
     h, w = img.shape
     wi = w - 2
@@ -223,7 +215,24 @@ def _gather_image(img, k0, k1, centre, deviations, work):  # pragma: no cover - 
     stride = n / s
     for j in range(s):
         idx = int(j * stride)
-        sample[j] = _image_value(img, idx // wi + 1, idx % wi + 1, centre, deviations)
+        sample[j] = _response(img, idx // wi + 1, idx % wi + 1)
+    return sample
+
+
+@kernel
+def _gather_image(img, k0, k1, centre, deviations, work, responses):  # pragma: no cover - compiled
+    """:func:`_gather` of the image's responses (or their deviations), computed
+    a row at a time: no array of a million responses is written and read
+    back. ``work`` must hold as many values as the image has responses;
+    ``responses`` is :func:`_sample_responses` of the image.
+    """
+    h, w = img.shape
+    wi = w - 2
+    n = (h - 2) * wi
+    s = responses.shape[0]
+    sample = np.empty(s)
+    for j in range(s):
+        sample[j] = abs(responses[j] - centre) if deviations else responses[j]
     sample.sort()
     found, lo_v, hi_v = _bracket(sample, n, k0, k1)
     if not found:
@@ -289,7 +298,7 @@ def _order_pair(x, k0, k1, centre, deviations, work):  # pragma: no cover - comp
 
 
 @kernel
-def _image_order_pair(img, k0, k1, centre, deviations):  # pragma: no cover - compiled
+def _image_order_pair(img, k0, k1, centre, deviations, responses):  # pragma: no cover - compiled
     """:func:`_order_pair` of the image's responses (or their deviations).
 
     One bracketing pass over the image gathers ~9 % of the values; only
@@ -301,7 +310,7 @@ def _image_order_pair(img, k0, k1, centre, deviations):  # pragma: no cover - co
     # the rest of the pages are never touched)
     work = np.empty(n)
     if n > DIRECT_SELECT_MAX:
-        m, below, ok = _gather_image(img, k0, k1, centre, deviations, work)
+        m, below, ok = _gather_image(img, k0, k1, centre, deviations, work, responses)
         if ok:
             ok, a, b = _refine(work, m, below, k0, k1)
             if ok:
@@ -326,9 +335,10 @@ def noise_statistics(img):  # pragma: no cover - compiled
     n = (h - 2) * (w - 2)
     k1 = n // 2
     k0 = k1 if n % 2 else k1 - 1
-    a, b = _image_order_pair(img, k0, k1, 0.0, False)
+    responses = _sample_responses(img) if n > DIRECT_SELECT_MAX else np.empty(0)
+    a, b = _image_order_pair(img, k0, k1, 0.0, False, responses)
     centre = a if k0 == k1 else (a + b) / 2.0
-    a, b = _image_order_pair(img, k0, k1, centre, True)
+    a, b = _image_order_pair(img, k0, k1, centre, True, responses)
     mad = a if k0 == k1 else (a + b) / 2.0
     mean_abs = 0.0
     if not mad > 0.0:
