@@ -88,7 +88,7 @@ def test_fit_table(capsys, files, image):
 def test_fit_json_recovers_offset(capsys, files):
     code, out, _ = run(
         capsys, "fit", str(files / "disc.npy"), str(files / "disc.csv"),
-        "--window", "8", "6", "--noise-sigma", "2", "--trust-region", "5", "--json",
+        "--window", "8,6", "--noise-sigma", "2", "--trust-region", "5", "--json",
     )
     assert code == 0
     doc = json.loads(out)
@@ -197,7 +197,8 @@ def test_corrupt_image(capsys, files, tmp_path):
     [
         (["fit"], "fit needs IMAGE POLYLINE"),
         (["fit", "a.npy"], "odd number of files"),
-        (["fit", "a.npy", "a.csv", "--window", "1", "2", "3"], "--window takes one or two"),
+        (["fit", "a.npy", "a.csv", "--window", "1,2,3"], "--window takes one or two"),
+        (["fit", "a.npy", "a.csv", "--window", "x"], "--window takes ints"),
         (["fit", "a.npy", "a.csv", "--window", "-1"], "non-negative"),
         (["fit", "--glob", "/nonexistent-dir/*.npy"], "no image matches"),
         (["fit", "--batch", "/nonexistent-list.txt"], "batch list not found"),
@@ -209,8 +210,8 @@ def test_usage_errors(capsys, argv, fragment):
 
 
 def test_argparse_error_exit_status(capsys):
-    code, _, err = run(capsys, "fit", "a", "b", "--window", "x")
-    assert code == 2 and "invalid int value" in err
+    code, _, err = run(capsys, "fit", "a", "b", "--noise-sigma", "x")
+    assert code == 2 and "invalid float value" in err
 
 
 def test_no_command_prints_help(capsys):
