@@ -1,10 +1,11 @@
-"""Stage 1: rasterise the polyline and search integer shifts (SPEC section 2)."""
+"""Stage 1: rasterise the polyline and search integer shifts (:ref:`contract-numerics`)."""
 
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _validation as check
 from ._args import check_coarse_inputs, check_polarity_search_inputs
@@ -23,7 +24,7 @@ __all__ = [
 ]
 
 
-def build_polyline_mask(vertices_vu: Any, shape_vu: Any) -> np.ndarray:
+def build_polyline_mask(vertices_vu: ArrayLike, shape_vu: Any) -> np.ndarray:
     """Rasterise vertices into a boolean image.
 
     Parameters
@@ -45,8 +46,8 @@ def build_polyline_mask(vertices_vu: Any, shape_vu: Any) -> np.ndarray:
 
 
 def coarse_ncc_search(
-    edge_mask: Any,
-    polyline_mask: Any,
+    edge_mask: ArrayLike,
+    polyline_mask: ArrayLike,
     search_window_vu: Any,
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
@@ -177,7 +178,7 @@ def coarse_polarity_search_scored(
 
 
 def coarse_search_vertices(
-    edge_mask: Any, vertices_vu: Any, search_window_vu: Any
+    edge_mask: ArrayLike, vertices_vu: ArrayLike, search_window_vu: Any
 ) -> tuple[int, int]:
     """``coarse_ncc_search(edge_mask, build_polyline_mask(vertices_vu, shape), window,
     min_support_fraction=0.0)`` without the polyline mask.

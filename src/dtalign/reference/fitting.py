@@ -1,6 +1,7 @@
-"""Plain NumPy fitting: the executable specification of SPEC sections 2-4.
+"""Plain NumPy fitting: the executable specification of the contract's fitting rules
+(:ref:`contract-numerics`, :ref:`contract-lm`, :ref:`contract-ridge`).
 
-This module is written to be read next to SPEC.md, one function per rule.
+This module is written to be read next to the contract, one function per rule.
 It is what the compiled path is tested against and benchmarked against, so
 it stays vectorised NumPy of the kind the navigation techniques run today:
 no Numba, no cleverness, no shortcuts that change a floating-point result.
@@ -414,7 +415,7 @@ def lm_subpixel_refine(
     tikhonov_alpha: float = 0.0,
     final_gradient_ridge: bool = False,
 ) -> LMRefineResult:
-    """Robust sub-pixel LM fit of the polyline to the DT (SPEC section 3)."""
+    """Robust sub-pixel LM fit of the polyline to the DT (:ref:`contract-lm`)."""
     a = check_lm_inputs(locals())
     pts, nrm, sig, dt, grad = a.vertices, a.normals, a.sigmas, a.dt, a.gradient
     dv0, du0 = a.offset
@@ -568,7 +569,7 @@ def gradient_ridge_refine(
     sample_step_px: float = DEFAULT_RIDGE_SAMPLE_STEP_PX,
     max_total_displacement_px: float = DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
 ) -> RidgeRefineResult:
-    """Gauss-Newton polish onto the gradient-magnitude ridge (SPEC section 4)."""
+    """Gauss-Newton polish onto the gradient-magnitude ridge (:ref:`contract-ridge`)."""
     a = check_ridge_inputs(locals())
     dv0, du0 = a.offset
     pose = np.array([dv0, du0, a.rotation])
