@@ -217,7 +217,7 @@ class RidgeRefineResult:
 
 @dataclass(frozen=True)
 class CoarseSearchResult:
-    """Outcome of the scored coarse searches (SPEC section 8.2).
+    """Outcome of the scored coarse searches (:ref:`contract-coarse-scored`).
 
     Attributes
     ----------
@@ -236,7 +236,7 @@ class CoarseSearchResult:
 
 @dataclass(frozen=True)
 class SecondaryBasin:
-    """The best integer shift outside the converged basin (SPEC section 8.4).
+    """The best integer shift outside the converged basin (:ref:`contract-basin`).
 
     Attributes
     ----------

@@ -179,7 +179,7 @@ def coarse_ncc_search(
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> tuple[int, int]:
-    """Integer shift maximising the per-vertex edge match fraction (SPEC 8.1)."""
+    """Integer shift maximising the per-vertex edge match fraction (:ref:`contract-changes`)."""
     return coarse_ncc_search_scored(
         edge_mask, polyline_mask, search_window_vu, min_support_fraction=min_support_fraction
     ).offset_vu
@@ -197,7 +197,7 @@ def coarse_ncc_search_scored(
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> CoarseSearchResult:
-    """The best integer shift and its score (SPEC 8.2)."""
+    """The best integer shift and its score (:ref:`contract-coarse-scored`)."""
     edge, poly, mv, mu, fraction = check_coarse_inputs(
         edge_mask, polyline_mask, search_window_vu, min_support_fraction
     )
@@ -233,7 +233,7 @@ def coarse_polarity_search_scored(
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> CoarseSearchResult:
-    """Coarse search weighted by normal/gradient agreement (SPEC 8.3)."""
+    """Coarse search weighted by normal/gradient agreement (:ref:`contract-polarity-search`)."""
     a = check_polarity_search_inputs(
         edge_mask, image_gradient_vu, vertices_vu, normals_vu, search_window_vu,
         min_support_fraction,
@@ -298,7 +298,7 @@ def find_secondary_dt_minimum(
     exclude_radius_px: float,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> SecondaryBasin | None:
-    """The best integer shift outside the converged basin (SPEC 8.4)."""
+    """The best integer shift outside the converged basin (:ref:`contract-basin`)."""
     a = check_basin_inputs(
         image_edge_dt, vertices_vu, converged_offset_vu, search_window_vu, exclude_radius_px,
         min_support_fraction,
