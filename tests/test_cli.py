@@ -316,3 +316,28 @@ def test_fits_image(capsys, files, tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "astropy.io", None)
     code, _, err = run(capsys, "fit", str(path), str(files / "disc.csv"))
     assert_one_line_error(code, err, "pip install astropy")
+
+
+# --------------------------------------------------------------------------- labels
+
+
+@pytest.mark.parametrize(
+    ("pairs", "expected"),
+    [
+        ([("d/disc.npy", "d/disc.csv"), ("d/disc.png", "d/disc.csv")],
+         [("disc.npy", "disc.npy"), ("disc.png", "disc.png")]),
+        ([("f.npy", "limb.csv"), ("f.npy", "ring.csv")],
+         [("f.npy + limb.csv", "f+limb"), ("f.npy + ring.csv", "f+ring")]),
+        ([("a/x/f.npy", "f.csv"), ("b/x/f.npy", "f.csv"), ("g.npy", "g.csv")],
+         [("a/x/f.npy", "a_x_f"), ("b/x/f.npy", "b_x_f"), ("g.npy", "g")]),
+        ([("f.npy", "f.csv"), ("f.npy", "f.csv")],
+         [("f.npy + f.csv#1", "f+f_1"), ("f.npy + f.csv#2", "f+f_2")]),
+        ([("my frame.npy", "f.csv")], [("my frame.npy", "my_frame")]),
+    ],
+)
+def test_job_labels_and_plot_names_are_distinct(pairs, expected):
+    from dtalign.cli import _Job, _label_jobs
+
+    jobs = [_Job(Path(a), Path(b)) for a, b in pairs]
+    _label_jobs(jobs)
+    assert [(j.label, j.plot_name) for j in jobs] == expected
