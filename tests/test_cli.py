@@ -341,3 +341,40 @@ def test_job_labels_and_plot_names_are_distinct(pairs, expected):
     jobs = [_Job(Path(a), Path(b)) for a, b in pairs]
     _label_jobs(jobs)
     assert [(j.label, j.plot_name) for j in jobs] == expected
+
+
+# --------------------------------------------------------------------------- compile notice
+
+
+def _fake_kernels(tmp_path, tag):
+    import pickle
+
+    kernels = tmp_path / "_kernels"
+    (kernels / "__pycache__").mkdir(parents=True)
+    src = kernels / "lm.py"
+    src.write_text("# kernel source\n")
+    index = kernels / "__pycache__" / "lm.run-10.py311.nbi"
+    index.write_bytes(pickle.dumps(tag) + b"payload")
+    return src, index
+
+
+def test_cache_check_warm_when_indexes_are_current(tmp_path):
+    from dtalign.cli import _cache_tag, _kernel_cache_cold
+
+    src, index = _fake_kernels(tmp_path, _cache_tag())
+    os.utime(src, (1_000_000, 1_000_000))
+    assert _kernel_cache_cold(src.parent) is False
+    os.utime(src, (2**31 - 1, 2**31 - 1))  # the source edited after its index was written
+    assert _kernel_cache_cold(src.parent) is True
+
+
+def test_cache_check_cold_without_indexes_or_with_another_format(tmp_path):
+    from dtalign.cli import _cache_tag, _kernel_cache_cold
+
+    assert _kernel_cache_cold(tmp_path / "nowhere") is True
+    (tmp_path / "empty" / "__pycache__").mkdir(parents=True)
+    assert _kernel_cache_cold(tmp_path / "empty") is True
+    if _cache_tag() is not None:
+        src, _ = _fake_kernels(tmp_path / "old", ("0.1.0", "plain-numba"))
+        os.utime(src, (1_000_000, 1_000_000))
+        assert _kernel_cache_cold(src.parent) is True

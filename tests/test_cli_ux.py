@@ -202,7 +202,10 @@ def test_ctrl_c_exits_130(files, tmp_path):
     proc, reader = _start(["fit", "--batch", str(listing), "--window", "8"], cwd=tmp_path)
     assert reader.wait_for("fitting", timeout=120), reader.text
     code = _interrupt(proc, reader)
-    assert code == 130, reader.text
+    # 130 from main(); now and then (about 1 run in 10 here, when the signal
+    # lands while the kernels load) the interpreter instead ends by SIGINT
+    # after main() returned, which a shell reports as 130 too.
+    assert code in (130, -signal.SIGINT), reader.text
     assert "Traceback" not in reader.text and "dtalign: interrupted" in reader.text
 
 
@@ -221,8 +224,10 @@ def test_compile_notice_before_a_cold_first_run(files, tmp_path):
         assert reader.wait_for(COMPILE_NOTICE, timeout=120), reader.text
         assert proc.poll() is None  # printed before the compile, not after it
     finally:
-        code = _interrupt(proc, reader)  # no need to wait minutes for the compile
-    assert code in (130, 0), reader.text
+        proc.kill()  # no need to wait minutes for the compile
+        proc.wait(timeout=60)
+        reader.join()
+    assert reader.text.startswith(COMPILE_NOTICE), reader.text  # the first thing said
 
 
 def test_no_compile_notice_with_a_warm_cache(files):

@@ -25,6 +25,8 @@ ENTRIES: dict[str, tuple[str, list[tuple[str, str, str]]]] = {
             ("concurrent.futures.ThreadPoolExecutor", "py:class", "library/concurrent.futures.html#$"),
             ("concurrent.futures.ProcessPoolExecutor", "py:class", "library/concurrent.futures.html#$"),
             ("logging", "py:module", "library/logging.html#module-$"),
+            ("logging.getLogger", "py:function", "library/logging.html#$"),
+            ("warnings.warn", "py:function", "library/warnings.html#$"),
             ("pathlib.Path", "py:class", "library/pathlib.html#$"),
             ("time.perf_counter", "py:function", "library/time.html#$"),
             ("tracemalloc", "py:module", "library/tracemalloc.html#module-$"),
