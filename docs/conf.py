@@ -28,7 +28,7 @@ extensions = [
     "numpydoc",
 ]
 
-# Links to the Python, NumPy and SciPy documentation. Each project's
+# Links to the Python, NumPy, SciPy (and pyarrow) documentation. Each project's
 # inventory is downloaded first; without network Sphinx falls back to the
 # small local copy in _intersphinx/ (make_fallback.py writes it, listing the
 # names these pages link to), so the build passes offline with -W and the
@@ -38,6 +38,7 @@ intersphinx_mapping = {
     "python": ("https://docs.python.org/3", (None, str(_FALLBACK / "python.inv"))),
     "numpy": ("https://numpy.org/doc/stable", (None, str(_FALLBACK / "numpy.inv"))),
     "scipy": ("https://docs.scipy.org/doc/scipy", (None, str(_FALLBACK / "scipy.inv"))),
+    "pyarrow": ("https://arrow.apache.org/docs", (None, str(_FALLBACK / "pyarrow.inv"))),
 }
 intersphinx_timeout = 10  # seconds per inventory before the local fallback
 

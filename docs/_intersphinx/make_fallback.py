@@ -28,6 +28,7 @@ ENTRIES: dict[str, tuple[str, list[tuple[str, str, str]]]] = {
             ("logging.getLogger", "py:function", "library/logging.html#$"),
             ("warnings.warn", "py:function", "library/warnings.html#$"),
             ("pathlib.Path", "py:class", "library/pathlib.html#$"),
+            ("os.replace", "py:function", "library/os.html#$"),
             ("time.perf_counter", "py:function", "library/time.html#$"),
             ("tracemalloc", "py:module", "library/tracemalloc.html#module-$"),
             ("argparse", "py:module", "library/argparse.html#module-$"),
@@ -56,6 +57,13 @@ ENTRIES: dict[str, tuple[str, list[tuple[str, str, str]]]] = {
             ("scipy.ndimage.distance_transform_edt", "py:function", "reference/generated/scipy.ndimage.distance_transform_edt.html#$"),
             ("scipy.optimize.OptimizeResult", "py:class", "reference/generated/scipy.optimize.OptimizeResult.html#$"),
             ("scipy.optimize.curve_fit", "py:function", "reference/generated/scipy.optimize.curve_fit.html#$"),
+        ],
+    ),
+    "pyarrow": (
+        "Apache Arrow",
+        [
+            ("pyarrow.Table", "py:class", "python/generated/pyarrow.Table.html#$"),
+            ("pyarrow.Schema", "py:class", "python/generated/pyarrow.Schema.html#$"),
         ],
     ),
 }

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 from dataclasses import dataclass
 
@@ -46,7 +47,9 @@ def _format_value(value: object, indent: str) -> str:
             return str(float(value))
         text = f"{float(value):.6g}"
         return text if any(c in text for c in ".e") else text + ".0"
-    if isinstance(value, tuple) and all(isinstance(x, (int, float, np.number)) for x in value):
+    if isinstance(value, enum.Enum):
+        return str(value.value)
+    if isinstance(value, tuple) and all(isinstance(x, (int, float, np.number, enum.Enum)) for x in value):
         return "(" + ", ".join(_format_value(x, indent) for x in value) + ")"
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return _summary_text(value, indent + "    ").lstrip()
@@ -55,16 +58,18 @@ def _format_value(value: object, indent: str) -> str:
     return repr(value)
 
 
-def _summary_text(obj: object, indent: str = "") -> str:
+def _summary_text(obj: object, indent: str = "", extra: tuple[str, ...] = ()) -> str:
     """``Type`` then one ``name: value`` line per field, arrays summarised.
 
     Generic over the dataclass's fields (those with ``repr=True``), so a new
     field shows up without touching this; in the manner of SciPy's
     ``OptimizeResult``, but an array of more than a few elements is shown
-    as its shape and min / median / max rather than in full.
+    as its shape and min / median / max rather than in full. ``extra``
+    names properties to print after the fields.
     """
     assert dataclasses.is_dataclass(obj)
     names = [f.name for f in dataclasses.fields(obj) if f.repr]
+    names += [n for n in extra if n not in names]  # derived readings worth a line
     width = max((len(n) for n in names), default=0)
     lines = [f"{indent}{type(obj).__name__}"]
     for name in names:

@@ -476,13 +476,16 @@ class PolylineFit:
         }
 
     # Printing: field-generic (see dtalign._results), arrays summarised.
+    _SUMMARY_EXTRA = ("sigma_vu", "sigma_rotation_rad", "observable_rank", "status", "reasons")
+
     def summary(self) -> str:
         """A short text summary: one line per field, the LM result nested,
-        arrays as their shape and min / median / max (``repr`` gives the same)."""
-        return _summary_text(self)
+        arrays as their shape and min / median / max, then the one-sigma,
+        the observable rank and the status (``repr`` gives the same)."""
+        return _summary_text(self, extra=self._SUMMARY_EXTRA)
 
     def __repr__(self) -> str:
-        return _summary_text(self)
+        return self.summary()
 
 
 # ---------------------------------------------------------------------------
