@@ -88,7 +88,7 @@ def test_fit_table(capsys, files, image):
 def test_fit_json_recovers_offset(capsys, files):
     code, out, _ = run(
         capsys, "fit", str(files / "disc.npy"), str(files / "disc.csv"),
-        "--window", "8", "6", "--noise-sigma", "2", "--trust-region", "5", "--json",
+        "--window", "8,6", "--noise-sigma", "2", "--trust-region", "5", "--json",
     )
     assert code == 0
     doc = json.loads(out)
@@ -197,7 +197,8 @@ def test_corrupt_image(capsys, files, tmp_path):
     [
         (["fit"], "fit needs IMAGE POLYLINE"),
         (["fit", "a.npy"], "odd number of files"),
-        (["fit", "a.npy", "a.csv", "--window", "1", "2", "3"], "--window takes one or two"),
+        (["fit", "a.npy", "a.csv", "--window", "1,2,3"], "--window takes one or two"),
+        (["fit", "a.npy", "a.csv", "--window", "x"], "--window takes ints"),
         (["fit", "a.npy", "a.csv", "--window", "-1"], "non-negative"),
         (["fit", "--glob", "/nonexistent-dir/*.npy"], "no image matches"),
         (["fit", "--batch", "/nonexistent-list.txt"], "batch list not found"),
@@ -209,8 +210,8 @@ def test_usage_errors(capsys, argv, fragment):
 
 
 def test_argparse_error_exit_status(capsys):
-    code, _, err = run(capsys, "fit", "a", "b", "--window", "x")
-    assert code == 2 and "invalid int value" in err
+    code, _, err = run(capsys, "fit", "a", "b", "--noise-sigma", "x")
+    assert code == 2 and "invalid float value" in err
 
 
 def test_no_command_prints_help(capsys):
@@ -315,3 +316,65 @@ def test_fits_image(capsys, files, tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "astropy.io", None)
     code, _, err = run(capsys, "fit", str(path), str(files / "disc.csv"))
     assert_one_line_error(code, err, "pip install astropy")
+
+
+# --------------------------------------------------------------------------- labels
+
+
+@pytest.mark.parametrize(
+    ("pairs", "expected"),
+    [
+        ([("d/disc.npy", "d/disc.csv"), ("d/disc.png", "d/disc.csv")],
+         [("disc.npy", "disc.npy"), ("disc.png", "disc.png")]),
+        ([("f.npy", "limb.csv"), ("f.npy", "ring.csv")],
+         [("f.npy + limb.csv", "f+limb"), ("f.npy + ring.csv", "f+ring")]),
+        ([("a/x/f.npy", "f.csv"), ("b/x/f.npy", "f.csv"), ("g.npy", "g.csv")],
+         [("a/x/f.npy", "a_x_f"), ("b/x/f.npy", "b_x_f"), ("g.npy", "g")]),
+        ([("f.npy", "f.csv"), ("f.npy", "f.csv")],
+         [("f.npy + f.csv#1", "f+f_1"), ("f.npy + f.csv#2", "f+f_2")]),
+        ([("my frame.npy", "f.csv")], [("my frame.npy", "my_frame")]),
+    ],
+)
+def test_job_labels_and_plot_names_are_distinct(pairs, expected):
+    from dtalign.cli import _Job, _label_jobs
+
+    jobs = [_Job(Path(a), Path(b)) for a, b in pairs]
+    _label_jobs(jobs)
+    assert [(j.label, j.plot_name) for j in jobs] == expected
+
+
+# --------------------------------------------------------------------------- compile notice
+
+
+def _fake_kernels(tmp_path, tag):
+    import pickle
+
+    kernels = tmp_path / "_kernels"
+    (kernels / "__pycache__").mkdir(parents=True)
+    src = kernels / "lm.py"
+    src.write_text("# kernel source\n")
+    index = kernels / "__pycache__" / "lm.run-10.py311.nbi"
+    index.write_bytes(pickle.dumps(tag) + b"payload")
+    return src, index
+
+
+def test_cache_check_warm_when_indexes_are_current(tmp_path):
+    from dtalign.cli import _cache_tag, _kernel_cache_cold
+
+    src, index = _fake_kernels(tmp_path, _cache_tag())
+    os.utime(src, (1_000_000, 1_000_000))
+    assert _kernel_cache_cold(src.parent) is False
+    os.utime(src, (2**31 - 1, 2**31 - 1))  # the source edited after its index was written
+    assert _kernel_cache_cold(src.parent) is True
+
+
+def test_cache_check_cold_without_indexes_or_with_another_format(tmp_path):
+    from dtalign.cli import _cache_tag, _kernel_cache_cold
+
+    assert _kernel_cache_cold(tmp_path / "nowhere") is True
+    (tmp_path / "empty" / "__pycache__").mkdir(parents=True)
+    assert _kernel_cache_cold(tmp_path / "empty") is True
+    if _cache_tag() is not None:
+        src, _ = _fake_kernels(tmp_path / "old", ("0.1.0", "plain-numba"))
+        os.utime(src, (1_000_000, 1_000_000))
+        assert _kernel_cache_cold(src.parent) is True

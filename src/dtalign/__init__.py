@@ -4,7 +4,8 @@ A drop-in, Numba-compiled replacement for the NumPy DT-fitting module used
 by spacecraft navigation techniques: coarse integer search, robust
 sub-pixel Levenberg-Marquardt with Tukey IRLS, gradient-ridge polish and a
 pseudoinverse covariance, plus the image-side gradient / edge / distance
-transform products. The contract is SPEC.md; the plain NumPy
+transform products. What each function computes, exactly, is the
+documentation's contract page (:ref:`contract`); the plain NumPy
 implementation of it lives in :mod:`dtalign.reference`.
 
 Public names are loaded on first use, so ``import dtalign`` does not import

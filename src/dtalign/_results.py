@@ -2,12 +2,80 @@
 
 from __future__ import annotations
 
+import dataclasses
+import enum
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["CoarseSearchResult", "LMRefineResult", "RidgeRefineResult", "SecondaryBasin"]
+
+#: Arrays up to this many elements are printed in full by ``summary()`` (a
+#: 3 x 3 covariance); larger ones (per-vertex residuals) as a digest.
+_SUMMARY_FULL_ARRAY_MAX = 9
+
+
+def _format_array(value: np.ndarray) -> str:
+    if value.size <= _SUMMARY_FULL_ARRAY_MAX:
+        text = np.array2string(value, precision=6, separator=", ", max_line_width=10_000)
+        return " ".join(text.split())
+    head = f"array {value.shape} {value.dtype}"
+    if value.dtype.kind not in "fiu":
+        return head
+    data = np.asarray(value, dtype=np.float64).ravel()
+    finite = data[np.isfinite(data)]
+    if finite.size == 0:
+        return f"{head}, no finite value"
+    text = (
+        f"{head}: min {finite.min():.4g}, median {float(np.median(finite)):.4g}, "
+        f"max {finite.max():.4g}"
+    )
+    if finite.size < data.size:
+        text += f", {data.size - finite.size} non-finite"
+    return text
+
+
+def _format_value(value: object, indent: str) -> str:
+    if isinstance(value, np.ndarray):
+        return _format_array(value)
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value))
+    if isinstance(value, (float, np.floating)):
+        if not math.isfinite(value):
+            return str(float(value))
+        text = f"{float(value):.6g}"
+        return text if any(c in text for c in ".e") else text + ".0"
+    if isinstance(value, enum.Enum):
+        return str(value.value)
+    if isinstance(value, tuple) and all(isinstance(x, (int, float, np.number, enum.Enum)) for x in value):
+        return "(" + ", ".join(_format_value(x, indent) for x in value) + ")"
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return _summary_text(value, indent + "    ").lstrip()
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k!r}: {_format_value(v, indent)}" for k, v in value.items()) + "}"
+    return repr(value)
+
+
+def _summary_text(obj: object, indent: str = "", extra: tuple[str, ...] = ()) -> str:
+    """``Type`` then one ``name: value`` line per field, arrays summarised.
+
+    Generic over the dataclass's fields (those with ``repr=True``), so a new
+    field shows up without touching this; in the manner of SciPy's
+    ``OptimizeResult``, but an array of more than a few elements is shown
+    as its shape and min / median / max rather than in full. ``extra``
+    names properties to print after the fields.
+    """
+    assert dataclasses.is_dataclass(obj)
+    names = [f.name for f in dataclasses.fields(obj) if f.repr]
+    names += [n for n in extra if n not in names]  # derived readings worth a line
+    width = max((len(n) for n in names), default=0)
+    lines = [f"{indent}{type(obj).__name__}"]
+    for name in names:
+        text = _format_value(getattr(obj, name), indent)
+        lines.append(f"{indent}  {name:>{width}}: {text}")
+    return "\n".join(lines)
 
 
 def _readonly(name: str, value: object) -> NDArray[np.float64]:
@@ -74,6 +142,15 @@ class LMRefineResult:
         for name in ("covariance", "residuals_px", "weights"):
             object.__setattr__(self, name, _readonly(name, getattr(self, name)))
 
+    # Printing: field-generic, so a field added above shows up here too.
+    def summary(self) -> str:
+        """A short text summary: one line per field, the per-vertex arrays
+        as their shape and min / median / max (``repr`` gives the same)."""
+        return _summary_text(self)
+
+    def __repr__(self) -> str:
+        return _summary_text(self)
+
     @classmethod
     def _from_kernel(
         cls,
@@ -134,10 +211,18 @@ class RidgeRefineResult:
     converged: bool
     applied: bool
 
+    # Printing: field-generic, so a field added above shows up here too.
+    def summary(self) -> str:
+        """A short text summary: one line per field, the per-vertex arrays
+        as their shape and min / median / max (``repr`` gives the same)."""
+        return _summary_text(self)
+
+    def __repr__(self) -> str:
+        return _summary_text(self)
 
 @dataclass(frozen=True)
 class CoarseSearchResult:
-    """Outcome of the scored coarse searches (SPEC section 8.2).
+    """Outcome of the scored coarse searches (:ref:`contract-coarse-scored`).
 
     Attributes
     ----------
@@ -156,7 +241,7 @@ class CoarseSearchResult:
 
 @dataclass(frozen=True)
 class SecondaryBasin:
-    """The best integer shift outside the converged basin (SPEC section 8.4).
+    """The best integer shift outside the converged basin (:ref:`contract-basin`).
 
     Attributes
     ----------

@@ -1,8 +1,10 @@
-"""The competing-basin second opinion (SPEC section 8.4)."""
+"""The competing-basin second opinion (:ref:`contract-basin`)."""
 
 from __future__ import annotations
 
 from typing import Any
+
+from numpy.typing import ArrayLike
 
 from ._args import check_basin_inputs
 from ._constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
@@ -14,8 +16,8 @@ __all__ = ["SecondaryBasin", "find_secondary_dt_minimum"]
 
 
 def find_secondary_dt_minimum(
-    image_edge_dt: Any,
-    vertices_vu: Any,
+    image_edge_dt: ArrayLike,
+    vertices_vu: ArrayLike,
     *,
     converged_offset_vu: Any,
     search_window_vu: Any,

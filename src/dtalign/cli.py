@@ -2,7 +2,8 @@
 
 Subcommands:
 
-* ``demo``: fit the synthetic disc scene and report each stage;
+* ``demo``: fit the synthetic disc scene and report each stage
+  (``--save DIR`` writes the scene as files ``fit`` reads);
 * ``fit IMAGE POLYLINE [IMAGE POLYLINE ...]``: fit model polylines to
   images (``--batch LIST`` or ``--glob PATTERN`` for many images, each with
   the polyline CSV of the same stem);
@@ -11,26 +12,40 @@ Subcommands:
 * ``bench``: the quick benchmark table;
 * ``archive MANIFEST --out STORE``: a campaign on Dask (:mod:`dtalign.archive`).
 
-Errors are printed as one line, ``dtalign: error: ...``, with exit status
-1 (2 for a malformed command line). A batch never stops on one bad image:
-it reports it, goes on, and exits 1 at the end if anything failed. A fit
-whose status is ``failed`` (:mod:`dtalign.status`) gives exit status 3
+Options may come before, between or after the file names. Errors are
+printed as one line, ``dtalign: error: ...``, with exit status 1 (2 for a
+malformed command line, 130 when interrupted with Ctrl-C). Output paths
+(``--plot``, ``--output``, ``--save``, ``overlay``'s files) are checked
+before any work. A batch never stops on one bad image: it reports it, goes
+on, and exits 1 at the end if anything failed. A fit whose status is
+``failed`` (:mod:`dtalign.status`) gives exit status 3
 (:data:`EXIT_FIT_FAILED`) when nothing else went wrong; failed and suspect
 fits are also reported on standard error as ``dtalign: warning: ...``.
+Status lines go to standard error, through the progress bar's writer while
+a bar is shown.
+
+A new subcommand is a ``sub.add_parser(...)`` in :func:`build_parser`
+with ``set_defaults(handler=...)``: :func:`main` parses each subcommand's
+arguments intermixed (options anywhere) and calls its handler.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import importlib
+import importlib.util
 import json
 import logging
 import math
 import os
+import pickle
+import re
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections import Counter
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,27 +54,24 @@ __all__ = ["build_parser", "main"]
 
 PROG = "dtalign"
 
+#: Exit status on Ctrl-C: 128 + SIGINT, what shells report for an interrupted job.
+EXIT_INTERRUPTED = 130
+
 #: Exit status when every input was read and fitted but some fit failed
 #: (its status is "failed": degenerate, all vertices polarity-rejected, or
 #: the seed on the window edge); 1 stays "an error stopped the work".
 EXIT_FIT_FAILED = 3
 
+#: Printed before the first compiled call when the kernels' cache looks cold:
+#: a first run otherwise sits silent for the whole compilation.
+COMPILE_NOTICE = (
+    f"{PROG}: compiling the kernels for first use (about 1-3 minutes, once: "
+    "the machine code is then cached on disk) ..."
+)
 
-class _Warnings(logging.Handler):
-    """Prints the ``dtalign`` logger's records as ``dtalign: warning: LABEL: ...``.
-
-    ``label`` names the input being fitted (the pipeline's message does not
-    know the file); the stream is looked up at each record, so the handler
-    follows a replaced ``sys.stderr``.
-    """
-
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.label = ""
-
-    def emit(self, record: logging.LogRecord) -> None:
-        where = f"{self.label}: " if self.label else ""
-        print(f"{PROG}: {record.levelname.lower()}: {where}{record.getMessage()}", file=sys.stderr)
+#: Half-size of a ``--zoom`` panel unless ``--zoom-half`` says otherwise (px):
+#: wide enough to show the edge and the model's residual at a glance.
+DEFAULT_ZOOM_HALF_PX = 20.0
 
 
 class CLIError(Exception):
@@ -79,12 +91,213 @@ def _one_line(exc: BaseException) -> str:
 
 
 # ---------------------------------------------------------------------------
+# Messages, progress, output
+# ---------------------------------------------------------------------------
+
+
+class _Messages:
+    """Status lines on standard error, through tqdm's writer while a bar is shown.
+
+    A plain ``print`` would land on the bar's line; ``tqdm.write`` clears the
+    bar, prints the line and redraws the bar below it.
+    """
+
+    def __init__(self) -> None:
+        self.bar: Any = None
+
+    def say(self, text: str) -> None:
+        if self.bar is not None:
+            self.bar.write(text, file=sys.stderr)
+        else:
+            print(text, file=sys.stderr)
+
+
+class _Warnings(logging.Handler):
+    """Prints the ``dtalign`` logger's records as ``dtalign: warning: LABEL: ...``.
+
+    ``label`` names the input being fitted (the pipeline's message does not
+    know the file); lines go through ``messages`` (the progress bar's writer
+    while a bar is shown), whose stream is looked up at each record, so the
+    handler follows a replaced ``sys.stderr``.
+    """
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.label = ""
+        self.messages = _Messages()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        where = f"{self.label}: " if self.label else ""
+        self.messages.say(f"{PROG}: {record.levelname.lower()}: {where}{record.getMessage()}")
+
+
+_WARNINGS = _Warnings()
+
+
+def _log_label(label: str) -> None:
+    """Name the input the next pipeline warnings are about."""
+    _WARNINGS.label = label
+
+
+def _progress(items: list[Any], enabled: bool, messages: _Messages) -> Generator[Any, None, None]:
+    """Iterate ``items`` with a progress bar (tqdm, or plain ``[i/n]`` lines)."""
+    if not enabled:
+        yield from items
+        return
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        for i, item in enumerate(items, 1):
+            messages.say(f"[{i}/{len(items)}] {item.image}")
+            yield item
+        return
+    bar = tqdm(total=len(items), desc="fitting", unit="image", file=sys.stderr)
+    messages.bar = bar
+    try:
+        for item in items:
+            yield item
+            bar.update(1)
+    finally:
+        messages.bar = None
+        bar.close()
+
+
+def _check_output_file(path: str | Path, option: str) -> Path:
+    """Fail now, in one line, if ``path`` cannot be written later."""
+    p = Path(path)
+    if p.is_dir():
+        raise CLIError(f"{option} {p}: is a directory")
+    folder = p.parent if str(p.parent) else Path(".")
+    if not folder.is_dir():
+        raise CLIError(f"{option} {p}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise CLIError(f"{option} {p}: folder {folder} is not writable")
+    return p
+
+
+def _check_plotting(option: str) -> None:
+    if importlib.util.find_spec("matplotlib") is None:
+        raise CLIError(f"{option} needs matplotlib: pip install matplotlib")
+
+
+class _Stdout:
+    """The command's result text: standard output, or ``--output FILE`` at the end."""
+
+    def __init__(self, path: Path | None) -> None:
+        self.path = path
+        self.parts: list[str] = []
+
+    def emit(self, text: str) -> None:
+        if self.path is None:
+            print(text)
+        else:
+            self.parts.append(text)
+
+    def close(self, messages: _Messages) -> None:
+        if self.path is not None:
+            self.path.write_text("\n".join(self.parts) + "\n", encoding="utf-8")
+            messages.say(f"{PROG}: wrote {self.path}")
+
+
+def _cache_tag() -> object:
+    """What each of dtalign's Numba index files starts with, or None if unknown."""
+    try:
+        import numba
+
+        from ._numba_cache import _FORMAT
+    except (ImportError, AttributeError):
+        return None
+    return (numba.__version__, _FORMAT)
+
+
+def _kernel_cache_cold(kernels: Path | None = None) -> bool:
+    """Whether the first compiled call will probably compile (cheap: a few ``stat``).
+
+    True when the kernels' ``__pycache__`` holds no current index (``.nbi``
+    files written by another Numba version or cache format are stale: after
+    an upgrade everything recompiles), or an index is older than its
+    kernel's source (the source was edited since). Imports Numba, which the
+    fit that follows needs anyway. Only the cache beside the source is
+    looked at: with ``NUMBA_CACHE_DIR`` or a read-only install (Numba's
+    user-wide cache) this says "cold" and the notice is printed although
+    the run may be fast.
+    """
+    if kernels is None:
+        kernels = Path(__file__).resolve().parent / "_kernels"
+    tag = _cache_tag()
+    newest: dict[str, float] = {}
+    try:
+        with os.scandir(kernels / "__pycache__") as entries:
+            for entry in entries:
+                if not entry.name.endswith(".nbi"):
+                    continue
+                if tag is not None:
+                    with open(entry.path, "rb") as fh:
+                        if pickle.load(fh) != tag:  # our own cache file, as Numba reads it
+                            continue  # stale: another Numba or format, to be replaced
+                module = entry.name.split(".", 1)[0]
+                newest[module] = max(newest.get(module, 0.0), entry.stat().st_mtime)
+    except (OSError, pickle.UnpicklingError, EOFError, ValueError):
+        return True
+    if not newest:
+        return True
+    for module, stamp in newest.items():
+        try:
+            if (kernels / f"{module}.py").stat().st_mtime > stamp:
+                return True
+        except OSError:
+            continue
+    return False
+
+
+def _compile_notice(messages: _Messages) -> None:
+    if _kernel_cache_cold():
+        messages.say(COMPILE_NOTICE)
+
+
+def _pair_arg(text: str, option: str, kind: Callable[[str], Any] = float) -> tuple[Any, Any]:
+    """``"A,B"`` -> ``(A, B)`` for options such as ``--zoom V,U``."""
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise CLIError(f"{option} takes two numbers separated by a comma (e.g. 120,340), got {text!r}")
+    try:
+        return kind(parts[0]), kind(parts[1])
+    except ValueError:
+        raise CLIError(f"{option} takes numbers, got {text!r}") from None
+
+
+def _zoom_points(args: argparse.Namespace) -> list[tuple[float, float]]:
+    points = [_pair_arg(z, "--zoom") for z in (args.zoom or ())]
+    if not all(math.isfinite(x) for pt in points for x in pt):
+        raise CLIError("--zoom points must be finite")
+    if not (math.isfinite(args.zoom_half) and args.zoom_half > 0):
+        raise CLIError(f"--zoom-half must be a positive number, got {args.zoom_half}")
+    return points
+
+
+# ---------------------------------------------------------------------------
 # Parser
 # ---------------------------------------------------------------------------
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``dtalign`` command."""
+def _add_plot_options(p: argparse.ArgumentParser, plot_help: str) -> None:
+    p.add_argument("--plot", metavar="OUT.png", help=plot_help)
+    p.add_argument(
+        "--zoom",
+        action="append",
+        metavar="V,U",
+        help="add a zoomed panel around image point (V, U) to the plot (repeatable)",
+    )
+    p.add_argument(
+        "--zoom-half",
+        type=float,
+        default=DEFAULT_ZOOM_HALF_PX,
+        metavar="PX",
+        help=f"half-size of each zoom panel in px (default {DEFAULT_ZOOM_HALF_PX:g})",
+    )
+
+
+def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
     parser = argparse.ArgumentParser(
         prog=PROG,
         description="Align a model polyline against an image's edge distance transform.",
@@ -95,9 +308,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser(
         "demo",
         help="fit the synthetic disc scene and time each stage",
-        description="Build the seeded disc scene (SPEC section 7), run derivatives, "
-        "coarse search and LM, and print the truth, the fit and the stage times.",
+        description="Build the seeded disc scene (a bright disc with a displaced limb "
+        "polyline), run derivatives, coarse search and LM, and print the truth, "
+        "the fit and the stage times.",
     )
+    demo.set_defaults(handler=_cmd_demo)
     demo.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     demo.add_argument("--n-vertices", type=int, default=200, help="limb vertices (default 200)")
     demo.add_argument(
@@ -109,16 +324,25 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--window", type=int, default=30, help="search margin in px (default 30)")
     demo.add_argument("--repeat", type=int, default=1, help="run the stages N times, report the last")
-    demo.add_argument("--plot", metavar="OUT.png", help="write a picture of the fit")
+    _add_plot_options(demo, "write a picture of the fit")
     demo.add_argument("--json", action="store_true", help="print JSON instead of text")
+    demo.add_argument("-o", "--output", metavar="FILE", help="write the text or JSON to FILE")
+    demo.add_argument(
+        "--save",
+        metavar="DIR",
+        help="write the scene as DIR/demo.npy (image) and DIR/demo.csv (polyline) for 'fit'",
+    )
 
     fit = sub.add_parser(
         "fit",
         help="fit model polylines (CSV v,u,nv,nu,sigma) to images",
         description="Fit each IMAGE (.npy, .png, .fits) with its POLYLINE CSV "
-        "(header v,u,nv,nu,sigma). Give IMAGE POLYLINE pairs, or --batch/--glob "
-        "for many images whose polyline is the .csv of the same stem.",
+        "(header v,u,nv,nu,sigma; the normal (nv, nu) points to the bright side "
+        "of the edge). Give IMAGE POLYLINE pairs, or --batch/--glob for many "
+        "images whose polyline is the .csv of the same stem. Options may come "
+        "anywhere.",
     )
+    fit.set_defaults(handler=_cmd_fit)
     fit.add_argument("pairs", nargs="*", metavar="IMAGE POLYLINE", help="image and polyline files")
     fit.add_argument(
         "--batch",
@@ -128,11 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--glob", metavar="PATTERN", help="images matching PATTERN (quote it)")
     fit.add_argument(
         "--window",
-        type=int,
-        nargs="+",
-        default=[30],
-        metavar="N",
-        help="search margin: one int for both axes or two (V U); default 30",
+        default="30",
+        metavar="N[,M]",
+        help="search margin in px: N for both axes, or V,U (e.g. 30,20); default 30",
     )
     fit.add_argument("--noise-sigma", type=float, help="image noise sigma (default: estimated)")
     fit.add_argument("--rotation", action="store_true", help="also fit an in-plane rotation")
@@ -141,10 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--tikhonov", type=float, default=0.0, metavar="ALPHA", help="pull toward the coarse seed")
     fit.add_argument("--no-polarity", action="store_true", help="do not reject vertices by polarity")
     fit.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    fit.add_argument(
-        "--plot",
-        metavar="OUT.png",
-        help="write a picture of the fit (with several images: OUT_<image stem>.png)",
+    fit.add_argument("-o", "--output", metavar="FILE", help="write the table or JSON to FILE")
+    _add_plot_options(
+        fit, "write a picture of the fit (with several images: OUT_<image label>.png)"
     )
     fit.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -154,6 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Read a summary PNG (grey image + red model overlay), write the clean "
         "grey image (.npy) and the traced overlay as a polyline CSV, optionally displaced.",
     )
+    overlay.set_defaults(handler=_cmd_overlay)
     overlay.add_argument("png", metavar="PNG", help="the summary PNG")
     overlay.add_argument("--shape", choices=("limb", "lines"), required=True, help="what the overlay is")
     overlay.add_argument("--n-lines", type=int, default=2, help="straight lines to trace (default 2)")
@@ -174,13 +396,19 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run dtalign.benchmarking (options are passed through).",
         add_help=False,
     )
+    bench.set_defaults(handler=_cmd_bench)
     bench.add_argument("args", nargs=argparse.REMAINDER)
 
     # archive: campaigns on Dask; the parser and command live in dtalign.archive.cli.
     from .archive import cli as archive_cli
 
-    archive_cli.add_parser(sub)
-    return parser
+    archive_cli.add_parser(sub).set_defaults(handler=_cmd_archive)
+    return parser, dict(sub.choices)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``dtalign`` command."""
+    return _build()[0]
 
 
 # ---------------------------------------------------------------------------
@@ -188,28 +416,35 @@ def build_parser() -> argparse.ArgumentParser:
 # ---------------------------------------------------------------------------
 
 
-_WARNINGS = _Warnings()
-
-
-def _log_label(label: str) -> None:
-    """Name the input the next pipeline warnings are about."""
-    _WARNINGS.label = label
-
-
 def _fmt(x: float, digits: int = 3) -> str:
     return f"{x:.{digits}f}" if math.isfinite(x) else ("inf" if x > 0 else "-inf")
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from . import pipeline, scenes
-    from ._constants import DEFAULT_LM_MAX_ITERATIONS
-
     if args.n_vertices < 3:
         raise CLIError(f"--n-vertices must be >= 3, got {args.n_vertices}")
     if args.window < 0:
         raise CLIError(f"--window must be >= 0, got {args.window}")
     if args.repeat < 1:
         raise CLIError(f"--repeat must be >= 1, got {args.repeat}")
+    zooms = _zoom_points(args)
+    if args.plot:
+        _check_output_file(args.plot, "--plot")
+        _check_plotting("--plot")
+    stdout = _Stdout(None if args.output is None else _check_output_file(args.output, "--output"))
+    save_dir = None
+    if args.save:
+        save_dir = Path(args.save)
+        if save_dir.exists() and not save_dir.is_dir():
+            raise CLIError(f"--save {save_dir}: exists and is not a directory")
+        save_dir.mkdir(parents=True, exist_ok=True)
+        if not os.access(save_dir, os.W_OK):
+            raise CLIError(f"--save {save_dir}: folder is not writable")
+    messages = _Messages()
+
+    from . import pipeline, scenes
+    from ._constants import DEFAULT_LM_MAX_ITERATIONS
+
     rotation = 0.0 if args.rotation is None else float(args.rotation)
     t0 = time.perf_counter()
     scene = scenes.disc_scene(
@@ -217,6 +452,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     )
     t_scene = time.perf_counter() - t0
     poly = scene.polyline
+    if save_dir is not None:
+        _save_demo(scene, save_dir, args, messages)
+    _compile_notice(messages)
     for _ in range(args.repeat):
         products = pipeline.prepare_image(scene.image, scene.noise_sigma)
         fit = pipeline.fit_polyline_products(
@@ -241,53 +479,82 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             "fit": fit.to_dict(),
             "scene_s": t_scene,
         }
-        print(json.dumps(out, indent=2))
+        stdout.emit(json.dumps(out, indent=2))
     else:
         h, w = scene.image.shape
-        print(f"scene     : {h} x {w} disc, radius 150 px, {len(poly)} limb vertices, seed {args.seed}")
-        print(f"noise     : sigma {scene.noise_sigma:g} DN (estimated from the image: {noise_est:.3f})")
         tv, tu = scene.true_offset_vu
-        print(f"true      : offset (dv, du) = ({tv:.3f}, {tu:.3f}) px", end="")
-        print(f", rotation {scene.true_rotation_rad:.5f} rad" if args.rotation is not None else "")
-        print(f"coarse    : offset (dv, du) = {fit.coarse_offset_vu} (window ±{args.window})")
         (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
         (sv2, su2) = fit.sigma_vu_scaled
-        print(f"fitted    : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)")
-        print(f"scaled    : ± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (1 sigma scaled by the residuals, "
-              f"variance factor {_fmt(fit.variance_factor, 4)})")
+        lines = [
+            f"scene     : {h} x {w} disc, radius 150 px, {len(poly)} limb vertices, seed {args.seed}",
+            f"noise     : sigma {scene.noise_sigma:g} DN (estimated from the image: {noise_est:.3f})",
+            f"true      : offset (dv, du) = ({tv:.3f}, {tu:.3f}) px"
+            + (f", rotation {scene.true_rotation_rad:.5f} rad" if args.rotation is not None else ""),
+            f"coarse    : offset (dv, du) = {fit.coarse_offset_vu} (window ±{args.window})",
+            f"fitted    : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)",
+            f"scaled    : ± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (1 sigma scaled by the residuals, "
+            f"variance factor {_fmt(fit.variance_factor, 4)})",
+        ]
         if fit.fit_rotation:
-            print(f"rotation  : {fit.rotation_rad:.6f} ± {_fmt(fit.sigma_rotation_rad or 0.0, 6)} rad")
-        print(f"error     : dv {dv - tv:+.4f}, du {du - tu:+.4f} px")
+            lines.append(f"rotation  : {fit.rotation_rad:.6f} ± {_fmt(fit.sigma_rotation_rad or 0.0, 6)} rad")
+        lines.append(f"error     : dv {dv - tv:+.4f}, du {du - tu:+.4f} px")
         if fit.observable_rank < (3 if fit.fit_rotation else 2):
-            print(
+            lines.append(
                 f"observable: rank {fit.observable_rank}: a circle turned about its centre "
                 "looks the same, so its rotation is not measured (sigma inf)"
             )
-        print(
+        lines.append(
             f"LM        : {fit.lm.iterations} iterations (cap {DEFAULT_LM_MAX_ITERATIONS}), "
             f"converged={fit.converged}, rms {_fmt(fit.rms_px)} px, "
             f"inliers {fit.inlier_count}/{len(poly)}"
         )
         if not fit.converged:
-            print("            (it stopped at the cap before an accepted step fell below "
-                  "0.001 px: the pose is the best found; see the docs)")
-        print(f"status    : {fit.status}" + (
-            f" ({', '.join(map(str, fit.reasons))})" if fit.reasons else ""))
-        print(
+            lines.append("            (it stopped at the cap before an accepted step fell below "
+                         "0.001 px: the pose is the best found; see the docs)")
+        lines += [
+            f"status    : {fit.status}"
+            + (f" ({', '.join(map(str, fit.reasons))})" if fit.reasons else ""),
             f"wall time : derivatives {t.get('derivatives', 0.0) * 1e3:.1f} ms, "
             f"coarse {t.get('coarse', 0.0) * 1e3:.1f} ms, lm {t.get('lm', 0.0) * 1e3:.1f} ms"
-            + (" (first call: includes Numba compilation; try --repeat 2)" if args.repeat == 1 else "")
-        )
+            + (" (first call: includes loading or compiling the kernels; try --repeat 2)" if args.repeat == 1 else ""),
+        ]
+        stdout.emit("\n".join(lines))
     if args.plot:
-        _plot(scene.image, poly.vertices_vu, fit, args.plot, "demo")
+        _plot(scene.image, poly.vertices_vu, fit, args.plot, "demo", zooms, args.zoom_half, messages)
+    stdout.close(messages)
     return 0
 
 
-def _plot(image: Any, vertices: Any, fit: Any, path: str | Path, label: str) -> None:
+def _save_demo(scene: Any, folder: Path, args: argparse.Namespace, messages: _Messages) -> None:
+    """Write the demo scene as an image and a polyline CSV that ``fit`` reads."""
+    import numpy as np
+
+    from .io import save_polyline_csv
+
+    image, polyline = folder / "demo.npy", folder / "demo.csv"
+    np.save(image, scene.image)
+    save_polyline_csv(polyline, scene.polyline)
+    extra = " --rotation" if args.rotation is not None else ""
+    messages.say(
+        f"demo: wrote {image} (image) and {polyline} (polyline); try: "
+        f"{PROG} fit {image} {polyline} --window {args.window}{extra}"
+    )
+
+
+def _plot(
+    image: Any,
+    vertices: Any,
+    fit: Any,
+    path: str | Path,
+    label: str,
+    zooms: list[tuple[float, float]],
+    zoom_half: float,
+    messages: _Messages,
+) -> None:
     from .plotting import plot_fit
 
-    plot_fit(image, vertices, fit, path)
-    print(f"{label}: wrote {path}", file=sys.stderr)
+    plot_fit(image, vertices, fit, path, zoom_vu=zooms or None, zoom_half_px=zoom_half)
+    messages.say(f"{label}: wrote {path}")
 
 
 # ---------------------------------------------------------------------------
@@ -299,6 +566,8 @@ def _plot(image: Any, vertices: Any, fit: Any, path: str | Path, label: str) -> 
 class _Job:
     image: Path
     polyline: Path
+    label: str = ""
+    plot_name: str = ""
 
 
 def _jobs(args: argparse.Namespace) -> tuple[list[_Job], bool]:
@@ -336,14 +605,89 @@ def _jobs(args: argparse.Namespace) -> tuple[list[_Job], bool]:
         jobs.extend(_Job(Path(m), Path(m).with_suffix(".csv")) for m in matches)
     if not jobs:
         raise CLIError("fit needs IMAGE POLYLINE (or --batch LIST, or --glob PATTERN)")
+    _label_jobs(jobs)
     return jobs, bool(args.batch or args.glob or len(jobs) > 1)
 
 
-def _window(values: Sequence[int]) -> tuple[int, int]:
-    if len(values) not in (1, 2):
-        raise CLIError(f"--window takes one or two ints, got {len(values)}")
+def _unique_names(paths: Sequence[Path]) -> list[str]:
+    """Short names for ``paths``: the file name, with just enough parent
+    folders to tell apart paths that share it (``a/disc.npy``,
+    ``b/disc.npy``). Paths naming the same file keep the same name."""
+    resolved = [Path(os.path.abspath(p)) for p in paths]
+
+    def name(p: Path, level: int) -> str:
+        tail = list(p.parent.parts[len(p.parent.parts) - level :]) if level else []
+        return "/".join([*tail, p.name])
+
+    levels = [0] * len(paths)
+    while True:
+        names = [name(p, k) for p, k in zip(resolved, levels, strict=True)]
+        groups: dict[str, set[Path]] = {}
+        for n, p in zip(names, resolved, strict=True):
+            groups.setdefault(n, set()).add(p)
+        grow = [
+            i
+            for i, n in enumerate(names)
+            if len(groups[n]) > 1 and levels[i] < len(resolved[i].parent.parts)
+        ]
+        if not grow:
+            return names
+        for i in grow:
+            levels[i] += 1
+
+
+def _distinct(labels: list[str], others: list[str], sep: str) -> list[str]:
+    """``labels`` made unique: a repeated label gets ``sep + other``, then ``#k``."""
+    count = Counter(labels)
+    out = [f"{a}{sep}{b}" if count[a] > 1 else a for a, b in zip(labels, others, strict=True)]
+    count = Counter(out)
+    seen: Counter[str] = Counter()
+    result = []
+    for a in out:
+        seen[a] += 1
+        result.append(f"{a}#{seen[a]}" if count[a] > 1 else a)
+    return result
+
+
+def _label_jobs(jobs: list[_Job]) -> None:
+    """Give each job a distinct table label and plot-file name.
+
+    The label is the image's file name, with parent folders when two images
+    share a name, and `` + polyline`` when one image is fitted with several
+    polylines. Plot files use the label without the image suffix unless
+    that would make two alike (``disc.npy`` and ``disc.png``).
+    """
+    images = _unique_names([j.image for j in jobs])
+    labels = _distinct(images, _unique_names([j.polyline for j in jobs]), " + ")
+
+    def without_suffixes(label: str, job: _Job) -> str:
+        head, sep, tail = label.partition(" + ")
+        if job.image.suffix and head.endswith(job.image.suffix):
+            head = head[: -len(job.image.suffix)]
+        tail, hash_, k = tail.partition("#")
+        if job.polyline.suffix and tail.endswith(job.polyline.suffix):
+            tail = tail[: -len(job.polyline.suffix)]
+        return head + ("+" if sep else "") + tail + ("_" + k if hash_ else "")
+
+    stems = [without_suffixes(label, job) for label, job in zip(labels, jobs, strict=True)]
+    if len(set(stems)) < len(stems):  # e.g. disc.npy and disc.png: keep the suffixes
+        stems = [label.replace(" + ", "+").replace("#", "_") for label in labels]
+    for job, label, stem in zip(jobs, labels, stems, strict=True):
+        job.label = label
+        job.plot_name = re.sub(r"[^\w.+-]+", "_", stem)
+
+
+def _window(text: str) -> tuple[int, int]:
+    """``--window``: ``N`` for both axes or ``V,U``."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) not in (1, 2):
+        raise CLIError(f"--window takes one or two ints (N or V,U), got {text!r}")
+    try:
+        values = [int(p) for p in parts]
+    except ValueError:
+        raise CLIError(f"--window takes ints (N or V,U), got {text!r}") from None
     if any(v < 0 for v in values):
-        raise CLIError(f"--window must be non-negative, got {' '.join(map(str, values))}")
+        raise CLIError(f"--window must be non-negative, got {text}")
     return (values[0], values[0]) if len(values) == 1 else (values[0], values[1])
 
 
@@ -366,22 +710,6 @@ def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int]) -> tu
         final_gradient_ridge=args.ridge,
     )
     return image, poly, fit
-
-
-def _progress(items: list[_Job], enabled: bool) -> Iterable[_Job]:
-    if not enabled:
-        return items
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        return _plain_progress(items)
-    return tqdm(items, desc="fitting", unit="image", file=sys.stderr)
-
-
-def _plain_progress(items: list[_Job]) -> Iterable[_Job]:
-    for i, item in enumerate(items, 1):
-        print(f"[{i}/{len(items)}] {item.image}", file=sys.stderr)
-        yield item
 
 
 def _table_single(job: _Job, poly: Any, fit: Any) -> str:
@@ -446,53 +774,71 @@ def _offset_line(fit: Any) -> str:
 def _cmd_fit(args: argparse.Namespace) -> int:
     window = _window(args.window)
     jobs, batch = _jobs(args)
+    zooms = _zoom_points(args)
+    plot_path = None
+    if args.plot:
+        plot_path = _check_output_file(args.plot, "--plot")
+        _check_plotting("--plot")
+    stdout = _Stdout(None if args.output is None else _check_output_file(args.output, "--output"))
+    messages = _Messages()
     results: list[dict[str, Any]] = []
     failures = 0
     failed_fits = 0
+    _WARNINGS.messages = messages
     show_progress = batch and not args.no_progress and not args.json
-    for job in _progress(jobs, show_progress):
-        _log_label(str(job.image))
-        try:
-            image, poly, fit = _fit_one(job, args, window)
-            if args.plot:
-                out = Path(args.plot)
-                if batch:
-                    out = out.with_name(f"{out.stem}_{job.image.stem}{out.suffix or '.png'}")
-                _plot(image, poly.vertices_vu, fit, out, str(job.image))
-        except (OSError, ValueError, TypeError, ImportError) as exc:
-            failures += 1
-            msg = _one_line(exc)
-            results.append({"image": str(job.image), "polyline": str(job.polyline), "error": msg})
-            if not batch:
-                return _fail(msg)
-            print(f"{PROG}: FAILED {job.image}: {msg}", file=sys.stderr)
-            continue
-        entry = {"image": str(job.image), "polyline": str(job.polyline), **fit.to_dict()}
-        results.append(entry)
-        failed_fits += fit.failed
-        if not args.json and not batch:
-            print(_table_single(job, poly, fit))
+    _compile_notice(messages)
+    with contextlib.closing(_progress(jobs, show_progress, messages)) as progress:
+        for job in progress:
+            _log_label(str(job.image))
+            try:
+                image, poly, fit = _fit_one(job, args, window)
+                if plot_path is not None:
+                    out = plot_path
+                    if batch:
+                        out = out.with_name(f"{out.stem}_{job.plot_name}{out.suffix or '.png'}")
+                    _plot(image, poly.vertices_vu, fit, out, job.label, zooms, args.zoom_half, messages)
+            except (OSError, ValueError, TypeError, ImportError) as exc:
+                failures += 1
+                msg = _one_line(exc)
+                results.append(
+                    {"image": str(job.image), "polyline": str(job.polyline), "label": job.label, "error": msg}
+                )
+                if not batch:
+                    return _fail(msg)
+                messages.say(f"{PROG}: FAILED {job.label}: {msg}")
+                continue
+            entry = {
+                "image": str(job.image), "polyline": str(job.polyline), "label": job.label, **fit.to_dict()
+            }
+            results.append(entry)
+            failed_fits += fit.failed
+            if not args.json and not batch:
+                stdout.emit(_table_single(job, poly, fit))
     if args.json:
-        print(json.dumps(results if batch else results[0], indent=2))
+        stdout.emit(json.dumps(results if batch else results[0], indent=2))
     elif batch:
-        print(_table_batch(results))
+        stdout.emit(_table_batch(results))
+    stdout.close(messages)
     if failures:
-        print(f"{PROG}: {failures} of {len(jobs)} image(s) failed", file=sys.stderr)
+        messages.say(f"{PROG}: {failures} of {len(jobs)} image(s) failed")
         return 1
     if failed_fits:
-        print(f"{PROG}: {failed_fits} of {len(jobs)} fit(s) failed (status 'failed')",
-              file=sys.stderr)
+        messages.say(f"{PROG}: {failed_fits} of {len(jobs)} fit(s) failed (status 'failed')")
         return EXIT_FIT_FAILED
     return 0
 
 
 def _table_batch(results: list[dict[str, Any]]) -> str:
-    header = f"{'image':<32} {'dv':>9} {'du':>9} {'sigma_v':>8} {'sigma_u':>8} {'rank':>4} {'inliers':>9}  status"
+    width = max([5, *(len(r["label"]) for r in results)])
+    header = (
+        f"{'image':<{width}} {'dv':>9} {'du':>9} {'sigma_v':>8} {'sigma_u':>8} {'rank':>4} "
+        f"{'inliers':>9}  status"
+    )
     rows = [header, "-" * len(header)]
     for r in results:
-        name = Path(r["image"]).name[:32]
+        name = r["label"]
         if "error" in r:
-            rows.append(f"{name:<32} {'':>9} {'':>9} {'':>8} {'':>8} {'':>4} {'':>9}  FAILED: {r['error']}")
+            rows.append(f"{name:<{width}} {'':>9} {'':>9} {'':>8} {'':>8} {'':>4} {'':>9}  FAILED: {r['error']}")
             continue
 
         def f(x: Any, d: int) -> str:
@@ -500,7 +846,7 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
 
         status = r["status"] + (f" ({', '.join(r['reasons'])})" if r["reasons"] else "")
         rows.append(
-            f"{name:<32} {f(r['offset_vu'][0], 3):>9} {f(r['offset_vu'][1], 3):>9} "
+            f"{name:<{width}} {f(r['offset_vu'][0], 3):>9} {f(r['offset_vu'][1], 3):>9} "
             f"{f(r['sigma_vu'][0], 4):>8} {f(r['sigma_vu'][1], 4):>8} {r['observable_rank']:>4} "
             f"{str(r['inlier_count']) + '/' + str(r['n_vertices']):>9}  {status}"
         )
@@ -508,18 +854,21 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
 
 
 # ---------------------------------------------------------------------------
-# bench and main
+# overlay, bench and main
 # ---------------------------------------------------------------------------
 
 
 def _cmd_overlay(args: argparse.Namespace) -> int:
+    if args.n_lines < 1:
+        raise CLIError(f"--n-lines must be >= 1, got {args.n_lines}")
+    _check_output_file(args.image, "--image")
+    _check_output_file(args.polyline, "--polyline")
+
     import numpy as np
 
     from . import io
     from .scenes import Polyline
 
-    if args.n_lines < 1:
-        raise CLIError(f"--n-lines must be >= 1, got {args.n_lines}")
     frame = io.load_cassini_overlay_frame(args.png)
     lines = io.overlay_polylines(frame, shape=args.shape, n_lines=args.n_lines)
     model = io.concatenate_polylines(lines, name=Path(args.png).stem)
@@ -554,6 +903,37 @@ def _cmd_archive(args: argparse.Namespace) -> int:
     return archive_cli.command(args)
 
 
+def _parse(argv: list[str]) -> argparse.Namespace | int:
+    """The parsed arguments, or an exit status (help, version, usage error).
+
+    The top-level parser takes the options before the subcommand; the
+    subcommand's own parser then reads the rest intermixed, so options may
+    follow or separate the file names (``fit --window 30 IMG CSV``), which
+    argparse's subparsers alone do not allow.
+    """
+    parser, commands = _build()
+    where = next((i for i, a in enumerate(argv) if not a.startswith("-")), None)
+    try:
+        if where is None or argv[where] not in commands:
+            args = parser.parse_args(argv)  # help, version, or argparse's own error
+        else:
+            args = parser.parse_args(argv[:where])
+            if not args.version:
+                args = commands[argv[where]].parse_intermixed_args(argv[where + 1 :])
+                args.command, args.version = argv[where], False
+    except SystemExit as exc:  # argparse printed help or its usage error
+        return int(exc.code or 0)
+    if args.version:
+        from . import __version__
+
+        print(f"{PROG} {__version__}")
+        return 0
+    if getattr(args, "command", None) is None:
+        parser.print_help()
+        return 2
+    return args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``dtalign`` command line; returns the exit status.
 
@@ -561,38 +941,37 @@ def main(argv: Sequence[str] | None = None) -> int:
     ----------
     argv : sequence of str, optional
         Arguments without the program name; ``sys.argv[1:]`` when None.
-    """
-    parser = build_parser()
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["bench"]:
-        # Everything after "bench" belongs to the benchmark module, options too.
-        return _cmd_bench(argparse.Namespace(args=argv[1:]))
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # argparse printed its one-line usage error
-        return int(exc.code or 0)
-    if args.version:
-        from . import __version__
 
-        print(f"{PROG} {__version__}")
-        return 0
-    if args.command is None:
-        parser.print_help()
-        return 2
-    handlers = {"demo": _cmd_demo, "fit": _cmd_fit, "overlay": _cmd_overlay, "bench": _cmd_bench,
-                "archive": _cmd_archive}
-    log = logging.getLogger("dtalign")
-    log.addHandler(_WARNINGS)
-    _log_label(args.command if args.command == "demo" else "")
+    Returns
+    -------
+    int
+        0 on success; 1 on an error (printed as one line) or when any image
+        of a batch failed; 2 for a malformed command line; 3
+        (:data:`EXIT_FIT_FAILED`) when every input was fitted but some fit's
+        status is ``failed``; 130 when interrupted (Ctrl-C).
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        return handlers[args.command](args)
-    except CLIError as exc:
-        return _fail(str(exc))
-    except (OSError, ValueError, TypeError, ImportError) as exc:
-        if os.environ.get("DTALIGN_DEBUG"):
-            raise
-        return _fail(_one_line(exc))
+        if argv[:1] == ["bench"]:
+            # Everything after "bench" belongs to the benchmark module, options too.
+            return _cmd_bench(argparse.Namespace(args=argv[1:]))
+        args = _parse(argv)
+        if isinstance(args, int):
+            return args
+        log = logging.getLogger("dtalign")
+        log.addHandler(_WARNINGS)
+        _WARNINGS.messages = _Messages()
+        _log_label(args.command if args.command == "demo" else "")
+        try:
+            return int(args.handler(args))
+        except CLIError as exc:
+            return _fail(str(exc))
+        except (OSError, ValueError, TypeError, ImportError) as exc:
+            if os.environ.get("DTALIGN_DEBUG"):
+                raise
+            return _fail(_one_line(exc))
+        finally:
+            log.removeHandler(_WARNINGS)
     except KeyboardInterrupt:
-        return _fail("interrupted")
-    finally:
-        log.removeHandler(_WARNINGS)
+        print(f"\n{PROG}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED

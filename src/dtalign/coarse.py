@@ -1,10 +1,11 @@
-"""Stage 1: rasterise the polyline and search integer shifts (SPEC section 2)."""
+"""Stage 1: rasterise the polyline and search integer shifts (:ref:`contract-numerics`)."""
 
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _validation as check
 from ._args import check_coarse_inputs, check_polarity_search_inputs
@@ -23,7 +24,7 @@ __all__ = [
 ]
 
 
-def build_polyline_mask(vertices_vu: Any, shape_vu: Any) -> np.ndarray:
+def build_polyline_mask(vertices_vu: ArrayLike, shape_vu: Any) -> np.ndarray:
     """Rasterise vertices into a boolean image.
 
     Parameters
@@ -45,8 +46,8 @@ def build_polyline_mask(vertices_vu: Any, shape_vu: Any) -> np.ndarray:
 
 
 def coarse_ncc_search(
-    edge_mask: Any,
-    polyline_mask: Any,
+    edge_mask: ArrayLike,
+    polyline_mask: ArrayLike,
     search_window_vu: Any,
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
@@ -72,7 +73,7 @@ def coarse_ncc_search(
     min_support_fraction : float, optional
         Smallest fraction of the polyline pixels a shift must keep inside
         the image to be a candidate, in ``[0, 1]``; 0 gives the design's
-        search (SPEC section 2).
+        search (:ref:`contract-numerics`).
 
     Returns
     -------
@@ -94,13 +95,13 @@ def coarse_ncc_search(
 
 
 def coarse_ncc_search_scored(
-    edge_mask: Any,
-    polyline_mask: Any,
+    edge_mask: ArrayLike,
+    polyline_mask: ArrayLike,
     search_window_vu: Any,
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> CoarseSearchResult:
-    """:func:`coarse_ncc_search` with the winning score (SPEC section 8.2).
+    """:func:`coarse_ncc_search` with the winning score (:ref:`contract-coarse-scored`).
 
     Parameters
     ----------
@@ -124,10 +125,10 @@ def coarse_ncc_search_scored(
 
 
 def coarse_polarity_search_scored(
-    edge_mask: Any,
-    image_gradient_vu: Any,
-    vertices_vu: Any,
-    normals_vu: Any,
+    edge_mask: ArrayLike,
+    image_gradient_vu: ArrayLike,
+    vertices_vu: ArrayLike,
+    normals_vu: ArrayLike,
     search_window_vu: Any,
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
@@ -138,7 +139,7 @@ def coarse_polarity_search_scored(
     pixel scores ``max(n_hat . g / |g|, 0)`` there (0 elsewhere), so an edge
     of the wrong polarity (a crater rim inside a limb, a neighbouring ring
     edge) cannot win the seed. A shift's score is the mean over the
-    vertices it keeps inside the image (SPEC section 8.3).
+    vertices it keeps inside the image (:ref:`contract-polarity-search`).
 
     Parameters
     ----------
@@ -177,7 +178,7 @@ def coarse_polarity_search_scored(
 
 
 def coarse_search_vertices(
-    edge_mask: Any, vertices_vu: Any, search_window_vu: Any
+    edge_mask: ArrayLike, vertices_vu: ArrayLike, search_window_vu: Any
 ) -> tuple[int, int]:
     """``coarse_ncc_search(edge_mask, build_polyline_mask(vertices_vu, shape), window,
     min_support_fraction=0.0)`` without the polyline mask.

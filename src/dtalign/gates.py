@@ -1,4 +1,4 @@
-"""Fit-quality gates of today's techniques (SPEC section 8.5).
+"""Fit-quality gates of today's techniques (:ref:`contract-gates`).
 
 A fit can converge and still be spurious: most of its vertices rejected
 for polarity, the LM stopped early while many were rejected, or a coarse
@@ -94,7 +94,7 @@ def evaluate_dt_fit_gates(
     total_vertex_count: int,
     use_polarity: bool,
 ) -> DTFitGateVerdict:
-    """Apply the fit-quality gates to an LM result (SPEC section 8.5).
+    """Apply the fit-quality gates to an LM result (:ref:`contract-gates`).
 
     Parameters
     ----------

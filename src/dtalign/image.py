@@ -1,7 +1,7 @@
 """Image-side products: gradient, gradient magnitude and the clipped edge DT.
 
 Drop-in for the NumPy/SciPy specification :mod:`dtalign.reference.image`
-(SPEC sections 1 and 5): same names, keywords, defaults, checks and error
+(:ref:`contract-surface`, :ref:`contract-image`): same names, keywords, defaults, checks and error
 messages, and bit-identical results, computed by the compiled kernels of
 :mod:`dtalign._kernels.image` in two streaming sweeps over the image.
 
@@ -16,6 +16,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._constants import DEFAULT_IMAGE_GRADIENT_SIGMA_PX, NOISE_SIGMA_FLOOR
 from ._image_args import (
@@ -115,7 +116,7 @@ def _use_libm_hypot() -> bool:
 
 
 def compute_image_gradient_vu(
-    image_ext: Any, *, sigma_px: float = DEFAULT_IMAGE_GRADIENT_SIGMA_PX
+    image_ext: ArrayLike, *, sigma_px: float = DEFAULT_IMAGE_GRADIENT_SIGMA_PX
 ) -> FloatArray:
     """Sobel-of-Gaussian image gradient.
 
@@ -152,7 +153,7 @@ def compute_image_gradient_vu(
 
 
 def build_image_edge_dt(
-    image_ext: Any, image_noise_sigma: float, *, config: Any = None
+    image_ext: ArrayLike, image_noise_sigma: float, *, config: Any = None
 ) -> tuple[FloatArray, FloatArray]:
     """Gradient magnitude and the clipped distance transform of the edges.
 
@@ -187,7 +188,7 @@ def build_image_edge_dt(
 
 
 def compute_all_image_derivatives(
-    image_ext: Any, image_noise_sigma: float, *, config: Any = None
+    image_ext: ArrayLike, image_noise_sigma: float, *, config: Any = None
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Gradient magnitude, clipped edge DT and gradient vectors in one pass.
 
@@ -208,7 +209,7 @@ def compute_all_image_derivatives(
         ``hypot(g_v, g_u)``.
     edge_dt : ndarray, shape (H, W), float64
         Exact Euclidean distance to the nearest edge pixel (Canny-style
-        thinning of SPEC section 5, magnitude strictly above the
+        thinning of :ref:`contract-image`, magnitude strictly above the
         threshold), clipped at ``dt_half_width_px``.
     gradient_vu : ndarray, shape (H, W, 2), float64
         As :func:`compute_image_gradient_vu` with

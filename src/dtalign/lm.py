@@ -1,4 +1,4 @@
-"""Stage 2: robust sub-pixel Levenberg-Marquardt fit (SPEC section 3).
+"""Stage 2: robust sub-pixel Levenberg-Marquardt fit (:ref:`contract-lm`).
 
 The Python layer validates once and wraps the result; one compiled call
 (:mod:`dtalign._kernels.fit`) computes the fixed polarity mask, runs the LM
@@ -12,6 +12,7 @@ import dataclasses
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import ridge as _ridge_module
 from ._args import LMArgs, check_lm_inputs
@@ -45,11 +46,11 @@ __all__ = ["LMRefineResult", "lm_subpixel_refine"]
 
 def lm_subpixel_refine(
     *,
-    vertices_vu: Any,
-    normals_vu: Any,
-    sigma_normal_per_vertex_px: Any,
-    image_edge_dt: Any,
-    image_gradient_vu: Any = None,
+    vertices_vu: ArrayLike,
+    normals_vu: ArrayLike,
+    sigma_normal_per_vertex_px: ArrayLike,
+    image_edge_dt: ArrayLike,
+    image_gradient_vu: ArrayLike | None = None,
     initial_offset_vu: Any = (0.0, 0.0),
     initial_rotation_rad: float = 0.0,
     fit_rotation: bool = False,
@@ -69,12 +70,13 @@ def lm_subpixel_refine(
 
     Minimises ``sum_i w_i DT(R(theta)(x_i - p) + p + t)^2`` by
     Levenberg-Marquardt with Tukey IRLS weights
-    ``w_i = tukey(r_i / sigma_i) / sigma_i^2`` (SPEC section 3).
+    ``w_i = tukey(r_i / sigma_i) / sigma_i^2`` (:ref:`contract-lm`).
 
     Parameters
     ----------
     vertices_vu, normals_vu : array_like, shape (N, 2)
-        Model vertices (N > 0) and outward normals (toward the bright side).
+        Model vertices (N > 0) and unit normals pointing to the bright side
+        of each edge (into the disc for a limb; see the guide's *Normals*).
     sigma_normal_per_vertex_px : array_like, shape (N,)
         Finite, positive prior sigmas along the normals, pixels.
     image_edge_dt : array_like, shape (H, W)
@@ -115,7 +117,7 @@ def lm_subpixel_refine(
     Raises
     ------
     ValueError
-        For any invalid argument; the messages are listed in SPEC section 1.
+        For any invalid argument; the messages are listed in :ref:`contract-errors`.
     """
     a = check_lm_inputs(locals())
     return _fit(a)

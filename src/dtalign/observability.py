@@ -2,7 +2,7 @@
 
 A rank-deficient fit (a straight edge: the along-edge shift is not
 measured) reports *zero* variance along its null direction, because the
-covariance is the pseudoinverse of the information matrix (SPEC section 6).
+covariance is the pseudoinverse of the information matrix (:ref:`contract-decisions`).
 The helpers here read such a covariance without changing that default:
 
 * :func:`observable_rank` and :func:`null_directions`: how many, and which,
@@ -21,7 +21,7 @@ import math
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from . import _validation as check
 from ._constants import DEFAULT_PINVH_RCOND
@@ -74,7 +74,7 @@ def _check_covariance(cov: Any) -> FloatArray:
     return arr
 
 
-def observable_rank(cov: Any, rcond: float = DEFAULT_PINVH_RCOND) -> int:
+def observable_rank(cov: ArrayLike, rcond: float = DEFAULT_PINVH_RCOND) -> int:
     """Number of parameter directions a fit's covariance actually constrains.
 
     Parameters
@@ -107,7 +107,7 @@ def observable_rank(cov: Any, rcond: float = DEFAULT_PINVH_RCOND) -> int:
 
 
 def covariance_with_unobservable_inf(
-    cov: Any, rcond: float = DEFAULT_PINVH_RCOND, *, null_directions: Any = None
+    cov: ArrayLike, rcond: float = DEFAULT_PINVH_RCOND, *, null_directions: ArrayLike | None = None
 ) -> FloatArray:
     """Map the null directions of a pseudoinverse covariance to ``+inf``.
 
@@ -120,7 +120,7 @@ def covariance_with_unobservable_inf(
     every other entry keeps the finite value of the covariance restricted
     to the observable directions, so the diagonal is ``+inf`` for each
     parameter a null direction involves. A fit's own ``covariance`` is
-    unchanged (SPEC section 6).
+    unchanged (:ref:`contract-decisions`).
 
     Parameters
     ----------
@@ -191,7 +191,7 @@ def covariance_with_unobservable_inf(
     return out
 
 
-def null_directions(cov: Any, rcond: float = DEFAULT_PINVH_RCOND) -> FloatArray:
+def null_directions(cov: ArrayLike, rcond: float = DEFAULT_PINVH_RCOND) -> FloatArray:
     """Unit vectors spanning the unobservable directions of a covariance.
 
     Parameters
@@ -220,9 +220,9 @@ def null_directions(cov: Any, rcond: float = DEFAULT_PINVH_RCOND) -> FloatArray:
 
 
 def normal_information_covariance(
-    vertices_vu: Any,
-    normals_vu: Any,
-    weights: Any,
+    vertices_vu: ArrayLike,
+    normals_vu: ArrayLike,
+    weights: ArrayLike,
     *,
     offset_vu: Any = (0.0, 0.0),
     rotation_rad: float = 0.0,

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from . import _validation as check
 from . import hypotheses as _hypotheses
@@ -43,7 +43,7 @@ from ._constants import (
     POLARITY_PENALTY_RESIDUAL,
 )
 from ._image_args import ImageDerivativesConfig
-from ._results import LMRefineResult
+from ._results import LMRefineResult, _summary_text
 from .hypotheses import Ambiguity, Hypothesis
 from .observability import (
     _sigma_list,
@@ -376,7 +376,7 @@ class PolylineFit:
         """The status and each reason explained, one line (``"ok"`` for a clean fit)."""
         return _status.describe(self, self.reasons)
 
-    def transform(self, vertices_vu: Any) -> FloatArray:
+    def transform(self, vertices_vu: ArrayLike) -> FloatArray:
         """Apply the fitted pose (rotation about the pivot, then offset) to vertices."""
         verts = check.vertices(vertices_vu, "vertices_vu")
         theta = self.rotation_rad
@@ -497,6 +497,18 @@ class PolylineFit:
             "timings_s": dict(self.timings_s),
         }
 
+    # Printing: field-generic (see dtalign._results), arrays summarised.
+    _SUMMARY_EXTRA = ("sigma_vu", "sigma_rotation_rad", "observable_rank", "status", "reasons")
+
+    def summary(self) -> str:
+        """A short text summary: one line per field, the LM result nested,
+        arrays as their shape and min / median / max, then the one-sigma,
+        the observable rank and the status (``repr`` gives the same)."""
+        return _summary_text(self, extra=self._SUMMARY_EXTRA)
+
+    def __repr__(self) -> str:
+        return self.summary()
+
 
 # ---------------------------------------------------------------------------
 # Fitting
@@ -505,9 +517,9 @@ class PolylineFit:
 
 def fit_polyline_products(
     products: ImageProducts,
-    vertices_vu: Any,
-    normals_vu: Any,
-    sigmas: Any,
+    vertices_vu: ArrayLike,
+    normals_vu: ArrayLike,
+    sigmas: ArrayLike,
     *,
     search_window_vu: Any,
     fit_rotation: bool = False,
@@ -617,10 +629,10 @@ def fit_polyline_products(
 
 
 def fit_polyline(
-    image: Any,
-    vertices_vu: Any,
-    normals_vu: Any,
-    sigmas: Any,
+    image: ArrayLike,
+    vertices_vu: ArrayLike,
+    normals_vu: ArrayLike,
+    sigmas: ArrayLike,
     *,
     search_window_vu: Any,
     noise_sigma: float | None = None,

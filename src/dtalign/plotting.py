@@ -1,9 +1,11 @@
 """Pictures of a fit: the model on the image, and the residuals.
 
-matplotlib is an optional dependency (``pip install dtalign[plot]``). It is
-imported only when a plotting function is called, and figures are built
-with the object-oriented API on an Agg canvas, so plotting works on a
-headless machine and never changes the caller's pyplot backend or state.
+matplotlib is an optional dependency (``pip install matplotlib``, or the
+``plot`` extra: ``pip install ".[plot]"`` in a clone). It is imported only
+when a plotting function is called, and figures are built with the
+object-oriented API on an Agg canvas, so plotting works on a headless
+machine and never changes the caller's pyplot backend or state. Pass
+``ax=`` to draw into an axes of your own figure instead.
 """
 
 from __future__ import annotations
@@ -13,13 +15,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _validation as check
 from ._constants import POLARITY_PENALTY_RESIDUAL
 
 __all__ = ["plot_fit", "plot_residual_histogram"]
 
-_INSTALL_HINT = "plotting needs matplotlib: pip install dtalign[plot]"
+_INSTALL_HINT = "plotting needs matplotlib: pip install matplotlib"
 
 
 def _figure(figsize: tuple[float, float]) -> Any:
@@ -61,11 +64,12 @@ def _ellipse_points(cov: np.ndarray, scale: float, n: int = 200) -> np.ndarray:
 
 
 def plot_fit(
-    image: Any,
-    vertices_vu: Any,
+    image: ArrayLike,
+    vertices_vu: ArrayLike,
     fit: Any,
     path: str | Path | None = None,
     *,
+    ax: Any = None,
     title: str | None = None,
     margin_px: float = 20.0,
     ellipse_scale: float | None = None,
@@ -97,8 +101,12 @@ def plot_fit(
         The result of :func:`dtalign.fit_polyline`.
     path : str or path-like, optional
         Write the figure there (format from the suffix, e.g. ``.png``).
+    ax : matplotlib.axes.Axes, optional
+        Draw into this axes (and its figure's colour bar) instead of a new
+        figure; ``figsize`` is then ignored and ``zoom_vu`` must be None
+        (the zoom panels need a figure of their own).
     title : str, optional
-        Figure title; a summary of the fit when None.
+        Axes title; a summary of the fit when None.
     margin_px : float, optional
         Margin around the model in the crop.
     ellipse_scale : float, optional
@@ -116,11 +124,14 @@ def plot_fit(
     Returns
     -------
     matplotlib.figure.Figure
+        The new figure, or ``ax``'s figure.
 
     Raises
     ------
     ImportError
         If matplotlib is not installed (the message says what to install).
+    ValueError
+        On a malformed image or vertices, or ``ax`` with ``zoom_vu``.
     """
     img = np.asarray(image, dtype=np.float64)
     if img.ndim != 2 or img.size == 0:
@@ -141,12 +152,18 @@ def plot_fit(
     if v1 <= v0 or u1 <= u0:  # the model is entirely outside the image
         v0, v1, u0, u1 = 0, h, 0, w
     zooms = [check.pair(z, "zoom_vu") for z in (zoom_vu or ())]
-    fig = _figure(figsize if not zooms else (figsize[0] * 1.45, figsize[1]))
-    if zooms:
+    if ax is not None:
+        if zooms:
+            raise ValueError("zoom_vu needs a figure of its own: pass ax=None")
+        fig = ax.figure
+        zoom_axes = []
+    elif zooms:
+        fig = _figure((figsize[0] * 1.45, figsize[1]))
         grid = fig.add_gridspec(len(zooms), 2, width_ratios=(2.2, 1.0))
         ax = fig.add_subplot(grid[:, 0])
         zoom_axes = [fig.add_subplot(grid[i, 1]) for i in range(len(zooms))]
     else:
+        fig = _figure(figsize)
         ax = fig.add_subplot(1, 1, 1)
         zoom_axes = []
     crop = img[v0:v1, u0:u1]
@@ -261,6 +278,7 @@ def plot_residual_histogram(
     fit: Any,
     path: str | Path | None = None,
     *,
+    ax: Any = None,
     bins: int = 40,
     sigma_px: float | None = None,
     figsize: tuple[float, float] = (6.0, 4.0),
@@ -279,6 +297,8 @@ def plot_residual_histogram(
         The result of :func:`dtalign.fit_polyline`.
     path : str or path-like, optional
         Write the figure there.
+    ax : matplotlib.axes.Axes, optional
+        Draw into this axes instead of a new figure (``figsize`` ignored).
     bins : int, optional
         Number of histogram bins.
     sigma_px : float, optional
@@ -294,8 +314,11 @@ def plot_residual_histogram(
     polarity = residuals == POLARITY_PENALTY_RESIDUAL
     tukey = fit.tukey_rejected
     inlier = ~polarity & ~tukey
-    fig = _figure(figsize)
-    ax = fig.add_subplot(1, 1, 1)
+    if ax is None:
+        fig = _figure(figsize)
+        ax = fig.add_subplot(1, 1, 1)
+    else:
+        fig = ax.figure
     data = [residuals[inlier], residuals[tukey]]
     finite = np.concatenate(data)
     hi = float(finite.max()) if finite.size else 1.0

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ._image_args import ImageDerivativesConfig, check_image, check_noise_sigma, resolve_config
 
@@ -64,7 +64,7 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------
 
 
-def estimate_noise_sigma(image: Any) -> float:
+def estimate_noise_sigma(image: ArrayLike) -> float:
     """Robust estimate of the per-pixel Gaussian noise sigma of an image.
 
     The image is convolved with Immerkaer's 3 x 3 kernel
@@ -205,7 +205,7 @@ class ImageProducts:
 
 
 def prepare_image(
-    image: Any, noise_sigma: float | None = None, *, config: ImageDerivativesConfig | None = None
+    image: ArrayLike, noise_sigma: float | None = None, *, config: ImageDerivativesConfig | None = None
 ) -> ImageProducts:
     """Compute an image's fitting products once.
 

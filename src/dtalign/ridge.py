@@ -6,6 +6,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._args import check_ridge_inputs
 from ._constants import (
@@ -30,12 +31,12 @@ _NO_PATCH = np.zeros((0, 0))
 
 def gradient_ridge_refine(
     *,
-    vertices_vu: Any,
-    normals_vu: Any,
-    sigma_normal_per_vertex_px: Any,
-    gradient_magnitude: Any,
+    vertices_vu: ArrayLike,
+    normals_vu: ArrayLike,
+    sigma_normal_per_vertex_px: ArrayLike,
+    gradient_magnitude: ArrayLike,
     initial_offset_vu: Any,
-    weight_mask: Any = None,
+    weight_mask: ArrayLike | None = None,
     initial_rotation_rad: float = 0.0,
     fit_rotation: bool = False,
     pivot_vu: Any = None,
@@ -52,12 +53,13 @@ def gradient_ridge_refine(
     Each vertex samples ``gradient_magnitude`` along its (rotated) normal at
     ``t = -n*step .. n*step`` (``n = round(half_width_px / sample_step_px)``),
     locates the peak with a parabola, and Gauss-Newton drives the signed
-    peak distances to zero under Tukey weights (SPEC section 4).
+    peak distances to zero under Tukey weights (:ref:`contract-ridge`).
 
     Parameters
     ----------
     vertices_vu, normals_vu : array_like, shape (N, 2)
-        Model vertices (N > 0) and outward normals.
+        Model vertices (N > 0) and unit normals pointing to the bright side
+        of each edge (into the disc for a limb).
     sigma_normal_per_vertex_px : array_like, shape (N,)
         Finite, positive prior sigmas along the normals.
     gradient_magnitude : array_like, shape (H, W)

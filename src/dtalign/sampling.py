@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _validation as check
 from ._kernels import sampling as _k
@@ -13,7 +14,7 @@ from ._validation import FloatArray
 __all__ = ["apply_translation", "sample_dt_bilinear"]
 
 
-def sample_dt_bilinear(dt: Any, vertices_vu: Any) -> FloatArray:
+def sample_dt_bilinear(dt: ArrayLike, vertices_vu: ArrayLike) -> FloatArray:
     """Sample an image bilinearly at sub-pixel positions.
 
     Parameters
@@ -28,7 +29,7 @@ def sample_dt_bilinear(dt: Any, vertices_vu: Any) -> FloatArray:
     -------
     ndarray, shape (N,)
         ``a (1-fv)(1-fu) + b (1-fv) fu + c fv (1-fu) + d fv fu`` with the
-        four neighbouring pixels ``a, b, c, d`` (SPEC section 2).
+        four neighbouring pixels ``a, b, c, d`` (:ref:`contract-numerics`).
 
     Raises
     ------
@@ -44,7 +45,7 @@ def sample_dt_bilinear(dt: Any, vertices_vu: Any) -> FloatArray:
     return out  # type: ignore[no-any-return]
 
 
-def apply_translation(vertices_vu: Any, dv: float, du: float) -> FloatArray:
+def apply_translation(vertices_vu: ArrayLike, dv: float, du: float) -> FloatArray:
     """Return a copy of the vertices shifted by ``(dv, du)`` pixels.
 
     Parameters

@@ -1,4 +1,4 @@
-"""Seeded synthetic scenes (SPEC section 7) for the demo, tests and benchmarks.
+"""Seeded synthetic scenes (:ref:`contract-scenes`) for the demo, tests and benchmarks.
 
 The base scene is a bright disc (100 DN inside, 0 outside) centred on a
 1024 x 1024 image with Gaussian noise of 2 DN, and a limb polyline on the
@@ -27,7 +27,7 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class Polyline:
-    """A model polyline: vertices, outward normals and per-vertex sigmas."""
+    """A model polyline: vertices, normals (to the bright side) and per-vertex sigmas."""
 
     name: str
     vertices_vu: FloatArray
@@ -59,7 +59,7 @@ class Scene:
     pivot_distance_px : float
         Distance from the pivot to the image centre, floored at 1.
     search_window_vu : tuple of int
-        The coarse-search margin of SPEC section 7.
+        The coarse-search margin of the scene (:ref:`contract-scenes`).
     """
 
     image: FloatArray
@@ -124,7 +124,7 @@ def disc_scene(
     search_window: int = 30,
     seed: int = 0,
 ) -> Scene:
-    """The SPEC section 7 disc scene and its variants.
+    """The disc scene of :ref:`contract-scenes` and its variants.
 
     Parameters
     ----------

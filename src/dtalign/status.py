@@ -17,7 +17,7 @@ what the fit already holds, whether that happened and why:
   functions and the command line report each failed or suspect fit on it
   at ``WARNING`` (a fit with only notes, not converged or rank-deficient,
   at ``INFO``). The drop-in functions
-  (:func:`dtalign.lm_subpixel_refine` and the rest of SPEC section 1) never
+  (:func:`dtalign.lm_subpixel_refine` and the rest of the drop-in surface, :ref:`contract-surface`) never
   log, exactly as the reference.
 
 Nothing here imports Numba: the status of a fit costs a few attribute

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _validation as check
 from ._args import check_covariance_inputs, tukey_c_value
@@ -20,14 +21,15 @@ __all__ = [
 
 
 def polarity_filter(
-    vertices_vu: Any, normals_vu: Any, image_gradient_vu: Any, *, offset_vu: Any = (0.0, 0.0)
+    vertices_vu: ArrayLike, normals_vu: ArrayLike, image_gradient_vu: ArrayLike, *, offset_vu: Any = (0.0, 0.0)
 ) -> np.ndarray:
     """Accept the vertices whose normal points up the image gradient.
 
     Parameters
     ----------
     vertices_vu, normals_vu : array_like, shape (N, 2)
-        Model vertices and their outward normals.
+        Model vertices and their normals, which should point to the bright
+        side of each edge (into the disc for a limb): up the gradient.
     image_gradient_vu : array_like, shape (H, W, 2)
         Signed gradient ``(g_v, g_u)`` from :func:`compute_image_gradient_vu`.
     offset_vu : tuple of float, optional
@@ -49,7 +51,7 @@ def polarity_filter(
     return accepted != 0.0  # type: ignore[no-any-return]
 
 
-def tukey_biweight_weights(residuals: Any, *, c: float = DEFAULT_TUKEY_C) -> FloatArray:
+def tukey_biweight_weights(residuals: ArrayLike, *, c: float = DEFAULT_TUKEY_C) -> FloatArray:
     """Holland-Welsch biweight of scaled residuals.
 
     Parameters
@@ -72,7 +74,7 @@ def tukey_biweight_weights(residuals: Any, *, c: float = DEFAULT_TUKEY_C) -> Flo
 
 
 def information_matrix_to_covariance(
-    jacobian: Any, weights: Any, *, rcond: float = DEFAULT_PINVH_RCOND
+    jacobian: ArrayLike, weights: ArrayLike, *, rcond: float = DEFAULT_PINVH_RCOND
 ) -> FloatArray:
     """Covariance as the pseudoinverse of the information matrix ``J^T W J``.
 
@@ -90,8 +92,8 @@ def information_matrix_to_covariance(
     ndarray, shape (P, P)
         The symmetrised pseudoinverse. Along an unobservable direction (a
         straight edge's along-edge axis) the variance is 0, not inf
-        (SPEC section 6). With no rows or no positive weight it is the
-        ``(P, P)`` zero matrix (SPEC section 2); ``lm_subpixel_refine``
+        (:ref:`contract-decisions`). With no rows or no positive weight it is the
+        ``(P, P)`` zero matrix (:ref:`contract-numerics`); ``lm_subpixel_refine``
         marks its degenerate fits with an all-``+inf`` covariance instead.
     """
     jac, w, rcond = check_covariance_inputs(jacobian, weights, rcond)

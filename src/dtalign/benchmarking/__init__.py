@@ -1,7 +1,7 @@
 """Benchmark table: dtalign against its NumPy specification, in one process.
 
 Run ``python -m dtalign.benchmarking`` (``nox -s bench``, ``dtalign bench``).
-Every SPEC section 7 workload is timed on identical inputs with
+Every workload (the scenes of :ref:`contract-scenes`) is timed on identical inputs with
 :mod:`dtalign.reference` and with :mod:`dtalign`, alternating
 (ref, jit, ref, jit, ...) so that load drifts on a shared machine hit both
 sides alike; the table reports the medians, their ratio and the target.

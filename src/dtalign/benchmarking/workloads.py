@@ -1,6 +1,6 @@
 """Workloads of the benchmark table: targets, inputs and the calls timed.
 
-Every SPEC section 7 workload is a no-argument callable built by
+Every benchmark workload (the scenes of the contract's section 7) is a no-argument callable built by
 :func:`workload_call` for an API module (:mod:`dtalign.reference` or
 :mod:`dtalign`) on the :class:`Inputs` of :func:`build_inputs`.
 """
@@ -100,7 +100,7 @@ def lm_keywords(polyline: Any, dt: Any, grad: Any, offset: tuple[float, float],
 
 
 def build_inputs() -> Inputs:
-    """Scenes of SPEC section 7 and their derivatives, computed once.
+    """The benchmark scenes (the contract's section 7) and their derivatives, computed once.
 
     The disc and its variants share one image (only the polylines differ),
     so one set of derivatives serves every coarse and LM workload. Each LM

@@ -1,6 +1,6 @@
 """The NumPy specification of dtalign: same names, same contract, no Numba.
 
-``dtalign.reference`` implements SPEC.md in plain NumPy/SciPy, one readable
+``dtalign.reference`` implements the contract (:ref:`contract`) in plain NumPy/SciPy, one readable
 function per rule. It is the oracle the compiled path is tested against and
 the baseline every benchmark ratio is measured against. It shares the
 package's argument checks, constants and result types, so it refuses the

@@ -1,6 +1,7 @@
-"""Plain NumPy fitting: the executable specification of SPEC sections 2-4.
+"""Plain NumPy fitting: the executable specification of the contract's fitting rules
+(:ref:`contract-numerics`, :ref:`contract-lm`, :ref:`contract-ridge`).
 
-This module is written to be read next to SPEC.md, one function per rule.
+This module is written to be read next to the contract, one function per rule.
 It is what the compiled path is tested against and benchmarked against, so
 it stays vectorised NumPy of the kind the navigation techniques run today:
 no Numba, no cleverness, no shortcuts that change a floating-point result.
@@ -178,7 +179,7 @@ def coarse_ncc_search(
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> tuple[int, int]:
-    """Integer shift maximising the per-vertex edge match fraction (SPEC 8.1)."""
+    """Integer shift maximising the per-vertex edge match fraction (:ref:`contract-changes`)."""
     return coarse_ncc_search_scored(
         edge_mask, polyline_mask, search_window_vu, min_support_fraction=min_support_fraction
     ).offset_vu
@@ -196,7 +197,7 @@ def coarse_ncc_search_scored(
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> CoarseSearchResult:
-    """The best integer shift and its score (SPEC 8.2)."""
+    """The best integer shift and its score (:ref:`contract-coarse-scored`)."""
     edge, poly, mv, mu, fraction = check_coarse_inputs(
         edge_mask, polyline_mask, search_window_vu, min_support_fraction
     )
@@ -232,7 +233,7 @@ def coarse_polarity_search_scored(
     *,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> CoarseSearchResult:
-    """Coarse search weighted by normal/gradient agreement (SPEC 8.3)."""
+    """Coarse search weighted by normal/gradient agreement (:ref:`contract-polarity-search`)."""
     a = check_polarity_search_inputs(
         edge_mask, image_gradient_vu, vertices_vu, normals_vu, search_window_vu,
         min_support_fraction,
@@ -297,7 +298,7 @@ def find_secondary_dt_minimum(
     exclude_radius_px: float,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> SecondaryBasin | None:
-    """The best integer shift outside the converged basin (SPEC 8.4)."""
+    """The best integer shift outside the converged basin (:ref:`contract-basin`)."""
     a = check_basin_inputs(
         image_edge_dt, vertices_vu, converged_offset_vu, search_window_vu, exclude_radius_px,
         min_support_fraction,
@@ -414,7 +415,7 @@ def lm_subpixel_refine(
     tikhonov_alpha: float = 0.0,
     final_gradient_ridge: bool = False,
 ) -> LMRefineResult:
-    """Robust sub-pixel LM fit of the polyline to the DT (SPEC section 3)."""
+    """Robust sub-pixel LM fit of the polyline to the DT (:ref:`contract-lm`)."""
     a = check_lm_inputs(locals())
     pts, nrm, sig, dt, grad = a.vertices, a.normals, a.sigmas, a.dt, a.gradient
     dv0, du0 = a.offset
@@ -568,7 +569,7 @@ def gradient_ridge_refine(
     sample_step_px: float = DEFAULT_RIDGE_SAMPLE_STEP_PX,
     max_total_displacement_px: float = DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
 ) -> RidgeRefineResult:
-    """Gauss-Newton polish onto the gradient-magnitude ridge (SPEC section 4)."""
+    """Gauss-Newton polish onto the gradient-magnitude ridge (:ref:`contract-ridge`)."""
     a = check_ridge_inputs(locals())
     dv0, du0 = a.offset
     pose = np.array([dv0, du0, a.rotation])

@@ -1,4 +1,4 @@
-"""Plain NumPy/SciPy image side: the executable specification of SPEC section 5.
+"""Plain NumPy/SciPy image side: the executable specification of :ref:`contract-image`.
 
 Gaussian smoothing and Sobel derivatives are SciPy's; the Canny-style
 thinning is written out with whole-array NumPy operations; the distance

@@ -1,6 +1,6 @@
 """Plain NumPy/SciPy noise estimate: the specification of :func:`dtalign.estimate_noise_sigma`.
 
-Beyond SPEC section 1 (the one-call pipeline's noise estimate), kept here
+Beyond the drop-in surface (:ref:`contract-surface`; the one-call pipeline's noise estimate), kept here
 as the oracle the compiled estimate is tested and benchmarked against.
 """
 

@@ -1,0 +1,231 @@
+"""Paper cuts of issue 15: printing results, docs that stand alone, packaging.
+
+* a result prints as a short summary (arrays summarised), not every residual;
+* the docs cite no unshipped "SPEC", every public module has an API page,
+  intersphinx is configured with offline fallbacks and the build passes
+  ``-W`` (nitpicky: no dead link) without network;
+* install instructions work from a clone; LICENSE, CHANGELOG and one
+  version source exist;
+* array parameters of the public API are typed ``numpy.typing.ArrayLike``.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import importlib
+import inspect
+import pkgutil
+import re
+import subprocess
+import sys
+import zlib
+from pathlib import Path
+
+import pytest
+
+import dtalign
+from dtalign import scenes
+from dtalign.pipeline import fit_polyline
+
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src" / "dtalign"
+DOCS = ROOT / "docs"
+
+
+@pytest.fixture(scope="module")
+def fit():
+    scene = scenes.disc_scene()
+    p = scene.polyline
+    return fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(30, 30))
+
+
+# --------------------------------------------------------------------------- printing results
+
+
+def test_printed_fit_is_short_and_summarises_arrays(fit):
+    text = repr(fit)
+    assert len(text.splitlines()) <= 40  # was 89 lines of residuals for the demo
+    assert "residuals_px: array (200,) float64: min" in text
+    assert str(fit) == text == fit.summary()
+    # no per-vertex dump: not one residual printed in full
+    assert f"{float(fit.lm.residuals_px[17]):.8f}" not in text
+
+
+@pytest.mark.parametrize("which", ["lm", "ridge"])
+def test_result_summaries_list_every_field(fit, which):
+    result = fit.lm if which == "lm" else dtalign.RidgeRefineResult((1.5, -2.0), 0.0, 3, True, True)
+    text = result.summary()
+    assert repr(result) == text
+    assert text.splitlines()[0] == type(result).__name__
+    for f in dataclasses.fields(result):
+        assert re.search(rf"^\s+{f.name}: ", text, re.M), f.name
+    assert len(text.splitlines()) == 1 + len(dataclasses.fields(result))
+
+
+def test_small_arrays_are_printed_in_full(fit):
+    line = next(x for x in fit.lm.summary().splitlines() if "covariance" in x)
+    assert line.count("[") == 3  # the 2 x 2 covariance, on one line
+
+
+# --------------------------------------------------------------------------- docs stand alone
+
+
+def _rendered_docstrings() -> dict[str, str]:
+    out = {}
+    for path in sorted(SRC.rglob("*.py")):
+        if "_kernels" in path.parts or path.name.startswith("_") and path.name != "__init__.py":
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in [tree, *ast.walk(tree)]:
+            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef)):
+                doc = ast.get_docstring(node)
+                if doc and not getattr(node, "name", "").startswith("_"):
+                    out[f"{path.relative_to(ROOT)}:{getattr(node, 'name', '<module>')}"] = doc
+    return out
+
+
+def _pages() -> dict[str, str]:
+    files = [ROOT / "README.md", *sorted(DOCS.glob("*.rst")), *sorted((DOCS / "api").glob("*.rst"))]
+    return {str(p.relative_to(ROOT)): p.read_text(encoding="utf-8") for p in files}
+
+
+def test_no_reference_to_an_unshipped_spec():
+    texts = {**_pages(), **_rendered_docstrings()}
+    offenders = sorted(name for name, text in texts.items() if re.search(r"\bSPEC\b", text))
+    assert offenders == []
+    assert (DOCS / "contract.rst").is_file()
+
+
+def _public_modules() -> list[str]:
+    names = ["dtalign"]
+    for info in pkgutil.walk_packages([str(SRC)], prefix="dtalign."):
+        parts = info.name.split(".")
+        if any(p.startswith("_") for p in parts[1:]):
+            continue
+        names.append(info.name)
+    return names
+
+
+def test_every_public_module_has_an_api_entry():
+    api = "\n".join(p.read_text(encoding="utf-8") for p in (DOCS / "api").glob("*.rst"))
+    documented = set(re.findall(r"\.\. (?:automodule|py:module):: (dtalign[\w.]*)", api))
+    missing = [m for m in _public_modules() if m not in documented]
+    assert missing == []
+    toc = (DOCS / "api.rst").read_text(encoding="utf-8")
+    for page in (DOCS / "api").glob("*.rst"):
+        assert f"api/{page.stem}" in toc, page.name
+
+
+def test_intersphinx_has_offline_fallbacks():
+    conf: dict[str, object] = {"__file__": str(DOCS / "conf.py")}
+    exec(compile((DOCS / "conf.py").read_text(encoding="utf-8"), str(DOCS / "conf.py"), "exec"), conf)
+    assert "sphinx.ext.intersphinx" in conf["extensions"]
+    mapping = conf["intersphinx_mapping"]
+    assert {"python", "numpy", "scipy"} <= set(mapping)
+    for name, (_url, locations) in mapping.items():
+        local = [loc for loc in locations if loc]
+        assert local, name
+        raw = Path(local[0]).read_bytes()
+        header, _, body = raw.partition(b"zlib.\n")
+        assert header.startswith(b"# Sphinx inventory version 2")
+        lines = zlib.decompress(body).decode().splitlines()
+        assert lines and all(len(line.split(" ", 4)) == 5 for line in lines)
+    assert conf.get("nitpicky") is True
+
+
+@pytest.mark.slow
+def test_docs_build_with_w_offline(tmp_path):
+    """The docs build with -W (nitpicky: every link resolves); no network here."""
+    pytest.importorskip("sphinx")
+    pytest.importorskip("numpydoc")
+    proc = subprocess.run(
+        [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html",
+         "-d", str(tmp_path / "doctrees"), str(DOCS), str(tmp_path / "html")],
+        capture_output=True, text=True, timeout=600, cwd=ROOT,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    guide = (tmp_path / "html" / "guide.html").read_text(encoding="utf-8")
+    assert "https://docs.scipy.org/doc/scipy/reference/generated/scipy.linalg.pinvh.html" in guide
+    batch = (tmp_path / "html" / "api" / "batch.html").read_text(encoding="utf-8")
+    assert 'id="dtalign.batch.fit_many"' in batch
+
+
+# --------------------------------------------------------------------------- packaging
+
+
+# docs/caching.rst is another engineer's page; its Dockerfile line assumes
+# a wheel on an index (reported to the lead rather than edited here).
+NOT_MINE = {"docs/caching.rst"}
+
+
+def test_install_instructions_work_from_a_clone():
+    for name, text in _pages().items():
+        # dtalign is on no package index: only a local path can carry its extras
+        if name not in NOT_MINE:
+            assert not re.search(r"pip install \"?dtalign\[", text), name
+    for name in ("README.md", "docs/index.rst", "docs/cli.rst"):
+        assert re.search(r'pip install "\.\[', (ROOT / name).read_text(encoding="utf-8")), name
+
+
+def test_license_changelog_and_one_version():
+    license_text = (ROOT / "LICENSE").read_text(encoding="utf-8")
+    assert "BSD 3-Clause License" in license_text and "Neither the name" in license_text
+    assert "## Unreleased" in (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
+    tomllib = pytest.importorskip("tomllib")
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    assert project["project"]["license"] == "BSD-3-Clause"
+    assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "dtalign.__version__"}
+    assert re.fullmatch(r"\d+\.\d+\.\d+\S*", dtalign.__version__)
+
+
+def test_import_dtalign_stays_light():
+    code = "import sys, dtalign; print(dtalign.__version__, 'numba' in sys.modules, 'scipy' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={"PYTHONPATH": str(SRC.parent)}).stdout.split()
+    assert out == [dtalign.__version__, "False", "False"]
+
+
+# --------------------------------------------------------------------------- typing
+
+ARRAY_PARAMETERS = {
+    "vertices_vu", "normals_vu", "sigmas", "sigma_normal_per_vertex_px", "image_edge_dt",
+    "image_gradient_vu", "gradient_magnitude", "weight_mask", "edge_mask", "polyline_mask",
+    "residuals", "jacobian", "weights", "dt", "image_ext", "image", "cov",
+}
+
+
+def test_array_parameters_are_array_like():
+    checked = 0
+    for name in dtalign.__all__:
+        obj = getattr(dtalign, name)
+        if not inspect.isfunction(obj):
+            continue
+        for param in inspect.signature(obj).parameters.values():
+            if param.name in ARRAY_PARAMETERS:
+                assert "ArrayLike" in str(param.annotation), f"{name}({param.name}: {param.annotation})"
+                checked += 1
+    assert checked >= 30
+
+
+def test_plot_fit_draws_into_a_given_axes(fit, tmp_path):
+    pytest.importorskip("matplotlib")
+    from matplotlib.figure import Figure
+
+    from dtalign.plotting import plot_fit, plot_residual_histogram
+
+    scene = scenes.disc_scene()
+    fig = Figure()
+    left, right = fig.subplots(1, 2)
+    out = plot_fit(scene.image, scene.polyline.vertices_vu, fit, tmp_path / "a.png", ax=left)
+    assert out is fig and left.images and not right.images
+    assert plot_residual_histogram(fit, ax=right) is fig and right.patches
+    assert (tmp_path / "a.png").stat().st_size > 1000
+    with pytest.raises(ValueError, match="zoom_vu"):
+        plot_fit(scene.image, scene.polyline.vertices_vu, fit, ax=left, zoom_vu=[(500, 500)])
+
+
+def test_every_public_module_imports():
+    modules = [importlib.import_module(name) for name in _public_modules()]
+    assert {"dtalign.batch", "dtalign.reference", "dtalign.pipeline"} <= {m.__name__ for m in modules}
