@@ -60,15 +60,21 @@ def test_bright_side_normals_pass_the_polarity_test(scene, gradient):
 
 
 def test_outward_limb_normals_reject_every_vertex(scene):
-    """What the guide warns about: flipped normals leave the fit no inlier."""
+    """What the guide warns about: flipped normals reject the vertices on the
+    true edge; the fit lands where stray edges agree, and says so."""
     products = dtalign.prepare_image(scene.image, scene.noise_sigma)
     limb = scene.polylines[0]
     good = fit_polyline_products(products, limb.vertices_vu, limb.normals_vu, limb.sigmas,
                                  search_window_vu=(30, 30))
     bad = fit_polyline_products(products, limb.vertices_vu, -limb.normals_vu, limb.sigmas,
                                 search_window_vu=(30, 30))
-    assert good.inlier_count == len(limb)
-    assert bad.inlier_count == 0 and bad.polarity_rejected.all()
+    assert good.inlier_count == len(limb) and good.status == "ok"
+    assert 2 * bad.polarity_rejected_count > len(limb)
+    assert bad.status in ("suspect", "ambiguous", "failed")
+    assert "wrong way" in bad.status_message
+    # on the true edge, every vertex of the flipped limb is rejected
+    shifted = limb.vertices_vu + np.round(scene.true_offset_vu)
+    assert not dtalign.polarity_filter(shifted, -limb.normals_vu, products.gradient_vu).any()
 
 
 def test_csv_example_in_the_cli_page_points_into_the_disc(tmp_path):

@@ -82,8 +82,8 @@ def test_variance_factor_is_the_reduced_chi_square(nav):
 def test_degenerate_fit_has_infinite_sigmas(nav):
     products = prepare_image(nav.image, nav.noise_sigma)
     limb = nav.polylines[0]
-    fit = fit_polyline_products(products, limb.vertices_vu, -limb.normals_vu, limb.sigmas,
-                                search_window_vu=(12, 12))
+    fit = fit_polyline_products(products, limb.vertices_vu, 0 * limb.normals_vu, limb.sigmas,
+                                search_window_vu=(12, 12))  # zero normals: nothing matches
     assert fit.degenerate and fit.variance_factor == math.inf
     assert fit.sigma_vu == (math.inf, math.inf) == fit.sigma_vu_scaled
     assert np.isinf(fit.covariance_scaled).all()

@@ -28,6 +28,7 @@ import numpy as np
 
 from . import _validation as check
 from ._constants import (
+    DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
     DEFAULT_LM_STEP_TOLERANCE,
     DEFAULT_RIDGE_MAX_ITERATIONS,
     DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
@@ -53,6 +54,7 @@ def _deps() -> SimpleNamespace:
     from ._kernels import coarse
     from ._kernels.checks import OK, polyline_status, polylines_status
     from ._kernels.pipeline import finished_until, fit_polylines
+    from ._kernels.polarity_search import polarity_search
     from ._results import LMRefineResult
     from .batch import _run_threads
     from .image import _use_libm_hypot
@@ -65,6 +67,7 @@ def _deps() -> SimpleNamespace:
         fit_polylines=fit_polylines, LMRefineResult=LMRefineResult, _run_threads=_run_threads,
         _use_libm_hypot=_use_libm_hypot, _NO_GRADIENT=_NO_GRADIENT, _RIDGE_HALF=_RIDGE_HALF,
         _fit=_fit, _raise_for=_raise_for, PolylineFit=PolylineFit,
+        polarity_search=polarity_search,
     )
 
 
@@ -327,12 +330,32 @@ def _at_window_edge(dv: int, du: int, window: tuple[int, int]) -> bool:
 
 def fit_one(shared: Plan, it: Item) -> PolylineFit:
     """Coarse search, then LM, timed separately (``coarse`` and ``lm``)."""
-    d = _deps()
     t1 = time.perf_counter()
-    # (plan() refused an empty image: the LM checks need a non-empty DT)
-    sv, su = d.coarse.support_of_vertices(it.vertices, shared.h, shared.w)
-    dv, du = d.coarse.search_support(shared.edge, sv, su, shared.mv, shared.mu)
-    return fit_from(shared, it, (int(dv), int(du)), time.perf_counter() - t1)
+    dv, du = seed_of(shared, it)
+    return fit_from(shared, it, (dv, du), time.perf_counter() - t1)
+
+
+def seed_of(shared: Plan, it: Item) -> tuple[int, int]:
+    """The pipeline's integer seed, as today's techniques take it: the
+    polarity-weighted search where polarity is on (limb, terminator), else
+    the overlap search of the rasterised polyline (rings), both with the
+    support floor (``DEFAULT_COARSE_MIN_SUPPORT_FRACTION``) and the window
+    clipped to the image."""
+    d = _deps()
+    floor = DEFAULT_COARSE_MIN_SUPPORT_FRACTION
+    if shared.lm.use_polarity:
+        assert shared.lm.gradient is not None  # the LM checks refused polarity without it
+        dv, du, _ = d.polarity_search(
+            shared.edge, shared.lm.gradient, it.vertices, it.normals, shared.mv, shared.mu,
+            floor * it.vertices.shape[0],
+        )
+    else:
+        # (plan() refused an empty image: the LM checks need a non-empty DT)
+        sv, su = d.coarse.support_of_vertices(it.vertices, shared.h, shared.w)
+        dv, du, _ = d.coarse.search_support_scored(
+            shared.edge, sv, su, shared.mv, shared.mu, floor * sv.shape[0]
+        )
+    return int(dv), int(du)
 
 
 def fit_from(shared: Plan, it: Item, coarse: tuple[int, int], coarse_s: float = 0.0) -> PolylineFit:

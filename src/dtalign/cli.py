@@ -19,8 +19,9 @@ malformed command line, 130 when interrupted with Ctrl-C). Output paths
 before any work. A batch never stops on one bad image: it reports it, goes
 on, and exits 1 at the end if anything failed. A fit whose status is
 ``failed`` (:mod:`dtalign.status`) gives exit status 3
-(:data:`EXIT_FIT_FAILED`) when nothing else went wrong; failed and suspect
-fits are also reported on standard error as ``dtalign: warning: ...``.
+(:data:`EXIT_FIT_FAILED`) when nothing else went wrong, a suspect or
+ambiguous one exit status 4 (:data:`EXIT_FIT_DOUBTFUL`); such fits are also
+reported on standard error as ``dtalign: warning: ...``.
 Status lines go to standard error, through the progress bar's writer while
 a bar is shown.
 
@@ -61,6 +62,12 @@ EXIT_INTERRUPTED = 130
 #: (its status is "failed": degenerate, all vertices polarity-rejected, or
 #: the seed on the window edge); 1 stays "an error stopped the work".
 EXIT_FIT_FAILED = 3
+
+#: Exit status when no fit failed but some is ``suspect`` or ``ambiguous``
+#: (most vertices polarity-rejected, or a rival basin across the edge fits
+#: about as well): a pose was measured, but a pipeline should not trust it
+#: unread. A fit with only notes (``ok``) does not change the status.
+EXIT_FIT_DOUBTFUL = 4
 
 #: Printed before the first compiled call when the kernels' cache looks cold:
 #: a first run otherwise sits silent for the whole compilation.
@@ -784,6 +791,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     results: list[dict[str, Any]] = []
     failures = 0
     failed_fits = 0
+    doubtful_fits = 0
     _WARNINGS.messages = messages
     show_progress = batch and not args.no_progress and not args.json
     _compile_notice(messages)
@@ -812,6 +820,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             }
             results.append(entry)
             failed_fits += fit.failed
+            doubtful_fits += str(fit.status) in ("suspect", "ambiguous")
             if not args.json and not batch:
                 stdout.emit(_table_single(job, poly, fit))
     if args.json:
@@ -825,6 +834,9 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if failed_fits:
         messages.say(f"{PROG}: {failed_fits} of {len(jobs)} fit(s) failed (status 'failed')")
         return EXIT_FIT_FAILED
+    if doubtful_fits:
+        messages.say(f"{PROG}: {doubtful_fits} of {len(jobs)} fit(s) suspect or ambiguous")
+        return EXIT_FIT_DOUBTFUL
     return 0
 
 
@@ -948,7 +960,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         0 on success; 1 on an error (printed as one line) or when any image
         of a batch failed; 2 for a malformed command line; 3
         (:data:`EXIT_FIT_FAILED`) when every input was fitted but some fit's
-        status is ``failed``; 130 when interrupted (Ctrl-C).
+        status is ``failed``; 4 (:data:`EXIT_FIT_DOUBTFUL`) when none failed
+        but some is ``suspect`` or ``ambiguous``; 130 when interrupted (Ctrl-C).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     try:

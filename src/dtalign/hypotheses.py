@@ -106,8 +106,10 @@ class Hypothesis:
     Attributes
     ----------
     source : str
-        ``'seed 1'``, ``'seed 2'``, ... (the coarse search's best first) or
-        ``'basin'`` (the competing basin of the DT cost).
+        ``'seed 1'``, ``'seed 2'``, ... (the coarse search's best first),
+        ``'basin'`` (the competing basin of the DT cost) or ``'basin across
+        1'`` (the same, with the window closed along an unobservable
+        direction).
     seed_vu : tuple of int
         The integer start.
     coarse_score : float
@@ -141,16 +143,17 @@ class Ambiguity:
     Attributes
     ----------
     ratio : float
-        ``(rival cost + floor) / (winner cost + floor)``; ``inf`` when no
-        hypothesis lies in another basin.
+        ``(rival cost + floor) / (winner cost + floor)`` of the best rival
+        basin across the edge (displaced in the observed directions);
+        ``inf`` when there is none.
     rival : Hypothesis or None
-        The best hypothesis outside the winner's basin.
+        That rival.
     ambiguous : bool
-        ``ratio < threshold``.
+        ``ratio`` is below the threshold, or (``along_unobservable``) a
+        hypothesis displaced only along the unobservable directions is.
     along_unobservable : bool
-        The rival's displacement lies along a direction the winner's
-        covariance cannot observe (a straight edge's along-edge axis): the
-        ambiguity is *along* the edge, not across it.
+        The ambiguity lies along a direction the fit cannot observe (a
+        straight edge's along-edge axis): along the edge, not across it.
     reason : str
         One line for people ('' when not ambiguous).
     """
@@ -173,48 +176,66 @@ def ambiguity_of(
     """The ambiguity figure of ``winner`` among ``hypotheses`` (see the module).
 
     ``unobservable`` holds the winner's unobservable pose directions as rows
-    (:attr:`dtalign.pipeline.PolylineFit.unobservable_directions`); a rival
-    displaced along them is ambiguity along the edge, not across it.
+    (:attr:`dtalign.pipeline.PolylineFit.unobservable_directions`). A rival
+    basin is a hypothesis displaced from the winner by more than
+    :data:`BASIN_RADIUS_PX` in the directions the fit observes (across the
+    edge); the figure is the best such rival's. A hypothesis displaced only
+    along the unobservable directions is ambiguity along the edge, reported
+    (``along_unobservable``) when no rival across it is ambiguous.
     """
-    rivals = [
-        h for h in hypotheses
-        if math.dist(h.offset_vu, winner.offset_vu) > BASIN_RADIUS_PX
-    ]
-    if not rivals:
-        return Ambiguity(math.inf, None, False, False, "")
-    rival = min(rivals, key=lambda h: h.cost)  # min keeps the first of equal costs
     floor = COST_FLOOR_PER_VERTEX * n_vertices
-    ratio = (rival.cost + floor) / (winner.cost + floor)
-    ambiguous = ratio < threshold
-    d = np.subtract(rival.offset_vu, winner.offset_vu)
-    along = _along(d, unobservable)
-    if not ambiguous:
-        reason = ""
-    elif along:
-        axis = d / np.hypot(d[0], d[1])
-        reason = (
-            f"a rival basin {float(np.hypot(d[0], d[1])):.1f} px away along "
-            f"(dv, du) = ({axis[0]:+.2f}, {axis[1]:+.2f}), a direction this fit cannot "
-            f"observe, costs {ratio:.2f}x the winner: ambiguous along the edge, not across it"
-        )
-    else:
+    dirs = np.asarray(unobservable, dtype=np.float64)
+    basis = _translation_basis(dirs)
+    across: list[Hypothesis] = []
+    along: list[Hypothesis] = []
+    for h in hypotheses:
+        d = np.subtract(h.offset_vu, winner.offset_vu)
+        observed = d - basis @ (basis.T @ d) if basis.shape[1] else d
+        if float(np.hypot(observed[0], observed[1])) > BASIN_RADIUS_PX:
+            across.append(h)
+        elif float(np.hypot(d[0], d[1])) > BASIN_RADIUS_PX:
+            along.append(h)
+    ratio = math.inf
+    rival = None
+    if across:
+        rival = min(across, key=lambda h: h.cost)  # min keeps the first of equal costs
+        ratio = (rival.cost + floor) / (winner.cost + floor)
+    if ratio < threshold:
+        assert rival is not None
         reason = (
             f"a rival basin at offset ({rival.offset_vu[0]:.1f}, {rival.offset_vu[1]:.1f}) "
             f"costs only {ratio:.2f}x the winner (threshold {threshold:g}x): the image "
             "supports two poses"
         )
-    return Ambiguity(float(ratio), rival, bool(ambiguous), bool(along), reason)
+        return Ambiguity(float(ratio), rival, True, False, reason)
+    if along:
+        side = min(along, key=lambda h: h.cost)
+        side_ratio = (side.cost + floor) / (winner.cost + floor)
+        if side_ratio < threshold:
+            d = np.subtract(side.offset_vu, winner.offset_vu)
+            axis = d / np.hypot(d[0], d[1])
+            reason = (
+                f"a rival basin {float(np.hypot(d[0], d[1])):.1f} px away along "
+                f"(dv, du) = ({axis[0]:+.2f}, {axis[1]:+.2f}), a direction this fit cannot "
+                f"observe, costs {side_ratio:.2f}x the winner: ambiguous along the edge, "
+                "not across it"
+            )
+            return Ambiguity(float(ratio), rival, True, True, reason)
+    return Ambiguity(float(ratio), rival, False, False, "")
 
 
-def _along(d: NDArray[np.float64], unobservable: NDArray[np.float64]) -> bool:
-    """Whether translation ``d`` lies within 15 degrees of the span of the
-    translation parts of the ``unobservable`` directions."""
-    dirs = np.asarray(unobservable, dtype=np.float64).reshape(-1, np.shape(unobservable)[-1] if np.size(unobservable) else 2)
-    length = float(np.hypot(d[0], d[1]))
-    if dirs.shape[0] == 0 or not length > 0:
-        return False
-    basis, _ = np.linalg.qr(dirs[:, :2].T)  # orthonormal span of the translation parts
-    return bool(np.linalg.norm(basis.T @ (d / length)) >= math.cos(math.radians(15.0)))
+def _translation_basis(unobservable: NDArray[np.float64]) -> NDArray[np.float64]:
+    """An orthonormal basis (columns) of the translation parts of the
+    unobservable directions; ``(2, 0)`` when every direction is observed."""
+    if unobservable.size == 0:
+        return np.zeros((2, 0))
+    parts = unobservable.reshape(-1, unobservable.shape[-1])[:, :2]
+    parts = parts[np.hypot(parts[:, 0], parts[:, 1]) > 1e-6]
+    if parts.shape[0] == 0:
+        return np.zeros((2, 0))
+    q, r = np.linalg.qr(parts.T)
+    keep = np.abs(np.diag(r)) > 1e-6
+    return q[:, keep]
 
 
 #: How many starts the one-call pipeline fits by default: 1, the coarse
@@ -267,19 +288,31 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
         )
 
     fits = [("seed 1", fit.coarse_offset_vu, math.nan, fit)]
-    peaks = top_k_seeds(shared.edge, item.vertices, window, k=max(seeds, 2),
-                        min_support_fraction=0.0)
+    # the surface the pipeline's seed came from (dtalign._fitjobs.seed_of)
+    clipped = (shared.mv, shared.mu)
+    polarity = {"normals_vu": item.normals, "image_gradient_vu": grad} if lm.use_polarity else {}
+    peaks = top_k_seeds(shared.edge, item.vertices, clipped, k=max(seeds, 2), **polarity)
     for j, peak in enumerate(peaks[1:], start=2):
         if peak.offset_vu != fit.coarse_offset_vu:
             fits.append((f"seed {j}", peak.offset_vu, peak.score, refit(peak.offset_vu)))
     if not fit.lm.degenerate:
         placed = _rotate_vertices(item.vertices, item.pivot, fit.rotation_rad)
-        rival = find_secondary_dt_minimum(
-            dt, placed, converged_offset_vu=fit.offset_vu, search_window_vu=window,
-            exclude_radius_px=BASIN_RADIUS_PX, min_support_fraction=0.5,
-        )
-        if rival is not None:
-            fits.append(("basin", rival.offset_vu, math.nan, refit(rival.offset_vu)))
+        scans = [("basin", window)]
+        # Along an unobservable direction (a straight edge) every shift costs
+        # the same, so the best rival of the whole window lies there; the
+        # rival across the edge is sought with the window closed along the
+        # image axis nearest that direction.
+        for k, direction in enumerate(np.asarray(fit.unobservable_directions)[:, :2]):
+            if np.hypot(direction[0], direction[1]) > 0.5:
+                closed = (0, window[1]) if abs(direction[0]) > abs(direction[1]) else (window[0], 0)
+                scans.append((f"basin across {k + 1}", closed))
+        for source, scan_window in scans:
+            rival = find_secondary_dt_minimum(
+                dt, placed, converged_offset_vu=fit.offset_vu, search_window_vu=scan_window,
+                exclude_radius_px=BASIN_RADIUS_PX, min_support_fraction=0.5,
+            )
+            if rival is not None:
+                fits.append((source, rival.offset_vu, math.nan, refit(rival.offset_vu)))
     hypotheses = []
     for source, seed, score, f in fits:
         cost, inliers = cost_of(f)

@@ -442,6 +442,16 @@ def search_index(row_start, e_cols, pv, pu, h, w, mv, mu):  # pragma: no cover -
 
 
 @kernel
+def search_index_scored(row_start, e_cols, pv, pu, h, w, mv, mu, min_support):  # pragma: no cover - compiled
+    """:func:`search_index` with a support floor: ``(dv, du, score)``."""
+    if pv.shape[0] == 0:
+        return 0, 0, 0.0
+    overlap = overlap_sparse(pv, pu, row_start, e_cols, h, w, mv, mu)
+    return best_scored(overlap, in_image_counts(pv, pu, h, w, mv, mu), pv.shape[0], mv, mu,
+                       min_support)
+
+
+@kernel
 def polyline_support(poly):  # pragma: no cover - compiled
     """Row-major ``(rows, cols)`` of a C-contiguous bool polyline mask's pixels."""
     h, w = poly.shape

@@ -17,19 +17,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION as SEED_SUPPORT
 from .._jit import kernel
 from .atomics import fetch_add, fetch_min, load, store
 from .coarse import (
-    best_shift,
+    best_scored,
     dense_ok,
     edge_index,
     flat_words,
     in_image_counts,
     overlap_dense,
-    search_index,
+    search_index_scored,
     support_of_vertices,
 )
 from .fit import OK, fit
+from .polarity_search import polarity_search
 
 #: ``tickets[NEXT]``: the next polyline to take; ``tickets[FIRST_ERROR]``:
 #: the first polyline that failed (the count while none has).
@@ -75,15 +77,20 @@ def fit_polylines(
         a = starts[j]
         b = starts[j + 1]
         p = pts[a:b]
-        sv, su = support_of_vertices(p, h, w)
-        if sv.shape[0] > 0 and dense_ok(sv.shape[0], mu):
-            overlap = overlap_dense(sv, su, edge_flat, h, w, mv, mu)
-            dv, du = best_shift(overlap, in_image_counts(sv, su, h, w, mv, mu), mv, mu)
+        if use_polarity:  # today's limb and terminator seed (issue 17)
+            dv, du, _ = polarity_search(edge, grad, p, nrm[a:b], mv, mu, SEED_SUPPORT * (b - a))
         else:
-            if not indexed:  # one scan of the edge mask for this thread's polylines
-                row_start, e_cols = edge_index(edge)
-                indexed = True
-            dv, du = search_index(row_start, e_cols, sv, su, h, w, mv, mu)
+            sv, su = support_of_vertices(p, h, w)
+            floor = SEED_SUPPORT * sv.shape[0]
+            if sv.shape[0] > 0 and dense_ok(sv.shape[0], mu):
+                overlap = overlap_dense(sv, su, edge_flat, h, w, mv, mu)
+                counts = in_image_counts(sv, su, h, w, mv, mu)
+                dv, du, _ = best_scored(overlap, counts, sv.shape[0], mv, mu, floor)
+            else:
+                if not indexed:  # one scan of the edge mask for this thread's polylines
+                    row_start, e_cols = edge_index(edge)
+                    indexed = True
+                dv, du, _ = search_index_scored(row_start, e_cols, sv, su, h, w, mv, mu, floor)
         # fresh writable arrays, as lm_subpixel_refine's wrapper passes them
         pose0 = np.empty(3)
         pose0[0] = float(dv)
