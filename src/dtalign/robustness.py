@@ -610,6 +610,11 @@ def evaluate(
     ------
     ValueError
         If a family name is unknown.
+
+    Notes
+    -----
+    An exception raised by ``fit_fn`` propagates: a fit that refuses a
+    scene is a bug to see, not a score.
     """
     names = list(FAMILIES) if families is None else list(families)
     for name in names:
