@@ -131,8 +131,9 @@ class HardScene:
         lands the model on the decoy edge, or for ``small_window`` the truth
         clamped to the window. None when the scene has no single decoy.
     decoy_vertices_vu : ndarray, shape (M, 2)
-        Points on the decoy edge (empty when there is none): where the
-        image must have an edge for the scene to be as hard as it claims.
+        Points on the decoy edge (empty when there is none), one per model
+        vertex and in the same order: where the image must have an edge for
+        the scene to be as hard as it claims.
     true_edge_mask : ndarray of bool, shape (N,)
         The model vertices that lie on the true edge once moved by the
         truth (all but the displaced ones of ``outliers``).
