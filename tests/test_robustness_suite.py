@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 import math
 import os
 import statistics
@@ -291,6 +292,23 @@ def test_harness_times_each_call_and_warms_up_once():
     for r in rows:
         assert all(t.time_s >= 0.0 for t in r.trials)
         assert r.median_time_s == statistics.median(t.time_s for t in r.trials)
+
+
+def test_harness_reads_an_enum_status_by_its_value():
+    class Verdict(str, enum.Enum):  # prints as "Verdict.OK": the value is what counts
+        OK = "ok"
+        AMBIGUOUS = "ambiguous"
+
+    from dtalign.status import FitStatus
+
+    for status, flagged in ((Verdict.OK, 0.0), (Verdict.AMBIGUOUS, 1.0), (FitStatus.OK, 0.0),
+                            (FitStatus.FAILED, 1.0)):
+        def fit(scene, status=status):
+            return SimpleNamespace(offset_vu=scene.true_offset_vu, status=status)
+
+        (row,) = rb.evaluate(fit, families=["outliers"], seeds=[0, 1], warmup=False)
+        assert row.flagged == flagged, status
+        assert row.trials[0].status == status.value
 
 
 def test_harness_refuses_an_unknown_family():
