@@ -158,3 +158,35 @@ def test_to_dict_records_the_verdict(nav):
                               search_window_vu=(10, 10)).to_dict()
     assert d["ambiguity_ratio"] is not None and d["hypotheses"][0]["source"] == "seed 1"
     json.dumps(d)
+
+
+def test_no_confidently_wrong_fit_on_a_fixed_subset_of_the_hard_scenes():
+    """Issue 17's property, on the first seeds of every family of
+    :mod:`dtalign.robustness`, with the production trust region: no fit is
+    wrong and says ``ok``, and multi-start keeps the plain pipeline's
+    correct fits."""
+    import logging
+
+    from dtalign import robustness
+    from dtalign.pipeline import fit_polyline
+
+    def fit_with(seeds):
+        def fit(scene):
+            p = scene.polyline
+            return fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas,
+                                search_window_vu=scene.search_window_vu,
+                                noise_sigma=scene.noise_sigma, use_polarity=scene.use_polarity,
+                                trust_region_px=1.0, seeds=seeds)
+        return fit
+
+    log = logging.getLogger("dtalign")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        plain = robustness.evaluate(fit_with(1), seeds=range(4))
+        multi = robustness.evaluate(fit_with(3), seeds=range(4))
+    finally:
+        log.setLevel(level)
+    for p_row, m_row in zip(plain, multi, strict=True):
+        assert m_row.confidently_wrong == 0.0, m_row.family
+        assert m_row.correct >= p_row.correct, m_row.family

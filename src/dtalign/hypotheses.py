@@ -238,6 +238,11 @@ def _translation_basis(unobservable: NDArray[np.float64]) -> NDArray[np.float64]
     return q[:, keep]
 
 
+#: Extra coarse peaks drawn for a fit with an unobservable direction: one
+#: edge's peaks repeat along it every few pixels (the seeds' separation), so
+#: the peaks of a parallel edge across it rank behind them.
+ALONG_EDGE_PEAKS = 12
+
 #: How many starts the one-call pipeline fits by default: 1, the coarse
 #: search's seed (multi-start is opt-in; ``seeds=3`` in
 #: :func:`dtalign.pipeline.fit_polyline_products`).
@@ -291,10 +296,20 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
     # the surface the pipeline's seed came from (dtalign._fitjobs.seed_of)
     clipped = (shared.mv, shared.mu)
     polarity = {"normals_vu": item.normals, "image_gradient_vu": grad} if lm.use_polarity else {}
-    peaks = top_k_seeds(shared.edge, item.vertices, clipped, k=max(seeds, 2), **polarity)
+    # Along an unobservable direction (a straight edge) the peaks of one edge
+    # repeat along it; the starts wanted are peaks across it, so more peaks
+    # are drawn and those that only slide along the first seed's edge skipped.
+    basis = _translation_basis(np.asarray(fit.unobservable_directions))
+    wanted = max(seeds, 2) - 1
+    peaks = top_k_seeds(shared.edge, item.vertices, clipped,
+                        k=wanted + 1 + (ALONG_EDGE_PEAKS if basis.shape[1] else 0), **polarity)
     for j, peak in enumerate(peaks[1:], start=2):
-        if peak.offset_vu != fit.coarse_offset_vu:
-            fits.append((f"seed {j}", peak.offset_vu, peak.score, refit(peak.offset_vu)))
+        d = np.subtract(peak.offset_vu, fit.coarse_offset_vu).astype(np.float64)
+        across = d - basis @ (basis.T @ d) if basis.shape[1] else d
+        if wanted == 0 or not np.hypot(across[0], across[1]) > BASIN_RADIUS_PX:
+            continue
+        fits.append((f"seed {j}", peak.offset_vu, peak.score, refit(peak.offset_vu)))
+        wanted -= 1
     if not fit.lm.degenerate:
         placed = _rotate_vertices(item.vertices, item.pivot, fit.rotation_rad)
         scans = [("basin", window)]
