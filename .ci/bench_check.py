@@ -96,21 +96,18 @@ FLOORS: dict[str, tuple[float, float, float]] = {
     "lm_n20000": (30.0, 31.8, 0.25),
     # A 20.1 / 17.0 / 0.15   B 20.4 / 19.6 / 0.04   C 20.9 / 20.5 / 0.03
     "end_to_end": (10.0, 20.9, 0.15),
-    # 2 threads vs 1, quiet runs only (a busy-loop process leaves one core):
-    # A 1.0 / 0.8 / 0.14   B 1.06 / 0.96 / 0.09 (before fit_many's compiled
-    # chunks)   C 1.76 / 1.66 / 0.06. Later the same hour, with the code
-    # unchanged, this machine entered spells where two threads of the fit
-    # kernels ran little faster than one (kernel-only scaling 1.08-1.18x
-    # against 1.88x before) while the GIL-free control still scaled 1.84x:
-    # quick runs then gave 1.01-1.7x (median 1.15-1.6). The floor is set
-    # below those spells: it catches two threads slower than one (a lock or
-    # a kernel holding the GIL), not a missed 1.8x. Checked only when the
-    # control scaled at least as far as the floor. D: 1.35 / 1.09 / 0.20,
-    # while the compiled fit kernel alone scaled 1.07-1.80x and the SHA-256
-    # control 1.89-2.18x. Since fit_many's threads share one counter of
-    # polylines it scales about as far as its compiled loop alone (the row's
-    # second control, no Python at all), which scaled 1.05-1.94x in one hour.
-    "batch_64_fits": (1.8, 1.0, 0.15),
+    # 2 workers vs 1 (issue 14: the 1.8x target of 64 fits retired with the
+    # home-made scheduler; fit_many on standard executors >= 1.5x, fit_images
+    # of 16 images >= 1.8x). Not yet measured as met: all 18 quick runs of
+    # --only batch on 2026-12-01 (load average 5-13 from other sessions) had
+    # the second core busy, the SHA-256 control at 0.60-1.15x, and gave
+    # 0.33-1.27x (fit_many) and 0.79-0.99x (fit_images).
+    # Until quiet campaigns measure the achieved ratios and their spread,
+    # the floors keep the old row's: they catch two workers slower than one
+    # (a lock, or a kernel holding the GIL), checked only when the control
+    # scaled at least as far as the floor.
+    "batch_64_fits": (1.5, 1.0, 0.15),
+    "batch_images": (1.8, 1.0, 0.15),
 }
 
 

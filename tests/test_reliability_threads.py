@@ -17,6 +17,7 @@ import random
 import subprocess
 import sys
 import textwrap
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
@@ -158,18 +159,12 @@ def _dtalign_modules():
             if (name == "dtalign" or name.startswith("dtalign.")) and mod is not None}
 
 
-#: The one exception: dtalign.batch keeps its helper threads, parked, for the
-#: next call (how many depends on how many calls ran at once); no result
-#: depends on them (tests/test_batch.py, the helper pool tests).
-_KEPT_ON_PURPOSE = {("dtalign.batch", "_parked")}
-
-
 def _mutable_state():
     """Deep copies of every module-level list/dict/set/bytearray/ndarray of dtalign."""
     state = {}
     for mname, mod in _dtalign_modules().items():
         for attr, value in vars(mod).items():
-            if attr.startswith("__") or (mname, attr) in _KEPT_ON_PURPOSE:
+            if attr.startswith("__"):
                 continue
             if isinstance(value, (list, dict, set, bytearray)):
                 state[(mname, attr)] = copy.deepcopy(value)
@@ -187,8 +182,28 @@ def _equal(a, b) -> bool:
         return repr(a) == repr(b)
 
 
+def _batch_jobs():
+    """Batch calls (threads, a process pool) over the disc and navigation scenes."""
+    from dtalign import batch
+
+    prods = _products()
+    sc, nav = prods["disc"][0], prods["nav"][0]
+    products = dtalign.pipeline.prepare_image(nav.image, nav.noise_sigma)
+    polys = list(nav.polylines) * 3
+    return {
+        "fit_many": functools.partial(batch.fit_many, products, polys, search_window_vu=(6, 6),
+                                      workers=3),
+        "fit_many-collect": functools.partial(batch.fit_many, products, polys,
+                                              search_window_vu=(6, 6), workers=2,
+                                              errors="collect"),
+        "fit_images": functools.partial(batch.fit_images, [sc, nav], search_window_vu=(6, 6),
+                                        workers=2),
+        "map_ordered": functools.partial(batch.map_ordered, abs, range(-5, 5), workers=3),
+    }
+
+
 def test_fits_change_no_global_state(serial):
-    jobs = _jobs()
+    jobs = {**_jobs(), **_batch_jobs()}
     for job in jobs.values():  # every public module is imported by now
         job()
     numba_before = _numba_globals()
@@ -203,6 +218,19 @@ def test_fits_change_no_global_state(serial):
     assert state_after.keys() == state_before.keys()
     changed = [key for key in state_before if not _equal(state_before[key], state_after[key])]
     assert not changed, f"module-level state changed across calls: {changed}"
+
+
+def test_batch_keeps_no_module_level_state_or_threads():
+    """dtalign.batch holds no containers between calls and leaves no thread running."""
+    from dtalign import batch
+
+    before = threading.active_count()
+    for job in _batch_jobs().values():
+        job()
+    assert threading.active_count() == before
+    kept = {name for name, value in vars(batch).items() if not name.startswith("__")
+            and isinstance(value, (list, dict, set, bytearray, np.ndarray, threading.Thread))}
+    assert kept == set()
 
 
 def test_import_and_fits_leave_numba_configuration_alone():

@@ -8,7 +8,8 @@ arrays, in that order): that fixes which error a bad call raises. What it
 validated holds for every further polyline of the call, which then only
 needs its own arrays checked (one compiled pass) and, when rotating, its
 pivot spread. The polylines then run in one compiled loop with the GIL
-released (:mod:`dtalign._kernels.pipeline`), in as many threads as asked.
+released (:mod:`dtalign._kernels.pipeline`), which :mod:`dtalign.batch`
+runs on its threads; :func:`wrap` makes their results.
 
 The kernels are imported on first use: importing :mod:`dtalign.pipeline`
 must not import Numba.
@@ -48,23 +49,21 @@ FloatArray = check.FloatArray
 def _deps() -> SimpleNamespace:
     """What the fits use from modules that import Numba, imported on first use
     (importing :mod:`dtalign.pipeline` must not import Numba) and then kept:
-    an import statement costs ~1 us each time it runs, and ``fit_many`` ran
-    16 of them per call."""
+    an import statement costs ~1 us each time it runs."""
     from ._args import check_lm_inputs
     from ._kernels import coarse
     from ._kernels.checks import OK, polyline_status, polylines_status
-    from ._kernels.pipeline import finished_until, fit_polylines
+    from ._kernels.pipeline import fit_polylines
     from ._kernels.polarity_search import polarity_search
     from ._results import LMRefineResult
-    from .batch import _run_threads
     from .image import _use_libm_hypot
     from .lm import _NO_GRADIENT, _RIDGE_HALF, _fit, _raise_for
     from .pipeline import PolylineFit
 
     return SimpleNamespace(
         check_lm_inputs=check_lm_inputs, coarse=coarse, OK=OK, polyline_status=polyline_status,
-        polylines_status=polylines_status, finished_until=finished_until,
-        fit_polylines=fit_polylines, LMRefineResult=LMRefineResult, _run_threads=_run_threads,
+        polylines_status=polylines_status,
+        fit_polylines=fit_polylines, LMRefineResult=LMRefineResult,
         _use_libm_hypot=_use_libm_hypot, _NO_GRADIENT=_NO_GRADIENT, _RIDGE_HALF=_RIDGE_HALF,
         _fit=_fit, _raise_for=_raise_for, PolylineFit=PolylineFit,
         polarity_search=polarity_search,
@@ -212,9 +211,8 @@ def _concatenated(
 
     Checked per list, not per polyline: the casting rule ``"no"`` refuses
     any dtype but native float64, the concatenation any mix of dimensions,
-    and the results' shapes and the lengths do the rest. :func:`prepare`
-    of 64 polylines: 147 to 121 us warm (an ndarray attribute costs
-    ~80 ns, and ``_plain`` reads six per polyline).
+    and the results' shapes and the lengths do the rest: cheaper than
+    :func:`_plain`'s six attribute reads per polyline (~80 ns each).
     """
     if set(map(type, vs + ns + ss)) != {np.ndarray}:
         return None
@@ -307,8 +305,8 @@ def prepare(
     if bad < len(parts):
         try:
             recheck(shared, *parts[bad])
-        except Exception as exc:  # raised by the caller after the fits before it
-            error = exc
+        except (TypeError, ValueError) as exc:  # raised by the caller after the fits before it
+            error = exc  # (anything else, e.g. a signal handler's exception, propagates now)
     end = int(starts[bad])
     return Batch(bad, pts[:end], nrm[:end], sig[:end], starts[: bad + 1], pivots[:bad],
                  distances[:bad]), error
@@ -382,19 +380,16 @@ def fit_from(shared: Plan, it: Item, coarse: tuple[int, int], coarse_s: float = 
 
 def loop_inputs(
     shared: Plan, batch: Batch
-) -> tuple[tuple[Any, ...], np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
+) -> tuple[tuple[Any, ...], np.ndarray, tuple[np.ndarray, ...]]:
     """:func:`dtalign._kernels.pipeline.fit_polylines`' arguments for ``batch``
-    (``batch.n > 0``), with fresh counters and outputs: ``(args, tickets,
-    errors, finished, outputs)``; the call is ``fit_polylines(*args, stop_at,
-    *outputs)``."""
+    with fresh outputs: ``(args, errors, outputs)``; the call for polylines
+    ``lo:hi`` is ``fit_polylines(*args, lo, hi, errors, *outputs)``."""
     d = _deps()
     k = batch.n
     a = shared.lm
     n_params = 3 if a.fit_rotation else 2
     n_pts = batch.pts.shape[0]
-    tickets = np.array([0, k], dtype=np.int64)
     errors = np.zeros(k, dtype=np.int64)
-    finished = np.zeros(k, dtype=np.int64)
     out = (np.zeros((k, 2), dtype=np.int64), np.zeros((k, 3)), np.zeros(k, dtype=np.int64),
            np.zeros(k, dtype=np.bool_), np.zeros((k, n_params, n_params)), np.zeros(k),
            np.zeros(k), np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.bool_),
@@ -407,104 +402,30 @@ def loop_inputs(
         -1.0 if a.trust_region_px is None else a.trust_region_px, a.tikhonov_alpha,
         a.final_gradient_ridge, d._RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
         DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
-        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, d._use_libm_hypot(), tickets, errors, finished,
+        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, d._use_libm_hypot(),
     )
-    return args, tickets, errors, finished, out
+    return args, errors, out
 
 
-#: Polylines the calling thread leaves to the other threads at the end of a
-#: batch, to wrap the finished results (~5 us each) while they fit those:
-#: 64 fits on 2 threads took 0.2-0.7 ms less than with 0 (where the
-#: wrapping only overlapped the others' last fit) in five of six rounds of
-#: 21 alternating samples, 0.05 ms more in one; 3 gained no more. Any of
-#: them still untaken after the wrapping it takes.
-TAIL = 2
+def readonly_views(out: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """Read-only views of :func:`loop_inputs`' outputs, for the fits to keep
+    slices of (the caller then locks the outputs themselves, so that no
+    view can be made writable again)."""
+    views = tuple(arr.view() for arr in out)
+    for view in views:
+        view.flags.writeable = False
+    return views
 
 
-def fit_batch(shared: Plan, batch: Batch, workers: int = 1) -> list[PolylineFit]:
-    """Fit the polylines of ``batch`` with ``workers`` threads running one
-    compiled loop over them (GIL released throughout).
-
-    Each thread takes the next polyline from a shared counter
-    (:func:`dtalign._kernels.pipeline.fit_polylines`), so the threads stay
-    busy until the list is done, whatever their relative speed. With more
-    than one thread, the calling thread stops :data:`TAIL` polylines short
-    of the end and wraps the results finished so far (~0.3 ms for 64) while
-    the others fit those, then takes any still left, then wraps the rest.
-
-    Each fit's ``timings_s`` has ``fit``: the threads' compiled time divided
-    evenly among the polylines (the coarse search and LM run interleaved).
-    Raises the error of the first polyline that fails, like the serial loop.
-    """
-    d = _deps()
-    fit_polylines, finished_until = d.fit_polylines, d.finished_until
-    k = batch.n
-    if k == 0:
-        return []
-    args, tickets, errors, finished, out = loop_inputs(shared, batch)
-    to_end, short_of_end = (*args, k, *out), (*args, k - TAIL, *out)
-    # The fits keep read-only views of the outputs, which other threads may
-    # still be writing (other rows) while the calling thread wraps. Made
-    # once the calling thread has fitted its share, not before: 7 us warm,
-    # ~20 us measured in place, less before the threads start.
-    views: list[tuple[np.ndarray, ...]] = []
-    fits: list[PolylineFit] = []
-    busy: list[float] = []
-    failures: list[BaseException] = []
-
-    def run() -> None:
-        t0 = time.perf_counter()
-        try:
-            fit_polylines(*to_end)
-        except BaseException as exc:  # re-raised below, after every thread has stopped
-            failures.append(exc)
-        busy.append(time.perf_counter() - t0)  # list.append is atomic under the GIL
-
-    def run_wrap_run() -> None:
-        t0 = time.perf_counter()
-        try:
-            fit_polylines(*short_of_end)
-            t1 = time.perf_counter()
-            views.append(tuple(map(_readonly_view, out)))
-            fits.extend(_wrap(shared, batch, views[0], 0, finished_until(finished, 0)))
-            t2 = time.perf_counter()
-            fit_polylines(*to_end)
-            t3 = time.perf_counter()
-            fits.extend(_wrap(shared, batch, views[0], len(fits),
-                              finished_until(finished, len(fits))))
-            busy.append((t1 - t0) + (t3 - t2))
-        except BaseException as exc:  # the helpers must still be waited for
-            failures.append(exc)
-            busy.append(0.0)
-
-    threads = min(workers, k)
-    d._run_threads(run, threads, run_wrap_run if threads > 1 else None)
-    for arr in out:
-        arr.flags.writeable = False
-    if failures:
-        raise failures[0]
-    first_error = int(tickets[1])
-    if first_error < k:
-        d._raise_for(int(errors[first_error]))
-    if not views:
-        views.append(tuple(map(_readonly_view, out)))
-    fits.extend(_wrap(shared, batch, views[0], len(fits), k))
-    per_fit = sum(busy) / k
-    for fit in fits:
-        fit.timings_s["fit"] = per_fit
-    return fits
+def raise_for(error: int) -> None:
+    """Raise the ValueError of a :func:`~dtalign._kernels.pipeline.fit_polylines` error code."""
+    _deps()._raise_for(error)
 
 
-def _readonly_view(arr: np.ndarray) -> np.ndarray:
-    view = arr.view()
-    view.flags.writeable = False
-    return view
-
-
-def _wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int,
-          hi: int) -> list[PolylineFit]:
-    """:class:`PolylineFit` objects of :func:`fit_batch`'s compiled results
-    ``lo:hi`` (``timings_s`` without ``fit``, which the caller adds)."""
+def wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int, hi: int) -> list[PolylineFit]:
+    """:class:`PolylineFit` objects of the compiled results ``lo:hi`` in ``out``
+    (:func:`readonly_views` of :func:`loop_inputs`' outputs; ``timings_s``
+    without ``fit``, which the caller adds)."""
     if hi <= lo:
         return []
     d = _deps()

@@ -1,23 +1,55 @@
 """Batch fitting on several cores: many polylines per image, many images.
 
-The compiled kernels release the GIL (``nogil=True``), so threads run
-fits truly in parallel. Two entry points:
+The compiled kernels release the GIL (``nogil=True``), so threads fit truly
+in parallel. :func:`fit_many` fits many polylines against one image's
+products: the first polyline and the shared options are checked as
+:func:`~dtalign.pipeline.fit_polyline_products` checks them, the others in
+bulk, then each polyline is one call of a compiled loop
+(:mod:`dtalign._kernels.pipeline`: coarse search and LM, GIL released).
+:func:`fit_images` prepares and fits many images, one image per task;
+:func:`map_ordered` is ``[fn(x) for x in items]`` on threads. Results come
+in input order, equal to the serial calls' (the kernels are deterministic
+and share no state). Nothing global is configured: no Numba threading
+layer, no thread count.
 
-* :func:`fit_many` fits many polylines against one image's products
-  (:func:`dtalign.pipeline.prepare_image`): the first polyline and the
-  shared options are checked as :func:`~dtalign.pipeline.fit_polyline_products`
-  checks them, the others in bulk, and the worker threads then run one
-  compiled loop (coarse search and LM of every polyline) over them with
-  the GIL released throughout, each taking the next polyline from a shared
-  counter; the GIL-held Python per fit is a few microseconds instead of a
-  third of the fit;
-* :func:`fit_images` prepares and fits many images, one image per task.
+Threads and interrupts
+----------------------
+Each call makes its own :class:`~concurrent.futures.ThreadPoolExecutor` and
+shuts it down before it returns, so no thread, queue or flag outlives a
+call to be found by the next one. Its workers take the next item from the
+call's queue (a :class:`collections.deque`, whose ``popleft`` is
+thread-safe): a thread on a slower core simply takes fewer. Called from the
+main thread, where Python runs signal handlers, the batch runs entirely in
+the pool and the calling thread only waits, so an exception a handler
+raises (KeyboardInterrupt, a ``SIGALRM`` timeout's) arrives in that wait,
+never inside an item (where it would pass for the item's error, or turn
+into a SystemError inside Numba's boxing of a kernel's result). It sets the
+call's stop event, which the workers look at before each item, waits for
+them to finish the item each holds, and propagates. The item of
+:func:`fit_many` is one polyline, not a chunk: the simplest design that
+stops a batch within one fit of an interrupt (chunks would need a stop flag
+read inside the compiled loop), for ~5 us of dispatch per ~0.1 ms fit.
 
-Both return their results in input order, equal to what the serial calls
-return (the kernels are deterministic and share no state), and raise the
-exception of the first failing item, as the serial loop would. Nothing
-global is configured here: no Numba threading layer, no thread count. The
-helper threads are kept, parked (a few, GIL released), for the next call.
+Errors
+------
+With ``errors="raise"`` (the default) a batch raises the error of the first
+failing item in input order, as the serial loop would, after fitting the
+items before it; no item is started once a failure is seen. The exception
+has the type of the item's own error, a message naming the item
+(``polylines[31]: ...``, ``images[4] (frame.png): ...``), the item's
+position as its ``index`` attribute and the item's own error (for an
+image, perhaps a polyline's) as its ``__cause__``. With
+``errors="collect"`` every item is fitted and a failed item's place in the
+result holds that exception (as ``asyncio.gather(...,
+return_exceptions=True)`` does)::
+
+    out = fit_many(products, polylines, search_window_vu=(30, 30), errors="collect")
+    failed = {e.index: e for e in out if isinstance(e, Exception)}
+
+Collected are the errors of an item's data and fit and, in
+:func:`fit_images`, any ordinary exception of an image's task (a file that
+cannot be loaded, an image that cannot be prepared); an item of neither
+accepted form, a bad option or a bad ``workers`` raises at once.
 
 Examples
 --------
@@ -33,32 +65,43 @@ Examples
 
 from __future__ import annotations
 
-import _thread
 import dataclasses
 import inspect
-import itertools
 import math
 import numbers
 import os
 import threading
+import time
+from collections import deque
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
-from typing import Any, TypeVar
+from concurrent.futures import CancelledError, Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from types import MappingProxyType
+from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
 from . import _fitjobs
 from ._image_args import ImageDerivativesConfig
 from .pipeline import ImageProducts, PolylineFit, fit_polyline_products, prepare_image
-from .status import log_fits
+from .status import log_fit, log_fits, logger
 
 __all__ = ["DEFAULT_WORKERS", "fit_images", "fit_many", "map_ordered", "results_equal"]
 
-#: Two workers: the machines this runs on have two cores.
-DEFAULT_WORKERS = 2
-
 _T = TypeVar("_T")
 _R = TypeVar("_R")
+
+
+def _usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except (AttributeError, OSError):  # no affinity mask on this OS (macOS, Windows)
+        return os.cpu_count() or 1
+
+
+#: Default workers: the CPUs this process may use, read at import (a
+#: container or ``taskset`` limits them below ``os.cpu_count()``).
+DEFAULT_WORKERS = _usable_cpus()
 
 #: Keyword options :func:`fit_polyline_products` accepts besides the window.
 _FIT_OPTIONS = frozenset(
@@ -67,14 +110,15 @@ _FIT_OPTIONS = frozenset(
     if p.kind is inspect.Parameter.KEYWORD_ONLY and name != "search_window_vu"
 )
 
-#: Their defaults (the options a call leaves out).
-_FIT_DEFAULTS = {
+#: Their defaults (the options a call leaves out), read-only.
+_FIT_DEFAULTS = MappingProxyType({
     name: p.default
     for name, p in inspect.signature(fit_polyline_products).parameters.items()
     if name in _FIT_OPTIONS
-}
+})
 
 _EXECUTORS = ("thread", "process")
+_ERROR_MODES = ("raise", "collect")
 
 
 def _check_workers(workers: Any) -> int:
@@ -85,6 +129,13 @@ def _check_workers(workers: Any) -> int:
     return int(workers)
 
 
+def _check_errors(errors: Any) -> bool:
+    """Whether ``errors`` asks to collect (else raise)."""
+    if not isinstance(errors, str) or errors not in _ERROR_MODES:
+        raise ValueError(f"errors must be one of {_ERROR_MODES}, got {errors!r}")
+    return errors == "collect"
+
+
 def _check_options(options: dict[str, Any]) -> None:
     unknown = sorted(set(options) - _FIT_OPTIONS)
     if unknown:
@@ -92,6 +143,132 @@ def _check_options(options: dict[str, Any]) -> None:
             f"unexpected fit option(s) {', '.join(map(repr, unknown))}; "
             f"accepted: {', '.join(sorted(_FIT_OPTIONS))}"
         )
+    if "seeds" in options:  # checked first, as fit_polyline_products does
+        from .hypotheses import check_seeds
+
+        check_seeds(options["seeds"])
+
+
+def _named(exc: Exception, label: str, index: int) -> Exception:
+    """``exc`` as the error of item ``index``: the same type, the message
+    ``f"{label}: {exc}"``, an ``index`` attribute and ``exc`` as its cause.
+
+    A type that cannot be built from one message (or formats it itself,
+    like ``KeyError``) keeps its own message and gets ``index`` and a note.
+    """
+    message = f"{label}: {exc}"
+    try:
+        named = type(exc)(message)
+        same = str(named) == message
+    except Exception:  # a constructor that wants other arguments
+        same = False
+    if same:
+        named.__cause__ = exc
+    else:
+        named = exc
+        if hasattr(named, "add_note"):  # Python >= 3.11
+            named.add_note(f"in {label}")
+    named.index = index  # type: ignore[attr-defined]
+    return named
+
+
+def _shielded(body: Callable[[threading.Event], _R]) -> _R:
+    """``body(abort)``, in a thread of its own when called from the main thread.
+
+    Python runs signal handlers in the main thread only, and a handler's
+    exception (KeyboardInterrupt, a timeout's) lands wherever that thread
+    is: inside an item it would pass for the item's error, inside Numba's
+    boxing of a kernel's result it becomes a SystemError. So the main thread
+    only waits, and the exception arrives there, in the wait; it sets
+    ``abort``, which every worker looks at before its next item, waits for
+    the threads to stop (each finishes the item it holds) and propagates.
+    (One that lands while the pool starts its thread, or joins it, leaves
+    that thread to stop on its own: it finds ``abort`` set.) Elsewhere (a
+    task of an enclosing batch) ``body`` runs in the calling thread with a
+    fresh ``abort``.
+    """
+    abort = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        return body(abort)
+
+    def run() -> _R:
+        if abort.is_set():  # the start was interrupted: nothing to do
+            raise CancelledError("the batch was stopped")
+        return body(abort)
+
+    pool = ThreadPoolExecutor(1, thread_name_prefix="dtalign-batch")
+    try:
+        try:
+            future = pool.submit(run)
+        except KeyError as exc:
+            # CPython's Thread.start hides an exception a handler raises
+            # while the new thread starts behind a KeyError of its clean-up
+            if exc.__context__ is None:
+                raise
+            raise exc.__context__ from None
+        return future.result()
+    except BaseException:
+        abort.set()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _run_ordered(
+    fn: Callable[[int, threading.Event], _R], n: int, workers: int, *, stop_early: bool,
+    abort: threading.Event,
+) -> tuple[list[_R | None], dict[int, Exception]]:
+    """``fn(i, abort)`` for ``i`` in ``range(n)`` on ``workers`` threads (the
+    calling thread and ``workers - 1`` of a pool): ``(results, errors)``.
+
+    ``results[i]`` is what ``fn(i, abort)`` returned (None if it raised or
+    never ran); ``errors`` maps ``i`` to the ``Exception`` it raised. With
+    ``stop_early`` no index is taken once an item has failed: every index
+    before it was taken already, so the first failure in input order is in
+    ``errors``. Once ``abort`` is set (by :func:`_shielded`, or here when any
+    other exception reaches a worker) no worker takes another item, and the
+    call raises (``CancelledError`` if nothing else); ``fn`` passes
+    ``abort`` on to nested loops.
+    """
+    failed = threading.Event()
+    results: list[_R | None] = [None] * n
+    errors: dict[int, Exception] = {}
+    todo = deque(range(n))
+
+    def drain() -> None:
+        while not (failed.is_set() or abort.is_set()):
+            try:
+                i = todo.popleft()
+            except IndexError:
+                return
+            try:
+                results[i] = fn(i, abort)
+            except Exception as exc:  # the item's error, reported in input order
+                errors[i] = exc
+                if stop_early:
+                    failed.set()
+            except BaseException:
+                abort.set()
+                raise
+
+    helpers = min(workers, n) - 1
+    if helpers <= 0:
+        drain()
+    else:
+        pool = ThreadPoolExecutor(helpers, thread_name_prefix="dtalign-batch")
+        try:
+            futures = [pool.submit(drain) for _ in range(helpers)]
+            drain()
+            for future in futures:
+                future.result()
+        except BaseException:
+            abort.set()
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+    if abort.is_set():
+        raise CancelledError("the batch was stopped")
+    return results, errors
 
 
 def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
@@ -110,121 +287,14 @@ def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
     )
 
 
-class _Helper:
-    """A helper thread that runs one job each time it is started, then parks.
-
-    Parked, it waits on a lock (GIL released). Waking one costs a lock
-    release; creating a thread cost ~0.1 ms here before the caller went on,
-    and ~0.2 ms before the new thread ran its job: 64 fits on 2 threads took
-    0.04-0.5 ms less (2 % overall) in each of eight rounds of shuffled
-    samples. Created with _thread: threading.Thread.start waits for the new
-    thread to run (0.1 to 0.4 ms here, this thread idle).
-    """
-
-    __slots__ = ("_go", "_done", "_job", "_error")
-
-    def __init__(self) -> None:
-        self._go = threading.Lock()
-        self._go.acquire()
-        self._done = threading.Lock()
-        self._done.acquire()
-        self._job: Callable[[], None] | None = None
-        self._error: BaseException | None = None
-        _thread.start_new_thread(self._loop, ())
-
-    def _loop(self) -> None:
-        while True:
-            self._go.acquire()
-            job, self._job = self._job, None
-            if job is None:  # retired
-                return
-            try:
-                job()
-            except BaseException as exc:  # handed to wait(); the helper lives on
-                self._error = exc
-            finally:
-                self._done.release()
-
-    def start(self, job: Callable[[], None] | None) -> None:
-        """Run ``job()`` in this thread (None: the thread exits)."""
-        self._job = job
-        self._go.release()
-
-    def wait(self) -> None:
-        """Wait until the job has returned; raise what it raised."""
-        self._done.acquire()
-        error, self._error = self._error, None
-        if error is not None:
-            raise error
-
-
-#: Parked helpers kept beyond this many are retired: the most two-core
-#: callers need, with room for a few calls running at once.
-_MAX_PARKED = 8
-_parked: list[_Helper] = []
-_parked_lock = threading.Lock()
-
-
-def _forget_parked() -> None:
-    """In a forked child: the parent's helper threads do not exist there."""
-    global _parked, _parked_lock
-    _parked, _parked_lock = [], threading.Lock()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_parked)
-
-
-def _run_threads(fn: Callable[[], None], n: int, main: Callable[[], None] | None = None) -> None:
-    """Run ``fn()`` in ``n - 1`` helper threads and ``main()`` (default ``fn``)
-    in the calling thread, all at once; return when all have finished.
-
-    The helpers are parked :class:`_Helper` threads from earlier calls (new
-    ones when none is free, so nested and concurrent calls never wait for
-    each other), parked again afterwards. ``fn`` should not raise; if it
-    does, the first exception is re-raised here once every thread is done.
-    """
-    if n <= 1:
-        (fn if main is None else main)()
-        return
-    with _parked_lock:
-        helpers = [_parked.pop() for _ in range(min(n - 1, len(_parked)))]
-    try:
-        helpers += [_Helper() for _ in range(n - 1 - len(helpers))]
-    except BaseException:  # no thread could be started: park again the ones taken
-        with _parked_lock:
-            _parked.extend(helpers)
-        raise
-    for helper in helpers:
-        helper.start(fn)
-    errors: list[BaseException] = []
-    try:
-        (fn if main is None else main)()
-    finally:
-        for helper in helpers:
-            try:
-                helper.wait()
-            except BaseException as exc:
-                errors.append(exc)
-        with _parked_lock:
-            keep = max(0, min(len(helpers), _MAX_PARKED - len(_parked)))
-            _parked.extend(helpers[:keep])
-        for helper in helpers[keep:]:
-            helper.start(None)
-    if errors:
-        raise errors[0]
-
-
 def map_ordered(
     fn: Callable[[_T], _R], items: Iterable[_T], *, workers: int = DEFAULT_WORKERS
 ) -> list[_R]:
     """``[fn(x) for x in items]`` on a thread pool, in input order.
 
     Useful for any of the public fitting functions: their kernels release
-    the GIL, so two threads run two fits at once. Each worker thread (the
-    calling thread is one of them) takes the next item index from a shared
-    counter (no future per item), so the per-item overhead stays a few
-    microseconds.
+    the GIL, so two threads run two fits at once. The threads of a pool
+    made for the call take the items in turn (see the module docstring).
 
     Parameters
     ----------
@@ -233,7 +303,8 @@ def map_ordered(
     items : iterable
         The inputs.
     workers : int, optional
-        Threads; 1 runs the plain serial loop in the calling thread.
+        Threads (default: the CPUs this process may use); 1 runs the plain
+        serial loop ``[fn(x) for x in items]`` in the calling thread.
 
     Returns
     -------
@@ -244,31 +315,18 @@ def map_ordered(
     ------
     TypeError, ValueError
         If ``workers`` is not an int >= 1. An exception raised by ``fn`` is
-        re-raised: the one of the first failing item in input order (the
-        remaining items are not started once a failure is seen).
+        re-raised unchanged: the one of the first failing item in input
+        order (the remaining items are not started once a failure is seen).
     """
     n = _check_workers(workers)
     todo = list(items)
-    if n == 1 or len(todo) <= 1:
+    if n == 1:
         return [fn(x) for x in todo]
-    results: list[Any] = [None] * len(todo)
-    errors: dict[int, BaseException] = {}
-    counter = itertools.count()  # next() is atomic under the GIL
-
-    def worker() -> None:
-        for i in iter(counter.__next__, None):
-            if i >= len(todo) or errors:
-                return
-            try:
-                results[i] = fn(todo[i])
-            except BaseException as exc:  # re-raised in the caller, in order
-                errors[i] = exc
-                return
-
-    _run_threads(worker, min(n, len(todo)))
+    results, errors = _shielded(lambda abort: _run_ordered(
+        lambda i, _: fn(todo[i]), len(todo), n, stop_early=True, abort=abort))
     if errors:
         raise errors[min(errors)]
-    return results
+    return results  # type: ignore[return-value]
 
 
 def results_equal(a: Any, b: Any) -> bool:
@@ -308,14 +366,25 @@ def results_equal(a: Any, b: Any) -> bool:
     return bool(a == b)
 
 
+@overload
+def fit_many(
+    products: ImageProducts, polylines: Iterable[Any], *, search_window_vu: Any,
+    workers: int = ..., errors: Literal["raise"] = ..., **options: Any,
+) -> list[PolylineFit]: ...
+@overload
+def fit_many(
+    products: ImageProducts, polylines: Iterable[Any], *, search_window_vu: Any,
+    workers: int = ..., errors: Literal["collect"], **options: Any,
+) -> list[PolylineFit | Exception]: ...
 def fit_many(
     products: ImageProducts,
     polylines: Iterable[Any],
     *,
     search_window_vu: Any,
     workers: int = DEFAULT_WORKERS,
+    errors: str = "raise",
     **options: Any,
-) -> list[PolylineFit]:
+) -> list[Any]:
     """Fit many polylines against one image's products, on ``workers`` threads.
 
     Parameters
@@ -330,7 +399,13 @@ def fit_many(
     search_window_vu : tuple of int
         Coarse-search margin ``(mv, mu)`` for every polyline.
     workers : int, optional
-        Threads (default 2); 1 fits serially in the calling thread.
+        Threads (default: the CPUs this process may use); 1 fits serially
+        (in one thread of the call's pool when called from the main thread).
+    errors : {"raise", "collect"}, optional
+        ``"raise"``: raise the first failing polyline's error (named
+        ``polylines[i]: ...``, with ``index`` i). ``"collect"``: fit every
+        polyline; a failed one's place in the result holds its error
+        (see the module docstring).
     **options
         Passed to :func:`dtalign.pipeline.fit_polyline_products` for every
         polyline (``fit_rotation``, ``trust_region_px``, ...).
@@ -338,7 +413,8 @@ def fit_many(
     Returns
     -------
     list of PolylineFit
-        One per polyline, in input order, equal to the serial calls'.
+        One per polyline, in input order, equal to the serial calls' (with
+        ``errors="collect"``, exceptions in place of the failed ones).
 
     Raises
     ------
@@ -346,91 +422,173 @@ def fit_many(
         If ``products`` is not an ``ImageProducts``, a polyline has neither
         form, ``workers`` is not an int, or an option is unknown.
     ValueError
-        If ``workers < 1``; any error of a fit (the first failing one).
+        If ``workers < 1`` or ``errors`` is unknown; a bad option value;
+        with ``errors="raise"``, the error of the first failing polyline.
     """
     if not isinstance(products, ImageProducts):
         raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
     n = _check_workers(workers)
+    collect = _check_errors(errors)
     _check_options(options)
     parts = [_polyline_parts(item, i) for i, item in enumerate(polylines)]
-    fits = _fit_parts(products, parts, search_window_vu, options, n)
-    log_fits(fits)  # failed and suspect fits at WARNING (dtalign.status)
-    return fits
+    out = _shielded(lambda abort: _fit_parts(products, parts, search_window_vu, options, n,
+                                             collect, abort))
+    _log(out, "polylines")
+    return out
+
+
+def _log(results: list[Any], label: str) -> None:
+    """Report on dtalign's logger each failed or suspect fit
+    (:func:`dtalign.status.log_fits`) and, collected, each error at WARNING."""
+    if not any(isinstance(r, Exception) for r in results):
+        log_fits(results, label)
+        return
+    for i, r in enumerate(results):
+        if isinstance(r, Exception):
+            logger.warning("%s", r)
+        else:
+            log_fit(r, f"{label}[{i}]")
 
 
 def _fit_parts(
-    products: ImageProducts,
-    parts: list[tuple[Any, Any, Any]],
-    window: Any,
-    options: dict[str, Any],
-    workers: int,
-) -> list[PolylineFit]:
-    """Fit polylines with ``workers`` threads running one compiled loop over them.
+    products: ImageProducts, parts: list[tuple[Any, Any, Any]], window: Any,
+    options: dict[str, Any], workers: int, collect: bool, abort: threading.Event,
+) -> list[Any]:
+    """:func:`fit_many` of checked arguments; ``abort``: an enclosing batch's stop event.
 
-    The first polyline is checked with everything the polylines share
-    (:func:`dtalign._fitjobs.plan`), the others in bulk; the threads then
-    take the polylines one at a time from a shared counter, with the GIL
-    released, so a thread on a slower core fits fewer. The polylines before
-    the first bad one are fitted, and the first error in input order is
-    raised, as the serial loop would.
+    Raising: the first polyline is checked with everything the polylines
+    share (:func:`dtalign._fitjobs.plan`), which fixes which error a bad
+    call raises; then the others in bulk, up to the first bad one
+    (:func:`~dtalign._fitjobs.prepare`); the polylines before it are fitted.
+    An error of the first polyline that the probe polyline of
+    :func:`_probe_plan` gets too is the call's (a shared argument's): it is
+    raised as it is, not as the polyline's. Collecting: the shared
+    arguments are checked with the probe (an error there is raised), then
+    each run of good polylines up to the next bad one is fitted.
     """
     if not parts:
         return []
-    shared, batch, error = _plan_batch(products, parts, window, options)
-    fits = _fitjobs.fit_batch(shared, batch, workers=workers)
-    if error is not None:
-        raise error
-    from .hypotheses import check_seeds
+    kw = {**_FIT_DEFAULTS, **options}
+    # the one-call pipeline's examination of rival basins follows the compiled loop
+    seeds, ambiguity = int(kw.pop("seeds")), kw.pop("ambiguity")
+    examine = seeds if ambiguity or seeds > 1 else None
+    plan_kw = {
+        "search_window_vu": window, "fit_rotation": kw.pop("fit_rotation"),
+        "pivot_vu": kw.pop("pivot_vu"), "pivot_distance_px": kw.pop("pivot_distance_px"),
+        "lm_options": kw,
+    }
+    if not collect:
+        try:
+            shared, first = _fitjobs.plan(products, *parts[0], **plan_kw)
+        except (TypeError, ValueError) as exc:  # what a bad polyline or option raises
+            if _call_error(products, plan_kw, exc):
+                raise
+            raise _named(exc, "polylines[0]", 0) from exc
+        batch, error = _fitjobs.prepare(shared, parts, first)
+        fits, fit_errors = _fit_batch(shared, batch, workers, True, abort, examine)
+        if fit_errors:  # a kernel error, before the first bad polyline
+            j = min(fit_errors)
+            raise _named(fit_errors[j], f"polylines[{j}]", j)
+        if error is not None:
+            raise _named(error, f"polylines[{batch.n}]", batch.n)
+        return fits
+    shared = _probe_plan(products, plan_kw)
+    out: list[Any] = []
+    while len(out) < len(parts):
+        s = len(out)
+        batch, error = _fitjobs.prepare(shared, parts[s:])
+        fits, fit_errors = _fit_batch(shared, batch, workers, False, abort, examine)
+        for j, fit_error in fit_errors.items():
+            fits[j] = _named(fit_error, f"polylines[{s + j}]", s + j)
+        out += fits
+        if error is not None:
+            out.append(_named(error, f"polylines[{len(out)}]", len(out)))
+    return out
 
-    seeds = check_seeds(options.get("seeds", _FIT_DEFAULTS["seeds"]))
-    if options.get("ambiguity", _FIT_DEFAULTS["ambiguity"]) or seeds > 1:
-        fits = _examine_all(shared, batch, fits, seeds, workers)
-    return fits
+
+def _probe_plan(products: ImageProducts, plan_kw: dict[str, Any]) -> Any:
+    """The shared plan of a call, checked with a probe polyline: one vertex at
+    the image centre, which fails no check of its own."""
+    h, w = products.shape
+    probe = (np.array([[(h - 1) / 2.0, (w - 1) / 2.0]]), np.array([[1.0, 0.0]]), np.ones(1))
+    return _fitjobs.plan(products, *probe, **plan_kw)[0]
 
 
-def _examine_all(shared: Any, batch: Any, fits: list[PolylineFit], seeds: int,
-                 workers: int) -> list[PolylineFit]:
-    """The one-call pipeline's examination of rival basins
-    (:func:`dtalign.hypotheses.examine`) for each fit, on ``workers`` threads
-    (its scans and fits are compiled and release the GIL)."""
+def _call_error(products: ImageProducts, plan_kw: dict[str, Any], exc: Exception) -> bool:
+    """Whether the first polyline's ``exc`` is the call's (a shared argument's)
+    error: the probe polyline gets the same one."""
+    try:
+        _probe_plan(products, plan_kw)
+    except Exception as probe_exc:
+        return type(probe_exc) is type(exc) and str(probe_exc) == str(exc)
+    return False
+
+
+def _fit_batch(
+    shared: Any, batch: Any, workers: int, stop_early: bool, abort: threading.Event,
+    examine: int | None = None,
+) -> tuple[list[Any], dict[int, Exception]]:
+    """Fit the checked polylines of ``batch``, one call of the compiled loop per
+    polyline on ``workers`` threads, then make their result objects.
+
+    Returns the fits (None where one failed) and the errors by polyline;
+    with ``stop_early``, no fits once a polyline has failed. The results are
+    made in one pass at the end (~2.5 us a fit, four times less than one
+    polyline at a time), so the threads hold the GIL only to call the loop.
+    Each fit's ``timings_s`` has ``fit``: the compiled time of the call's
+    fits divided evenly among them. With ``examine`` (the number of starts)
+    each fit is then examined against rival basins as
+    :func:`~dtalign.pipeline.fit_polyline_products` does
+    (:func:`dtalign.hypotheses.examine`), on the same threads.
+    """
+    k = batch.n
+    if k == 0:
+        return [], {}
+    fit_polylines = _fitjobs._deps().fit_polylines
+    args, codes, out = _fitjobs.loop_inputs(shared, batch)
+    busy = [0.0] * k
+
+    def fit(j: int, _: threading.Event) -> None:
+        t0 = time.perf_counter()
+        failed = fit_polylines(*args, j, j + 1, codes, *out) == j
+        busy[j] = time.perf_counter() - t0
+        if failed:
+            _fitjobs.raise_for(int(codes[j]))
+
+    _, errors = _run_ordered(fit, k, workers, stop_early=stop_early, abort=abort)
+    if errors and stop_early:
+        return [], errors
+    fits: list[Any] = _fitjobs.wrap(shared, batch, _fitjobs.readonly_views(out), 0, k)
+    for arr in out:  # lock the outputs whose rows the fits' read-only views share
+        arr.flags.writeable = False
+    per_fit = sum(busy) / k
+    for j, f in enumerate(fits):
+        f.timings_s["fit"] = per_fit
+        if j in errors:  # its rows were never written
+            fits[j] = None
+    if examine is None:
+        return fits, errors
     from . import hypotheses
 
+    good = [j for j, f in enumerate(fits) if f is not None]
     bounds = batch.starts.tolist()
 
-    def one(j: int) -> PolylineFit:
+    def one(i: int, _: threading.Event) -> Any:
+        j = good[i]
         s, e = bounds[j], bounds[j + 1]
         item = _fitjobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
                              (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
                              float(batch.distances[j]))
-        return hypotheses.examine(
-            fits[j], shared, item, seeds=seeds,
-            refit=lambda seed: _fitjobs.fit_from(shared, item, seed),
-        )
+        return hypotheses.examine(fits[j], shared, item, seeds=examine,
+                                  refit=lambda seed: _fitjobs.fit_from(shared, item, seed))
 
-    if workers == 1 or len(fits) == 1:
-        return [one(j) for j in range(len(fits))]
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(one, range(len(fits))))
-
-
-def _plan_batch(
-    products: ImageProducts, parts: list[tuple[Any, Any, Any]], window: Any,
-    options: dict[str, Any],
-) -> tuple[Any, Any, Exception | None]:
-    """The checked plan and batch of a non-empty ``parts``, and the error of its
-    first bad polyline (None if none): :func:`dtalign._fitjobs.plan`, then
-    :func:`~dtalign._fitjobs.prepare`."""
-    kw = {**_FIT_DEFAULTS, **options}
-    # the one-call pipeline's examination of rival basins is not the compiled loop's
-    kw.pop("seeds")
-    kw.pop("ambiguity")
-    shared, first = _fitjobs.plan(
-        products, *parts[0], search_window_vu=window, fit_rotation=kw.pop("fit_rotation"),
-        pivot_vu=kw.pop("pivot_vu"), pivot_distance_px=kw.pop("pivot_distance_px"),
-        lm_options=kw,
-    )
-    batch, error = _fitjobs.prepare(shared, parts, first)
-    return shared, batch, error
+    examined, failures = _run_ordered(one, len(good), workers, stop_early=stop_early,
+                                      abort=abort)
+    for i, j in enumerate(good):
+        fits[j] = examined[i]
+        if i in failures:
+            errors[j] = failures[i]
+    return ([], errors) if errors and stop_early else (fits, errors)
 
 
 def _image_parts(item: Any, index: int) -> tuple[Any, float | None, list[tuple[Any, Any, Any]]]:
@@ -449,23 +607,48 @@ def _image_parts(item: Any, index: int) -> tuple[Any, float | None, list[tuple[A
     return image, noise, [_polyline_parts(p, j) for j, p in enumerate(polys)]
 
 
+def _is_path(image: Any) -> bool:
+    return isinstance(image, (str, os.PathLike))
+
+
 def _fit_image(
-    job: tuple[Any, float | None, list[tuple[Any, Any, Any]], Any, Any, dict[str, Any]],
-) -> list[PolylineFit]:
-    """One image: products, then its polylines serially (module level: picklable)."""
-    image, noise, parts, window, config, options = job
-    return _fit_parts(prepare_image(image, noise, config=config), parts, window, options, 1)
+    job: tuple[Any, float | None, list[tuple[Any, Any, Any]], Any, Any, dict[str, Any], bool],
+    abort: threading.Event | None = None,
+) -> list[Any]:
+    """One image: loaded if a path, its products, then its polylines serially
+    (module level: picklable for a process pool)."""
+    image, noise, parts, window, config, options, collect = job
+    if _is_path(image):
+        from .io import load_image
+
+        image = load_image(image)
+    products = prepare_image(image, noise, config=config)
+    return _fit_parts(products, parts, window, options, 1, collect,
+                      threading.Event() if abort is None else abort)
 
 
+@overload
+def fit_images(
+    items: Iterable[Any], *, search_window_vu: Any, workers: int = ...,
+    executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
+    errors: Literal["raise"] = ..., **options: Any,
+) -> list[list[PolylineFit]]: ...
+@overload
+def fit_images(
+    items: Iterable[Any], *, search_window_vu: Any, workers: int = ...,
+    executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
+    errors: Literal["collect"], **options: Any,
+) -> list[list[PolylineFit | Exception] | Exception]: ...
 def fit_images(
     items: Iterable[Any],
     *,
     search_window_vu: Any,
     workers: int = DEFAULT_WORKERS,
-    executor: str = "thread",
+    executor: str | Executor = "thread",
     config: ImageDerivativesConfig | None = None,
+    errors: str = "raise",
     **options: Any,
-) -> list[list[PolylineFit]]:
+) -> list[Any]:
     """Prepare and fit many images, one image per task.
 
     Parameters
@@ -473,19 +656,32 @@ def fit_images(
     items : iterable
         Each item is an ``(image, noise_sigma, polylines)`` sequence (or an
         object with those attributes, like :class:`dtalign.scenes.Scene`);
-        ``noise_sigma`` may be None (estimated), ``polylines`` as in
-        :func:`fit_many`.
+        ``image`` is an array or a path (loaded in the task with
+        :func:`dtalign.io.load_image`), ``noise_sigma`` may be None
+        (estimated), ``polylines`` as in :func:`fit_many`.
     search_window_vu : tuple of int
         Coarse-search margin for every polyline.
     workers : int, optional
-        Parallel tasks (default 2); 1 runs serially in the calling thread.
-    executor : {"thread", "process"}, optional
+        Parallel tasks (default: the CPUs this process may use); 1 runs
+        serially (with ``executor="thread"``, as :func:`fit_many`).
+    executor : {"thread", "process"} or concurrent.futures.Executor, optional
         ``"thread"`` (default) shares memory and relies on the kernels
-        releasing the GIL; ``"process"`` uses a process pool (each image
-        and its results are pickled; workers load the compiled kernels
-        from Numba's on-disk cache). Results are equal either way.
+        releasing the GIL; ``"process"`` uses a process pool of ``workers``
+        processes made for the call (each image and its results are
+        pickled; workers load the compiled kernels from Numba's on-disk
+        cache). An ``Executor`` (a pool of the caller's, a Dask client's
+        ``get_executor()``) is used as it is and left running; ``workers``
+        is then not used. Results are equal either way.
     config : ImageDerivativesConfig, optional
         Image-side tunables for every image.
+    errors : {"raise", "collect"}, optional
+        ``"raise"``: raise the first failing image's error, named
+        ``images[i]: ...`` (``images[i] (path): ...`` for a path), with
+        ``index`` i and the image's own error (perhaps a polyline's) as its
+        cause. ``"collect"``: a failed image's place holds its error and a
+        failed polyline's place in its image's list holds its own (see the
+        module docstring); every ordinary exception of an image's task is
+        collected, loader errors included.
     **options
         Passed to :func:`dtalign.pipeline.fit_polyline_products`.
 
@@ -499,25 +695,61 @@ def fit_images(
     TypeError
         On a malformed item, a bad ``workers`` type or an unknown option.
     ValueError
-        If ``workers < 1`` or ``executor`` is unknown; any error of a fit
-        (the first failing image's).
+        If ``workers < 1``, ``executor`` or ``errors`` is unknown; with
+        ``errors="raise"``, the first failing image's error.
     """
     n = _check_workers(workers)
-    if executor not in _EXECUTORS:
-        raise ValueError(f"executor must be one of {_EXECUTORS}, got {executor!r}")
+    collect = _check_errors(errors)
+    if not isinstance(executor, Executor) and executor not in _EXECUTORS:
+        raise ValueError(f"executor must be one of {_EXECUTORS} or an Executor, got {executor!r}")
     if config is not None and not isinstance(config, ImageDerivativesConfig):
         raise TypeError(f"config must be an ImageDerivativesConfig, got {type(config).__name__}")
     _check_options(options)
     jobs = [
-        (*_image_parts(item, i), search_window_vu, config, options)
+        (*_image_parts(item, i), search_window_vu, config, options, collect)
         for i, item in enumerate(items)
     ]
-    if executor == "thread" or n == 1 or len(jobs) <= 1:
-        out = map_ordered(_fit_image, jobs, workers=n)
+    if isinstance(executor, Executor):
+        results, failures = _on_executor(executor, jobs, not collect)
+    elif executor == "process" and n > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(max_workers=min(n, len(jobs))) as pool:
+            results, failures = _on_executor(pool, jobs, not collect)
     else:
-        pool: Executor
-        with ProcessPoolExecutor(max_workers=min(n, len(jobs), os.cpu_count() or 1)) as pool:
-            out = list(pool.map(_fit_image, jobs))
-    for i, fits in enumerate(out):  # logged here, in the caller's process
-        log_fits(fits, f"items[{i}].polylines")
-    return out
+        results, failures = _shielded(lambda abort: _run_ordered(
+            lambda i, a: _fit_image(jobs[i], a), len(jobs), n, stop_early=not collect,
+            abort=abort))
+    for i, exc in sorted(failures.items()):
+        image = jobs[i][0]
+        label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
+        if not collect:
+            raise _named(exc, label, i)
+        results[i] = _named(exc, label, i)
+    for i, fits in enumerate(results):  # logged here, in the caller's process
+        if isinstance(fits, Exception):
+            logger.warning("%s", fits)
+        else:
+            _log(fits, f"items[{i}].polylines")
+    return results
+
+
+def _on_executor(
+    pool: Executor, jobs: list[Any], stop_early: bool
+) -> tuple[list[Any], dict[int, Exception]]:
+    """:func:`_fit_image` of each job on ``pool``, like :func:`_run_ordered`:
+    every image is submitted; once one fails (``stop_early``), or on any
+    other exception, the ones not started yet are cancelled."""
+    futures = [pool.submit(_fit_image, job) for job in jobs]
+    results: list[Any] = [None] * len(jobs)
+    errors: dict[int, Exception] = {}
+    try:
+        for i, future in enumerate(futures):
+            try:
+                results[i] = future.result()
+            except Exception as exc:  # the image's error, reported in input order
+                errors[i] = exc
+                if stop_early:
+                    break
+    finally:
+        for future in futures:
+            future.cancel()
+    return results, errors

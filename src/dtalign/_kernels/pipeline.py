@@ -1,16 +1,15 @@
 """Many polylines against one image in one compiled loop: coarse search, then LM.
 
-A pipeline fit is ~0.2 ms of compiled work; the Python around each call
-(argument unboxing, result tuples) holds the GIL, which is what stops two
-threads from fitting twice as fast. Here a whole list of polylines runs
-with the GIL released, and several threads can run the same loop over
-the same list: each takes the next polyline from a shared counter, so a
-thread on a slower core simply fits fewer. The LM is exactly the kernel,
-with exactly the argument types, that :func:`dtalign.lm_subpixel_refine`
-calls; the coarse search scores the same pixel pairs as
-:func:`dtalign.coarse.coarse_search_vertices`, from one index of the edge
-mask (where the sparse search serves) instead of a scan of a box per
-polyline. Results are bit-identical to fitting the polylines one by one.
+A pipeline fit is ~0.1 ms of compiled work; the Python around each call
+(argument unboxing, result tuples) holds the GIL. Here a range of
+polylines runs with the GIL released, from the coarse search to the LM's
+results, so threads of :func:`dtalign.batch.fit_many` fit in parallel and
+hold the GIL only to call this loop and wrap its results. The LM is exactly
+the kernel, with exactly the argument types, that
+:func:`dtalign.lm_subpixel_refine` calls; the coarse search scores the same
+pixel pairs as :func:`dtalign.coarse.coarse_search_vertices`, from one index
+of the edge mask (where the sparse search serves) instead of a scan of a box
+per polyline. Results are bit-identical to fitting the polylines one by one.
 """
 
 from __future__ import annotations
@@ -19,7 +18,6 @@ import numpy as np
 
 from .._constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION as SEED_SUPPORT
 from .._jit import kernel
-from .atomics import fetch_add, fetch_min, load, store
 from .coarse import (
     best_scored,
     dense_ok,
@@ -33,47 +31,32 @@ from .coarse import (
 from .fit import OK, fit
 from .polarity_search import polarity_search
 
-#: ``tickets[NEXT]``: the next polyline to take; ``tickets[FIRST_ERROR]``:
-#: the first polyline that failed (the count while none has).
-NEXT = 0
-FIRST_ERROR = 1
-
 
 @kernel
 def fit_polylines(
     edge, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
     rotation0, use_polarity, fit_rotation, max_iterations, damping, step_tolerance, tukey_c,
     rcond, trust_region, tikhonov_alpha, ridge, ridge_half, ridge_sample_step,
-    ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm, tickets,
-    errors, finished, stop_at, coarse, poses, iterations, converged, covs, rms, raw_rms,
-    inliers, degenerate, r_all, w_all,
+    ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm, lo, hi,
+    errors, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
+    r_all, w_all,
 ):  # pragma: no cover - compiled
-    """Fit polylines ``j`` (rows ``starts[j]:starts[j+1]`` of the concatenated
-    ``pts, nrm, sig``) taken in turn from ``tickets`` (:data:`NEXT`), writing
-    row ``j`` of the outputs, until none is left or one before it has failed.
+    """Fit polylines ``j`` in ``lo:hi`` (rows ``starts[j]:starts[j+1]`` of the
+    concatenated ``pts, nrm, sig``), writing row ``j`` of the outputs.
 
-    The coarse search is :func:`~dtalign._kernels.coarse.search_support`'s:
+    The seed is the pipeline's (:func:`dtalign._fitjobs.seed_of`): the
+    polarity-weighted search with polarity, else the scored overlap search,
     dense where it serves, else against an index of the edge mask built on
-    first need. A failing polyline gets its error
-    code in ``errors[j]`` and lowers ``tickets[FIRST_ERROR]`` to ``j``; no
-    thread then takes a polyline after it, and every polyline before it is
-    fitted (each was taken before it), as the serial loop stops at the first
-    raised error. A fitted polyline's ``finished[j]`` is set to 1 after its
-    rows are written (see :func:`finished_until`). The call stops taking
-    polylines once the next one is ``stop_at`` or later (``k``: once none is
-    left; a thread that read the counter just before another took a ticket
-    may take one past ``stop_at``). Returns the number of polylines it fitted.
+    first need. A failing polyline gets its error code in ``errors[j]`` (its
+    other rows are left as they were) and the loop goes on. Returns the first
+    ``j`` that failed, ``hi`` if none did.
     """
-    k = starts.shape[0] - 1
     h, w = edge.shape
     edge_flat, _ = flat_words(edge)
     row_start = e_cols = np.zeros(0, dtype=np.int64)
     indexed = False
-    done = 0
-    while load(tickets, NEXT) < stop_at:
-        j = fetch_add(tickets, NEXT, 1)
-        if j >= k or j > load(tickets, FIRST_ERROR):
-            return done
+    first_failed = hi
+    for j in range(lo, hi):
         a = starts[j]
         b = starts[j + 1]
         p = pts[a:b]
@@ -87,7 +70,7 @@ def fit_polylines(
                 counts = in_image_counts(sv, su, h, w, mv, mu)
                 dv, du, _ = best_scored(overlap, counts, sv.shape[0], mv, mu, floor)
             else:
-                if not indexed:  # one scan of the edge mask for this thread's polylines
+                if not indexed:  # one scan of the edge mask for the range's polylines
                     row_start, e_cols = edge_index(edge)
                     indexed = True
                 dv, du, _ = search_index_scored(row_start, e_cols, sv, su, h, w, mv, mu, floor)
@@ -105,10 +88,9 @@ def fit_polylines(
             tikhonov_alpha, ridge, ridge_half, ridge_sample_step, ridge_max_iterations,
             ridge_step_tolerance, ridge_max_displacement, use_libm,
         )
-        done += 1
+        errors[j] = error
         if error != OK:
-            errors[j] = error
-            fetch_min(tickets, FIRST_ERROR, j)
+            first_failed = min(first_failed, j)
             continue
         coarse[j, 0] = dv
         coarse[j, 1] = du
@@ -122,16 +104,4 @@ def fit_polylines(
         degenerate[j] = deg
         r_all[a:b] = r
         w_all[a:b] = wt
-        store(finished, j, 1)
-    return done
-
-
-@kernel
-def finished_until(finished, start):  # pragma: no cover - compiled
-    """The first ``j >= start`` whose ``finished[j]`` is not set: rows
-    ``start:j`` of :func:`fit_polylines`' outputs are written and may be read
-    while other threads still fit."""
-    j = start
-    while j < finished.shape[0] and load(finished, j) != 0:
-        j += 1
-    return j
+    return first_failed

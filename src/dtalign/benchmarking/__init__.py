@@ -59,6 +59,8 @@ from .timing import (
 from .timing import alternate as alternate
 from .timing import peak_bytes as peak_bytes
 from .workloads import BATCH_FITS as BATCH_FITS
+from .workloads import BATCH_IMAGES as BATCH_IMAGES
+from .workloads import BATCH_IMAGES_TARGET as BATCH_IMAGES_TARGET
 from .workloads import BATCH_TARGET as BATCH_TARGET
 from .workloads import DERIVATIVE_TEMPORARIES_TARGET as DERIVATIVE_TEMPORARIES_TARGET
 from .workloads import (

@@ -23,6 +23,8 @@ import numpy as np
 
 from .workloads import (
     BATCH_FITS,
+    BATCH_IMAGES,
+    BATCH_IMAGES_TARGET,
     BATCH_TARGET,
     DESCRIPTIONS,
     NOISE_OVERHEAD_TARGET,
@@ -208,24 +210,32 @@ def measure_noise_overhead(inputs: Inputs, repeats: int, min_sample_s: float) ->
 
 def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]:
     """A no-argument run of the compiled loop :func:`~dtalign.batch.fit_many`
-    runs (coarse search and LM of every polyline, GIL released throughout)
-    on ``workers`` threads, its inputs checked and prepared once here: what
-    ``fit_many`` costs without its Python (checks and result objects)."""
-    from .._fitjobs import loop_inputs
-    from .._kernels.pipeline import NEXT, fit_polylines
-    from ..batch import _plan_batch, _polyline_parts, _run_threads
+    calls (coarse search and LM, GIL released), over ``workers`` contiguous
+    chunks of the polylines on as many threads, its inputs checked and
+    prepared once here: what ``fit_many`` costs without its Python (checks,
+    a call per polyline, result objects)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .._fitjobs import _deps, loop_inputs, plan, prepare
+    from ..batch import _FIT_DEFAULTS, _polyline_parts
 
     parts = [_polyline_parts(p, i) for i, p in enumerate(polylines)]
-    shared, batch, error = _plan_batch(products, parts, (30, 30), {"trust_region_px": 1.0})
+    lm = {**_FIT_DEFAULTS, "trust_region_px": 1.0}
+    del lm["seeds"], lm["ambiguity"]  # the examination after the loop: not the loop
+    shared, first = plan(products, *parts[0], search_window_vu=(30, 30),
+                         fit_rotation=lm.pop("fit_rotation"), pivot_vu=lm.pop("pivot_vu"),
+                         pivot_distance_px=lm.pop("pivot_distance_px"), lm_options=lm)
+    batch, error = prepare(shared, parts, first)
     if error is not None:
         raise error
-    args, tickets, _, finished, out = loop_inputs(shared, batch)
-    to_end = (*args, batch.n, *out)
+    args, codes, out = loop_inputs(shared, batch)
+    fit_polylines = _deps().fit_polylines
+    bounds = [batch.n * w // workers for w in range(workers + 1)]
 
     def call() -> None:
-        tickets[NEXT] = 0
-        finished[:] = 0
-        _run_threads(lambda: fit_polylines(*to_end), workers)
+        with ThreadPoolExecutor(workers) as pool:
+            list(pool.map(lambda w: fit_polylines(*args, bounds[w], bounds[w + 1], codes, *out),
+                          range(workers)))
 
     return call
 
@@ -235,8 +245,8 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
 
     ``batch_64_fits``: :func:`~dtalign.batch.fit_many`, 64 fits (the three
     navigation polylines in turn) against one image's products.
-    ``batch_images``: :func:`~dtalign.batch.fit_images`, 4 navigation
-    images of 3 polylines each (informational). Each is alternated with a
+    ``batch_images``: :func:`~dtalign.batch.fit_images`, 16 navigation
+    images of 3 polylines each. Each is alternated with a
     control, SHA-256 of 512 KiB blocks on the same pool (C code that releases
     the GIL): its ratio (``control_ratio``) is what the machine allowed at
     that moment; below ~1.8 another process held the second core. A second
@@ -259,16 +269,19 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     scene = scenes.navigation_scene()
     products = prepare_image(scene.image, scene.noise_sigma)
     polys = [scene.polylines[i % len(scene.polylines)] for i in range(BATCH_FITS)]
-    images = [scenes.navigation_scene(seed=k) for k in range(4)]
+    images = [scenes.navigation_scene(seed=k) for k in range(BATCH_IMAGES)]
     cases = {
+        # ambiguity=False: the fits alone, not the rival-basin examination
+        # (~30x a fit), whose scaling is that of dtalign.hypotheses
         "batch_64_fits": (
             f"fit_many: {BATCH_FITS} fits on one image, 1 vs 2 threads", BATCH_TARGET,
             lambda w: fit_many(products, polys, search_window_vu=(30, 30), workers=w,
-                               trust_region_px=1.0)),
+                               trust_region_px=1.0, ambiguity=False)),
         "batch_images": (
-            "fit_images: 4 images x 3 polylines, 1 vs 2 threads", None,
+            f"fit_images: {BATCH_IMAGES} images x 3 polylines, 1 vs 2 threads",
+            BATCH_IMAGES_TARGET,
             lambda w: fit_images(images, search_window_vu=(30, 30), workers=w,
-                                 trust_region_px=1.0)),
+                                 trust_region_px=1.0, ambiguity=False)),
     }
     # Control: a C routine that releases the GIL (SHA-256 of 512 KiB), run the
     # same way. If it does not scale either, the machine had no free core.
