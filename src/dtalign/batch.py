@@ -5,7 +5,7 @@ in parallel. :func:`fit_many` fits many polylines against one image's
 products: the first polyline and the shared options are checked as
 :func:`~dtalign.pipeline.fit_polyline_products` checks them, the others in
 bulk, then each polyline is one call of a compiled loop
-(:mod:`dtalign._kernels.pipeline`: coarse search and LM, GIL released).
+(``dtalign._kernels.pipeline``: coarse search and LM, GIL released).
 :func:`fit_images` prepares and fits many images, one image per task;
 :func:`map_ordered` is ``[fn(x) for x in items]`` on threads. Results come
 in input order, equal to the serial calls' (the kernels are deterministic
@@ -17,7 +17,7 @@ Threads and interrupts
 Each call makes its own :class:`~concurrent.futures.ThreadPoolExecutor` and
 shuts it down before it returns, so no thread, queue or flag outlives a
 call to be found by the next one. Its workers take the next item from the
-call's queue (a :class:`collections.deque`, whose ``popleft`` is
+call's queue (a ``collections.deque``, whose ``popleft`` is
 thread-safe): a thread on a slower core simply takes fewer. Called from the
 main thread, where Python runs signal handlers, the batch runs entirely in
 the pool and the calling thread only waits, so an exception a handler
