@@ -277,9 +277,7 @@ def test_fit_many_rotation_pivot_spread_error_in_the_middle(products, polylines)
     items = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines[:4]]
     items[2] = (np.full((6, 2), 1e308), polylines[2].normals_vu[:6], polylines[2].sigmas[:6])
     # (2 * (v - pivot) must stay finite: 2 * (1e308 + 1e307) does not, 2 * (256 + 1e307) does)
-    # (ambiguity=False: the rival-basin examination's covariance overflows for so far a pivot)
-    options = {"fit_rotation": True, "pivot_vu": (-1e307, 0.0), "pivot_distance_px": 50.0,
-               "ambiguity": False}
+    options = {"fit_rotation": True, "pivot_vu": (-1e307, 0.0), "pivot_distance_px": 50.0}
     expected = _serial_error(products, items, **options)
     assert expected is not None
     with pytest.raises(type(expected)):  # polyline 2 alone: the serial loop's error is its own

@@ -249,6 +249,18 @@ ALONG_EDGE_PEAKS = 12
 DEFAULT_SEEDS = 1
 
 
+def _unobservable(fit: Any) -> NDArray[np.float64]:
+    """The fit's unobservable directions as rows; none when they cannot be
+    formed (an information matrix that overflows: the pose is then not
+    examined along any direction)."""
+    try:
+        return np.asarray(fit.unobservable_directions, dtype=np.float64).reshape(
+            -1, 3 if fit.fit_rotation else 2
+        )
+    except (ValueError, FloatingPointError, OverflowError):
+        return np.zeros((0, 3 if fit.fit_rotation else 2))
+
+
 def check_seeds(seeds: Any) -> int:
     """The number of starts: a positive int."""
     if isinstance(seeds, bool) or not isinstance(seeds, (int, np.integer)) or seeds < 1:
@@ -293,13 +305,22 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
         )
 
     fits = [("seed 1", fit.coarse_offset_vu, math.nan, fit)]
+
+    def start(source: str, seed: tuple[int, int], score: float) -> None:
+        # A start that cannot be fitted (its LM diverged on an extreme input)
+        # is no hypothesis: the examination never fails a fit that succeeded.
+        try:
+            fits.append((source, seed, score, refit(seed)))
+        except (ValueError, FloatingPointError, OverflowError):
+            pass
+
     # the surface the pipeline's seed came from (dtalign._fitjobs.seed_of)
     clipped = (shared.mv, shared.mu)
     polarity = {"normals_vu": item.normals, "image_gradient_vu": grad} if lm.use_polarity else {}
     # Along an unobservable direction (a straight edge) the peaks of one edge
     # repeat along it; the starts wanted are peaks across it, so more peaks
     # are drawn and those that only slide along the first seed's edge skipped.
-    basis = _translation_basis(np.asarray(fit.unobservable_directions))
+    basis = _translation_basis(_unobservable(fit))
     wanted = max(seeds, 2) - 1
     peaks = top_k_seeds(shared.edge, item.vertices, clipped,
                         k=wanted + 1 + (ALONG_EDGE_PEAKS if basis.shape[1] else 0), **polarity)
@@ -308,7 +329,7 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
         across = d - basis @ (basis.T @ d) if basis.shape[1] else d
         if wanted == 0 or not np.hypot(across[0], across[1]) > BASIN_RADIUS_PX:
             continue
-        fits.append((f"seed {j}", peak.offset_vu, peak.score, refit(peak.offset_vu)))
+        start(f"seed {j}", peak.offset_vu, peak.score)
         wanted -= 1
     if not fit.lm.degenerate:
         placed = _rotate_vertices(item.vertices, item.pivot, fit.rotation_rad)
@@ -317,7 +338,7 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
         # the same, so the best rival of the whole window lies there; the
         # rival across the edge is sought with the window closed along the
         # image axis nearest that direction.
-        for k, direction in enumerate(np.asarray(fit.unobservable_directions)[:, :2]):
+        for k, direction in enumerate(_unobservable(fit)[:, :2]):
             if np.hypot(direction[0], direction[1]) > 0.5:
                 closed = (0, window[1]) if abs(direction[0]) > abs(direction[1]) else (window[0], 0)
                 scans.append((f"basin across {k + 1}", closed))
@@ -327,7 +348,7 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
                 exclude_radius_px=BASIN_RADIUS_PX, min_support_fraction=0.5,
             )
             if rival is not None:
-                fits.append((source, rival.offset_vu, math.nan, refit(rival.offset_vu)))
+                start(source, rival.offset_vu, math.nan)
     hypotheses = []
     for source, seed, score, f in fits:
         cost, inliers = cost_of(f)
@@ -342,8 +363,7 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
             if h.cost < hypotheses[best].cost:
                 best = j
     chosen = fits[best][3]
-    amb = ambiguity_of(hypotheses[best], tuple(hypotheses),
-                       np.asarray(chosen.unobservable_directions), n)
+    amb = ambiguity_of(hypotheses[best], tuple(hypotheses), _unobservable(chosen), n)
     timings = dict(chosen.timings_s)
     timings["hypotheses"] = time.perf_counter() - t0
     return dataclasses.replace(
