@@ -25,6 +25,7 @@ pytest.importorskip("pyarrow")
 
 from dtalign import io, pipeline  # noqa: E402
 from dtalign.archive import Store, make_example, read_manifest, run, write_manifest  # noqa: E402
+from dtalign.archive.tasks import _status  # noqa: E402
 from dtalign.cli import main  # noqa: E402
 
 #: Bounds every wait on the cluster: far above what a loaded 2-core machine needs.
@@ -110,6 +111,7 @@ def assert_store_matches_serial(store_path, manifest, *, expect_all=True):
             assert r["inlier_count"] == fit.inlier_count
             assert r["noise_sigma"] == fit.noise_sigma
             assert r["item_fingerprint"] == item.fingerprint
+            assert (r["status"], r["reasons"]) == _status(fit)
     good = {k for k, i in items.items() if k not in ("missing", "corrupt")}
     if expect_all:
         assert set(by_item) == good
