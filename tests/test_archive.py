@@ -314,3 +314,11 @@ def test_a_task_logs_no_per_fit_warnings(example, caplog):
     assert [r for r in caplog.records if r.levelno >= logging.WARNING] == []
     logging.getLogger("dtalign").warning("still reported outside a task")
     assert caplog.records[-1].getMessage() == "still reported outside a task"
+
+
+def test_cli_exit_codes_agree_with_dtalign_fit():
+    from dtalign import cli
+    from dtalign.archive import cli as archive_cli
+
+    assert archive_cli.EXIT_FIT_FAILED == cli.EXIT_FIT_FAILED
+    assert archive_cli.EXIT_INTERRUPTED == cli.EXIT_INTERRUPTED

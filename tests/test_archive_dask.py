@@ -36,7 +36,8 @@ TIMEOUT_S = 120
 def cluster():
     """Two worker processes of one thread each, as ``dtalign archive`` starts them."""
     with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+        scheduler_kwargs={"dashboard_address": ":0"},
     ) as c, distributed.Client(c) as client:
         yield c, client
 
@@ -188,6 +189,13 @@ def test_cli_on_an_existing_scheduler(cluster, frames, tmp_path, capsys):
     assert_store_matches_serial(tmp_path / "store", manifest)
     assert main([*argv, "--workers", "2"]) == 1
     assert "--workers starts a local cluster" in capsys.readouterr().err
+    # No failed item: 3 exactly when some stored fit's status is "failed", as dtalign fit.
+    good = campaign(frames, tmp_path / "good.jsonl", 4)
+    code = main(["archive", str(good), "--out", str(tmp_path / "good"),
+                 "--scheduler", c.scheduler_address, "--no-progress"])
+    statuses = Store(tmp_path / "good").results(["status"])["status"].to_pylist()
+    assert len(statuses) == 12
+    assert code == (3 if "failed" in statuses else 0)
 
 
 # --------------------------------------------------------------------------- faults
