@@ -389,12 +389,6 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
              max_pending: int) -> None:
     distributed = _dask()
     summary.workers = len(client.nthreads())
-    if warm:
-        from ._plugin import WarmNumba
-
-        t0 = time.perf_counter()
-        client.register_plugin(WarmNumba())
-        summary.warm_s = time.perf_counter() - t0
     writer = _Writer(store, summary, flush_items, flush_seconds)
     bar = _progress(len(todo), progress)
     queue = iter(enumerate(todo))
@@ -413,6 +407,12 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
             completed.add(fut)
 
     try:
+        if warm:  # inside the try: a Ctrl-C during a long first compile is handled too
+            from ._plugin import WarmNumba
+
+            t0 = time.perf_counter()
+            client.register_plugin(WarmNumba())
+            summary.warm_s = time.perf_counter() - t0
         submit(max_pending)
         for fut in completed:
             item = futures.pop(fut)
