@@ -298,3 +298,27 @@ def test_cli_window_is_checked(tmp_path, capsys):
     assert "--window takes one int or two" in capsys.readouterr().err
     assert main(["archive", str(manifest), "--out", str(tmp_path / "s"), "--window", "1,2,3"]) == 1
     assert "window must be an int or a list of two ints" in capsys.readouterr().err
+
+
+def test_a_task_logs_no_per_fit_warnings(example, caplog):
+    import logging
+
+    from dtalign.archive.tasks import warm_up
+
+    item = read_manifest(example)[0]
+    bad = Item(**{**item.__dict__, "window": (1, 1)})  # seeds on the window edge: flagged fits
+    with caplog.at_level(logging.INFO, logger="dtalign"):
+        rows = fit_item(bad)["results"]
+        warm_up()
+    assert rows and any(r["status"] not in (None, "ok") for r in rows)
+    assert [r for r in caplog.records if r.levelno >= logging.WARNING] == []
+    logging.getLogger("dtalign").warning("still reported outside a task")
+    assert caplog.records[-1].getMessage() == "still reported outside a task"
+
+
+def test_cli_exit_codes_agree_with_dtalign_fit():
+    from dtalign import cli
+    from dtalign.archive import cli as archive_cli
+
+    assert archive_cli.EXIT_FIT_FAILED == cli.EXIT_FIT_FAILED
+    assert archive_cli.EXIT_INTERRUPTED == cli.EXIT_INTERRUPTED

@@ -25,6 +25,7 @@ pytest.importorskip("pyarrow")
 
 from dtalign import io, pipeline  # noqa: E402
 from dtalign.archive import Store, make_example, read_manifest, run, write_manifest  # noqa: E402
+from dtalign.archive.tasks import _status  # noqa: E402
 from dtalign.cli import main  # noqa: E402
 
 #: Bounds every wait on the cluster: far above what a loaded 2-core machine needs.
@@ -35,7 +36,8 @@ TIMEOUT_S = 120
 def cluster():
     """Two worker processes of one thread each, as ``dtalign archive`` starts them."""
     with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+        scheduler_kwargs={"dashboard_address": ":0"},
     ) as c, distributed.Client(c) as client:
         yield c, client
 
@@ -110,6 +112,7 @@ def assert_store_matches_serial(store_path, manifest, *, expect_all=True):
             assert r["inlier_count"] == fit.inlier_count
             assert r["noise_sigma"] == fit.noise_sigma
             assert r["item_fingerprint"] == item.fingerprint
+            assert (r["status"], r["reasons"]) == _status(fit)
     good = {k for k, i in items.items() if k not in ("missing", "corrupt")}
     if expect_all:
         assert set(by_item) == good
@@ -186,6 +189,13 @@ def test_cli_on_an_existing_scheduler(cluster, frames, tmp_path, capsys):
     assert_store_matches_serial(tmp_path / "store", manifest)
     assert main([*argv, "--workers", "2"]) == 1
     assert "--workers starts a local cluster" in capsys.readouterr().err
+    # No failed item: 3 exactly when some stored fit's status is "failed", as dtalign fit.
+    good = campaign(frames, tmp_path / "good.jsonl", 4)
+    code = main(["archive", str(good), "--out", str(tmp_path / "good"),
+                 "--scheduler", c.scheduler_address, "--no-progress"])
+    statuses = Store(tmp_path / "good").results(["status"])["status"].to_pylist()
+    assert len(statuses) == 12
+    assert code == (3 if "failed" in statuses else 0)
 
 
 # --------------------------------------------------------------------------- faults

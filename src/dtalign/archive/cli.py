@@ -3,9 +3,11 @@
 :mod:`dtalign.cli` adds this parser to its subcommands and calls
 :func:`command`; nothing here imports Dask until a run starts.
 
-Exit status: 0 when every item of the manifest is done, 1 when any is
-failed (listed in the store's failures table), 130 after Ctrl-C (what had
-finished is in the store: run the same command again to resume).
+Exit status, as ``dtalign fit``'s: 0 when every item is done and no fit
+failed, 1 when an item is failed (listed in the store's failures table),
+3 when every item is done but the status of some fit is ``failed`` (the
+store's ``status`` column), 130 after Ctrl-C (what had finished is in the
+store: run the same command again to resume).
 """
 
 from __future__ import annotations
@@ -18,6 +20,10 @@ __all__ = ["add_parser", "command"]
 
 #: The exit status after Ctrl-C (128 + SIGINT), as shells report it.
 EXIT_INTERRUPTED = 130
+
+#: Every item done, some fit's status ``failed``: ``dtalign fit``'s code for it
+#: (dtalign.cli.EXIT_FIT_FAILED; not imported, dtalign.cli imports this module).
+EXIT_FIT_FAILED = 3
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -93,7 +99,8 @@ def command(args: argparse.Namespace) -> int:
               "command again to resume", file=sys.stderr)
         return EXIT_INTERRUPTED
     print(summary)
-    table = Store(args.out).failures(["item_id", "error"])
+    store = Store(args.out)
+    table = store.failures(["item_id", "error"])
     # The last attempt's error of each item still failed.
     latest = dict(zip(table["item_id"].to_pylist(), table["error"].to_pylist(), strict=True))
     for item_id, error in latest.items():
@@ -102,4 +109,9 @@ def command(args: argparse.Namespace) -> int:
         print(f"dtalign: {len(latest)} item(s) failed (the store's failures table)",
               file=sys.stderr)
         return 1
+    failed_fits = store.results(["status"])["status"].to_pylist().count("failed")
+    if failed_fits:
+        print(f"dtalign: {failed_fits} fit(s) in {args.out} have status failed "
+              "(the status and reasons columns say why)", file=sys.stderr)
+        return EXIT_FIT_FAILED
     return 0

@@ -68,6 +68,10 @@ class RunSummary:
         Of those, the items stored with results, and with a failure.
     rows : int
         Result rows written (one per polyline).
+    flagged_rows : int
+        Of those, the fits whose ``status`` is not ``"ok"`` (suspect or
+        failed: the ``status`` and ``reasons`` columns say why); 0 with a
+        ``dtalign`` whose fits carry no status.
     interrupted : bool
         True when Ctrl-C stopped the run (the store holds what had finished).
     elapsed_s, warm_s, store_s : float
@@ -89,6 +93,7 @@ class RunSummary:
     done: int = 0
     failed: int = 0
     rows: int = 0
+    flagged_rows: int = 0
     interrupted: bool = False
     elapsed_s: float = 0.0
     warm_s: float = 0.0
@@ -102,6 +107,8 @@ class RunSummary:
             f"{self.done} item(s) done, {self.failed} failed ({self.rows} result rows), "
             f"{self.skipped_done} already done"
         )
+        if self.flagged_rows:
+            text += f", {self.flagged_rows} fit(s) suspect or failed (status column)"
         if self.skipped_failed:
             text += f", {self.skipped_failed} failed earlier (--retry-failed to redo)"
         text += (f"; {self.elapsed_s:.1f} s on {self.workers} worker(s) (warm-up {self.warm_s:.1f} s); "
@@ -231,6 +238,7 @@ class _Writer:
             s.store_s += time.perf_counter() - t0
             s.store_parts += bool(self.results) + bool(self.failures)
             s.rows += len(self.results)
+            s.flagged_rows += sum(r.get("status") not in (None, "ok") for r in self.results)
             s.failed += len(self.failures)
             s.done += self.items - len(self.failures)
             self.results, self.failures, self.items = [], [], 0
@@ -381,12 +389,6 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
              max_pending: int) -> None:
     distributed = _dask()
     summary.workers = len(client.nthreads())
-    if warm:
-        from ._plugin import WarmNumba
-
-        t0 = time.perf_counter()
-        client.register_plugin(WarmNumba())
-        summary.warm_s = time.perf_counter() - t0
     writer = _Writer(store, summary, flush_items, flush_seconds)
     bar = _progress(len(todo), progress)
     queue = iter(enumerate(todo))
@@ -405,6 +407,12 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
             completed.add(fut)
 
     try:
+        if warm:  # inside the try: a Ctrl-C during a long first compile is handled too
+            from ._plugin import WarmNumba
+
+            t0 = time.perf_counter()
+            client.register_plugin(WarmNumba())
+            summary.warm_s = time.perf_counter() - t0
         submit(max_pending)
         for fut in completed:
             item = futures.pop(fut)
