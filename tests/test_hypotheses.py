@@ -190,3 +190,18 @@ def test_no_confidently_wrong_fit_on_a_fixed_subset_of_the_hard_scenes():
     for p_row, m_row in zip(plain, multi, strict=True):
         assert m_row.confidently_wrong == 0.0, m_row.family
         assert m_row.correct >= p_row.correct, m_row.family
+
+
+def test_the_cli_prints_the_ambiguity(tmp_path):
+    import subprocess
+    import sys
+
+    def run(*argv):
+        return subprocess.run([sys.executable, "-m", "dtalign", *argv], capture_output=True,
+                              text=True, timeout=600, cwd=tmp_path)
+
+    assert run("demo", "--save", "data").returncode == 0
+    proc = run("fit", "data/demo.npy", "data/demo.csv", "--window", "30")
+    assert proc.returncode == 0, proc.stderr
+    line = next(x for x in proc.stdout.splitlines() if x.startswith("ambiguity"))
+    assert "costs" in line or "no rival" in line

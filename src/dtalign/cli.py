@@ -746,10 +746,20 @@ def _table_single(job: _Job, poly: Any, fit: Any) -> str:
         f"degenerate={fit.degenerate}",
     ]
     lines.append(f"status       : {fit.status_message}")
+    amb = fit.ambiguity
+    if amb is not None:
+        rival = (
+            "no rival basin across the edge" if amb.rival is None
+            else f"best rival basin at ({amb.rival.offset_vu[0]:.2f}, {amb.rival.offset_vu[1]:.2f})"
+            f" costs {amb.ratio:.2f}x this fit"
+        )
+        lines.append(f"ambiguity    : {rival} ({len(fit.hypotheses)} hypotheses; "
+                     "ambiguous below 1.5x)")
     t = fit.timings_s
     lines.append(
         "wall time    : "
-        + ", ".join(f"{k} {t[k] * 1e3:.1f} ms" for k in ("noise", "derivatives", "coarse", "lm") if k in t)
+        + ", ".join(f"{k} {t[k] * 1e3:.1f} ms"
+                    for k in ("noise", "derivatives", "coarse", "lm", "hypotheses") if k in t)
     )
     return "\n".join(lines)
 

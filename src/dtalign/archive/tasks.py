@@ -49,6 +49,17 @@ def _now() -> datetime.datetime:
     return datetime.datetime.now(datetime.timezone.utc)
 
 
+def _ambiguity(fit: Any) -> dict[str, float | None]:
+    """The ambiguity columns of a fit examined against rival basins (issue 17)."""
+    amb = getattr(fit, "ambiguity", None)
+    rival = None if amb is None else amb.rival
+    return {
+        "ambiguity_ratio": None if amb is None else _f(amb.ratio),
+        "rival_offset_v": None if rival is None else _f(rival.offset_vu[0]),
+        "rival_offset_u": None if rival is None else _f(rival.offset_vu[1]),
+    }
+
+
 def _status(fit: Any) -> tuple[str | None, list[str] | None]:
     """The fit's status and reasons, if its result type has them.
 
@@ -140,6 +151,7 @@ def fit_rows(item: Item, fits: list[Any], timings: dict[str, Any], *, run_id: st
             "polarity_rejected_count": int(getattr(fit.lm, "polarity_rejected_count", 0)),
             "observable_rank": int(fit.observable_rank),
             "status": status, "reasons": reasons,
+            **_ambiguity(fit),
             "noise_sigma": _f(fit.noise_sigma),
             "noise_sigma_estimated": bool(timings.get("noise_sigma_estimated", False)),
             "fit_rotation": bool(fit.fit_rotation),
