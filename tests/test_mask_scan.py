@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtalign._kernels import bits, coarse
+from dtalign._kernels import coarse
+from dtalign._kernels.lanes import bits
 
 
 def _words(flat: np.ndarray) -> np.ndarray:

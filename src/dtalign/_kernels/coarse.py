@@ -6,7 +6,7 @@ For windows up to :data:`DENSE_MAX_COLUMNS` shifts wide, it adds the edge
 row under its window to a row of counters, 16 columns per vector add
 (:func:`overlap_dense`); for wider ones it visits only the edge pixels that
 can meet it (:func:`overlap_sparse`: work proportional to the pixel pairs
-within the window). Masks are scanned a word at a time (:mod:`.bits`).
+within the window). Masks are scanned a word at a time (:mod:`.lanes.bits`).
 Scores are the same integer ratios as the reference, and the argmax uses
 the same total order, so the result is identical.
 """
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel, kernel
-from .bits import fill
+from .lanes import fill
 from .pairwise import numpy_sum
 
 

@@ -12,7 +12,8 @@ import math
 import numpy as np
 
 from .._jit import kernel
-from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop, staging_buffers
+from .lanes import polarity, staging_buffers, summary_lanes
+from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop
 from .pairwise import numpy_sum
 from .ridge import (
     PATCH_MARGIN,
@@ -21,8 +22,7 @@ from .ridge import (
     magnitude_patch,
     ridge_loop,
 )
-from .robust import polarity, symmetric_pinvh
-from .simd import hsum, load4, positive_ones, splat
+from .robust import symmetric_pinvh
 
 #: The LM driver's polish samples its gradient vectors, not a magnitude image.
 _NO_MAGNITUDE = np.zeros((0, 0))
@@ -63,16 +63,7 @@ def _summary(r, w):  # pragma: no cover - compiled
     """``(inliers, sum(w), sum(w r^2))``, summed lane-wise as the LM's sums."""
     n = r.shape[0]
     n4 = n - n % 4
-    zero = splat(0.0)
-    count4 = total4 = weighted4 = zero
-    for i in range(0, n4, 4):
-        ri = load4(r, i)
-        wi = load4(w, i)
-        count4 += positive_ones(wi)
-        total4 += wi
-        weighted4 += wi * ri * ri
-    inliers = int(hsum(count4))  # exact: a count below 2**53
-    total, weighted = hsum(total4), hsum(weighted4)
+    inliers, total, weighted = summary_lanes(r, w, n4)
     for i in range(n4, n):
         if w[i] > 0.0:
             inliers += 1

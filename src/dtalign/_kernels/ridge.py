@@ -13,7 +13,8 @@ import math
 import numpy as np
 
 from .._jit import kernel
-from .lm import EPS_R, step_norm
+from .lanes import EPS_R
+from .lm import step_norm
 from .robust import irls_weight, normal_equations, solve_step
 from .sampling import TILE, bilinear, fill_tiles, sample_magnitude, transform
 

@@ -7,8 +7,6 @@ import math
 import numpy as np
 
 from .._jit import inline_kernel, kernel
-from .simd import MAX_ELEMENTS, store4
-from .simd_image import polarity4
 
 
 @inline_kernel
@@ -54,32 +52,15 @@ def _polarity_at(pts, nrm, grad, i, dv, du):  # pragma: no cover - compiled
 
 
 @kernel
-def polarity_one_by_one(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
-    """:func:`polarity`, vertex by vertex (what its four-vertex lanes must match)."""
-    out = np.zeros(pts.shape[0])
-    for i in range(pts.shape[0]):
-        out[i], bad = _polarity_at(pts, nrm, grad, i, dv, du)
-        if bad:
-            return out, True
-    return out, False
-
-
-@kernel
 def polarity(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
     """1.0 where the normal points up the gradient at the shifted pixel, else 0.0.
 
-    Also returns True if a gradient value it read was NaN or inf. Four
-    vertices at a time (:func:`.simd_image.polarity4`), the rest one by one.
+    Also returns True if a gradient value it read was NaN or inf (the flags
+    are then incomplete). Vertex by vertex: the plain twin of
+    :func:`dtalign._kernels.lanes.vector.polarity`.
     """
-    n = pts.shape[0]
-    out = np.zeros(n)
-    n4 = n - n % 4 if grad.size <= MAX_ELEMENTS else 0
-    for i in range(0, n4, 4):
-        flags, bad = polarity4(pts, nrm, grad, i, dv, du)
-        if bad:
-            return out, True
-        store4(out, i, flags)
-    for i in range(n4, n):
+    out = np.zeros(pts.shape[0])
+    for i in range(pts.shape[0]):
         out[i], bad = _polarity_at(pts, nrm, grad, i, dv, du)
         if bad:
             return out, True

@@ -14,7 +14,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from .._jit import inline_kernel, kernel
+from ..._jit import inline_kernel, kernel
 
 #: The lowest bit of every byte.
 LOW_BITS = np.uint64(0x0101010101010101)
