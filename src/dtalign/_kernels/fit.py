@@ -35,7 +35,7 @@ DIVERGED = 3  # a step or the normal equations overflowed to non-finite values
 
 
 @kernel
-def _failed(error, pose0, n, n_params):  # pragma: no cover - compiled
+def _failed(error, pose0, n, n_params):
     """The tuple :func:`fit` returns with an error code (the rest is unused)."""
     empty = np.zeros(n)
     return (error, pose0.copy(), 0, False, empty, empty.copy(), np.zeros((n_params, n)),
@@ -43,7 +43,7 @@ def _failed(error, pose0, n, n_params):  # pragma: no cover - compiled
 
 
 @kernel
-def accepted_raw_rms(r, pol):  # pragma: no cover - compiled
+def accepted_raw_rms(r, pol):
     """SPEC 8.1's ``raw_rms_px``: ``sqrt(mean(r**2))`` over the vertices the
     seed polarity mask accepted, summed as NumPy's ``mean`` sums (pairwise),
     so it equals the reference's bit for bit; ``+inf`` when none is."""
@@ -59,7 +59,7 @@ def accepted_raw_rms(r, pol):  # pragma: no cover - compiled
 
 
 @kernel
-def _summary(r, w):  # pragma: no cover - compiled
+def _summary(r, w):
     """``(inliers, sum(w), sum(w r^2))``, summed lane-wise as the LM's sums."""
     n = r.shape[0]
     n4 = n - n % 4
@@ -78,7 +78,7 @@ def fit(
     max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
     ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
     ridge_max_displacement, use_libm,
-):  # pragma: no cover - compiled
+):
     """SPEC section 3, steps 1-5.
 
     Returns ``(error, pose, iterations, converged, r, w, jac, covariance,
@@ -108,7 +108,7 @@ def fit_with_mask(
     max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
     ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
     ridge_max_displacement, use_libm,
-):  # pragma: no cover - compiled
+):
     """:func:`fit` from a given seed polarity mask ``pol`` (1.0 accepted, 0.0 not).
 
     With ``max_iterations == 0`` and no ridge it is SPEC section 3 step 3 and

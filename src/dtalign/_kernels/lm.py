@@ -33,7 +33,7 @@ LOOP_DIVERGED = 2  # the normal equations or a step overflowed
 def evaluate_state(
     dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad,
     samples, sampled, staging,
-):  # pragma: no cover - compiled
+):
     """State at ``pose``: residuals, IRLS weights and Jacobian into ``r, w, jac``,
     and ``H = A^T A``, ``g = A^T (sqrt(w) r)`` (``A = sqrt(w) J``) into
     ``hess, grad``.
@@ -102,7 +102,7 @@ def evaluate_state(
 
 
 @kernel
-def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging):  # pragma: no cover - compiled
+def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging):
     """``sum(w * r * r)`` with residuals at ``pose`` and fixed weights ``w``,
     summed lane-wise as :func:`evaluate_state` sums its cost; and whether
     the state at ``pose`` is readable.
@@ -127,7 +127,7 @@ def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging
 
 
 @kernel
-def step_norm(step, pivot_distance):  # pragma: no cover - compiled
+def step_norm(step, pivot_distance):
     if step.shape[0] == 2:
         return math.hypot(step[0], step[1])
     return math.sqrt(step[0] ** 2 + step[1] ** 2 + (step[2] * pivot_distance) ** 2)
@@ -137,7 +137,7 @@ def step_norm(step, pivot_distance):  # pragma: no cover - compiled
 def lm_loop(
     dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
     damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
-):  # pragma: no cover - compiled
+):
     """The fit of SPEC section 3 steps 2-3.
 
     ``trust_region < 0`` means no trust region. Returns the final pose

@@ -11,7 +11,7 @@ from .coarse import better
 
 
 @kernel
-def top_k(surface, mv, mu, k, separation):  # pragma: no cover - compiled
+def top_k(surface, mv, mu, k, separation):
     """Up to ``k`` local maxima of ``surface`` (rows ``dv + mv``, columns
     ``du + mu``; NaN marks a shift that is no candidate), best first in the
     coarse searches' order, each at least ``separation`` from those before.

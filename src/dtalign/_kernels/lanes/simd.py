@@ -289,6 +289,6 @@ _all_equal = _mask_test("_all_equal", "==", True, True)
 
 
 @inline_kernel
-def all_finite(x):  # pragma: no cover - compiled
+def all_finite(x):
     """Whether every lane of ``x`` is finite (``x - x`` is NaN for NaN and inf)."""
     return _all_equal(x - x, splat(0.0))
