@@ -2,9 +2,10 @@
 
 Both paths run in this one process: the package's kernels take whichever
 :data:`dtalign._kernels.lanes.VECTOR` selects (the vector code when Numba
-compiles), and :func:`_plain_graph` compiles a second copy of the LM's
-call graph (without caching) in which every name bound to a
-:mod:`.lanes.vector` kernel is bound to its :mod:`.lanes.plain` namesake.
+compiles normally, the plain one under ``NUMBA_BOUNDSCHECK=1``), and
+:func:`_twin_graph` compiles a second copy of the LM's call graph (without
+caching) in which every name bound to a lane kernel of one path is bound to
+its namesake of the other.
 Every parity case of ``_parity_cases`` is then fitted both ways and every
 output compared byte for byte; so are the kernels one by one, on inputs
 that reach their edge cases. The vector kernels are LLVM IR: with the JIT
@@ -36,14 +37,15 @@ pytestmark = pytest.mark.skipif(
 
 CASES = build_cases()
 
-#: The vector kernels by identity, each with its plain twin.
-TWINS = {id(getattr(vector, name)): getattr(plain, name) for name in vector.__all__
-         if callable(getattr(vector, name))}
+#: The lane kernels of the package's path by identity, each with its twin.
+_OURS, _OTHER = (vector, plain) if lanes.VECTOR else (plain, vector)
+TWINS = {id(getattr(_OURS, name)): getattr(_OTHER, name) for name in lanes.__all__
+         if name != "VECTOR" and callable(getattr(_OURS, name))}
 
 
-def _plain_graph(dispatcher: Any, memo: dict[int, Any], swapped: set[str]) -> Any:
-    """``dispatcher`` compiled again, uncached, with the plain twin in place of
-    every vector kernel it reaches; the dispatcher itself if it reaches none."""
+def _twin_graph(dispatcher: Any, memo: dict[int, Any], swapped: set[str]) -> Any:
+    """``dispatcher`` compiled again, uncached, with the twin in place of every
+    lane kernel it reaches; the dispatcher itself if it reaches none."""
     if id(dispatcher) in memo:
         return memo[id(dispatcher)]
     fn = dispatcher.py_func
@@ -54,7 +56,7 @@ def _plain_graph(dispatcher: Any, memo: dict[int, Any], swapped: set[str]) -> An
             swaps[name] = TWINS[id(value)]
             swapped.add(name)
         elif isinstance(value, CPUDispatcher) and value.py_func.__module__.startswith("dtalign._kernels"):
-            copy = _plain_graph(value, memo, swapped)
+            copy = _twin_graph(value, memo, swapped)
             if copy is not value:
                 swaps[name] = copy
     result = dispatcher
@@ -68,11 +70,11 @@ def _plain_graph(dispatcher: Any, memo: dict[int, Any], swapped: set[str]) -> An
 
 
 @pytest.fixture(scope="module")
-def plain_fit() -> Any:
-    assert lanes.VECTOR, "the package runs the vector kernels when Numba compiles"
+def twin_fit() -> Any:
+    """The compiled fit on the path the package does not take."""
     swapped: set[str] = set()
-    fit = _plain_graph(kfit.fit, {}, swapped)
-    # every lane kernel the fit calls was replaced (a miss would compare vector with vector)
+    fit = _twin_graph(kfit.fit, {}, swapped)
+    # every lane kernel the fit calls was replaced (a miss would compare a path with itself)
     assert swapped == {"sample_state", "lane_sums", "lane_cost", "summary_lanes", "polarity",
                        "staging_buffers"}
     return fit
@@ -99,12 +101,11 @@ def _kernel_inputs(case: ParityCase, derivatives: Any) -> tuple[Any, ...]:
     return _kernel_args(check_lm_inputs(dict(bound.arguments)))
 
 
-def test_every_parity_case_fits_to_the_same_bits_on_both_paths(plain_fit: Any, derivatives: Any) -> None:
+def test_every_parity_case_fits_to_the_same_bits_on_both_paths(twin_fit: Any, derivatives: Any) -> None:
     families = set()
     for case in CASES:
         args = _kernel_inputs(case, derivatives)
-        fast, slow = kfit.fit(*args), plain_fit(*args)
-        assert _same_bits(fast, slow), case.case_id
+        assert _same_bits(kfit.fit(*args), twin_fit(*args)), case.case_id
         families.add(case.family)
     assert len(CASES) > 100 and len(families) >= 10  # the whole sweep, every family
 

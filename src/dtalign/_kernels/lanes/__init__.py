@@ -31,7 +31,7 @@ from numba.core import config
 from .plain import EPS_R, EPS_T, PENALTY
 
 #: Whether the package's kernels run the four-lane vector code (see above).
-VECTOR: bool = not (config.DISABLE_JIT or config.BOUNDSCHECK)
+VECTOR: bool = not (config.DISABLE_JIT or config.BOUNDSCHECK)  # type: ignore[attr-defined]
 
 if VECTOR:
     from .vector import (
@@ -44,7 +44,7 @@ if VECTOR:
         summary_lanes,
     )
 else:
-    from .plain import (  # type: ignore[assignment]
+    from .plain import (
         fill,
         lane_cost,
         lane_sums,
