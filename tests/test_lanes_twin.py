@@ -98,7 +98,9 @@ def _kernel_inputs(case: ParityCase, derivatives: Any) -> tuple[Any, ...]:
               **case.lm_kwargs)
     bound = inspect.signature(dtalign.lm_subpixel_refine).bind(**kw)
     bound.apply_defaults()
-    return _kernel_args(check_lm_inputs(dict(bound.arguments)))
+    a = check_lm_inputs(dict(bound.arguments))
+    rest, grad = _kernel_args(a, a.final_gradient_ridge)
+    return (a.dt, grad, a.vertices, a.normals, a.sigmas, a.use_polarity, *rest)
 
 
 def test_every_parity_case_fits_to_the_same_bits_on_both_paths(twin_fit: Any, derivatives: Any) -> None:
