@@ -247,7 +247,7 @@ def secondary_basin(dt, pts, cdv, cdu, mv, mu, radius, min_support):
                 carried_steps += 1
                 dv = a - mv
                 du = b - mu
-                distance = math.hypot(dv - cdv, du - cdu)
+                distance = np.hypot(dv - cdv, du - cdu)
                 if distance <= radius:
                     continue
                 count = counts[a, b]

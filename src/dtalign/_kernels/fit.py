@@ -142,7 +142,7 @@ def fit_with_mask(
             return _failed(BAD_GRADIENT, pose0, n, n_params)
         if ridge_status == RIDGE_DIVERGED:
             return _failed(DIVERGED, pose0, n, n_params)
-        moved = math.hypot(new_pose[0] - pose[0], new_pose[1] - pose[1])
+        moved = np.hypot(new_pose[0] - pose[0], new_pose[1] - pose[1])
         if not (math.isfinite(new_pose[0]) and math.isfinite(new_pose[1])
                 and math.isfinite(new_pose[2])):
             return _failed(DIVERGED, pose0, n, n_params)

@@ -129,7 +129,7 @@ def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging
 @kernel
 def step_norm(step, pivot_distance):
     if step.shape[0] == 2:
-        return math.hypot(step[0], step[1])
+        return np.hypot(step[0], step[1])
     return math.sqrt(step[0] ** 2 + step[1] ** 2 + (step[2] * pivot_distance) ** 2)
 
 
@@ -209,7 +209,7 @@ def lm_loop(
             trial[a] = pose[a]
         for a in range(n_params):
             trial[a] = pose[a] + step[a]
-        if trust_region >= 0.0 and math.hypot(trial[0] - dv0, trial[1] - du0) > trust_region:
+        if trust_region >= 0.0 and np.hypot(trial[0] - dv0, trial[1] - du0) > trust_region:
             lam = min(2 * lam, LAMBDA_MAX)
             iterations += 1
             if lam >= LAMBDA_MAX:

@@ -35,7 +35,7 @@ def _weight(edge, grad, r, c, nhv, nhu):
         return 0.0
     gv = grad[r, c, 0]
     gu = grad[r, c, 1]
-    s = math.hypot(gv, gu)
+    s = np.hypot(gv, gu)
     if s == 0.0:
         s = 1.0
     cos = (nhv * gv + nhu * gu) / s
@@ -147,7 +147,7 @@ def _edge_gradients(grad, row_start, e_cols, r_lo, r_hi):
             b = grad[r, e_cols[j], 1]
             gv[j] = a
             gu[j] = b
-            s = math.hypot(a, b)
+            s = np.hypot(a, b)
             norm[j] = 1.0 if s == 0.0 else s
     return gv, gu, norm
 
@@ -273,7 +273,7 @@ def polarity_scan(edge, grad, pts, nrm, mv, mu, min_support, surface):
     for i in range(n):
         bv[i] = np.rint(pts[i, 0])
         bu[i] = np.rint(pts[i, 1])
-        norm = math.hypot(nrm[i, 0], nrm[i, 1])
+        norm = np.hypot(nrm[i, 0], nrm[i, 1])
         if norm == 0.0:
             norm = 1.0
         nhv[i] = nrm[i, 0] / norm

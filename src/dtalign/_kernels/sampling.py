@@ -57,8 +57,8 @@ def _bilinear_hypot(grad, v, u):
     """:func:`bilinear` of ``hypot(g_v, g_u)`` straight from the gradient vectors."""
     v0, u0, v1, u1, fv, fu = cell(grad.shape[0], grad.shape[1], v, u)
     return blend(
-        math.hypot(grad[v0, u0, 0], grad[v0, u0, 1]), math.hypot(grad[v0, u1, 0], grad[v0, u1, 1]),
-        math.hypot(grad[v1, u0, 0], grad[v1, u0, 1]), math.hypot(grad[v1, u1, 0], grad[v1, u1, 1]),
+        np.hypot(grad[v0, u0, 0], grad[v0, u0, 1]), np.hypot(grad[v0, u1, 0], grad[v0, u1, 1]),
+        np.hypot(grad[v1, u0, 0], grad[v1, u0, 1]), np.hypot(grad[v1, u1, 0], grad[v1, u1, 1]),
         fv, fu,
     )
 

@@ -62,6 +62,6 @@ def top_k(surface, mv, mu, k, separation):
         count += 1
         for a in range(nv):
             for b in range(nu):
-                if peak[a, b] and math.hypot(a - mv - best_dv, b - mu - best_du) < separation:
+                if peak[a, b] and np.hypot(a - mv - best_dv, b - mu - best_du) < separation:
                     peak[a, b] = False
     return count, dv_out, du_out, score_out
