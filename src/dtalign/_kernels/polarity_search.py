@@ -19,8 +19,6 @@ their count. Two exact ways to the same sums:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .._jit import inline_kernel, kernel
