@@ -1,10 +1,14 @@
-"""The four-vertices-at-a-time kernels (``_kernels.simd``, ``_kernels.simd_image``)
-against the one-vertex-at-a-time code they replace in the LM's hot loops.
+"""The four-vertices-at-a-time kernels (``_kernels.lanes``) against the
+one-vertex-at-a-time code they replace in the LM's hot loops.
 
 Samples, Jacobians, residuals, weights and polarity flags must be
 bit-identical (same IEEE operations in the same order); only the sums over
 vertices are taken in a different order (lane-wise), so they are compared
 to the sequential sums with a relative tolerance of a few ulps times N.
+The LM-level tests run whichever path :data:`dtalign._kernels.lanes.VECTOR`
+selects (the plain twin under ``NUMBA_DISABLE_JIT=1``); the tests that call
+the vector intrinsics directly need the JIT (they are LLVM IR, not Python).
+``test_lanes_twin.py`` compares the two paths with each other.
 """
 
 from __future__ import annotations
@@ -16,11 +20,12 @@ import numpy as np
 import pytest
 from numba import njit
 
+from dtalign._kernels import lanes
 from dtalign._kernels import lm as klm
 from dtalign._kernels import robust as krob
-from dtalign._kernels.sampling import bilinear, sample_many
-from dtalign._kernels.simd import load4, splat, store4
-from dtalign._kernels.simd_image import (
+from dtalign._kernels.lanes import vector
+from dtalign._kernels.lanes.simd import load4, splat, store4
+from dtalign._kernels.lanes.simd_image import (
     CELLS_PER_SLOT,
     FRACS_PER_SLOT,
     bilinear4,
@@ -29,12 +34,16 @@ from dtalign._kernels.simd_image import (
     stage_state,
     state4,
 )
+from dtalign._kernels.sampling import bilinear, sample_many
 
-EPS_T = klm.EPS_T
+EPS_T = lanes.EPS_T
+
+#: The vector intrinsics are LLVM IR: with the JIT disabled they cannot run.
+needs_jit = pytest.mark.skipif(numba.config.DISABLE_JIT, reason="the vector intrinsics are LLVM IR, not Python")
 
 
 @njit
-def _lanes_direct(dt, pts, dv, du, theta, out):  # pragma: no cover - compiled
+def _lanes_direct(dt, pts, dv, du, theta, out):
     """Per group of four: the sample and both central differences, unstaged;
     row 3 is bilinear4 alone."""
     c, s = math.cos(theta), math.sin(theta)
@@ -48,7 +57,7 @@ def _lanes_direct(dt, pts, dv, du, theta, out):  # pragma: no cover - compiled
 
 
 @njit
-def _lanes_staged(dt, pts, dv, du, theta, out):  # pragma: no cover - compiled
+def _lanes_staged(dt, pts, dv, du, theta, out):
     """The same through stage_state / finish_state, one slot per group (edge
     groups unstaged, through state4)."""
     c, s = math.cos(theta), math.sin(theta)
@@ -98,6 +107,7 @@ def _positions(rng, n, h, w):
     return pts
 
 
+@needs_jit
 @pytest.mark.parametrize("shape", [(2, 2), (2, 7), (9, 2), (17, 23), (64, 64)])
 @pytest.mark.parametrize("theta", [0.0, 0.3])
 def test_lane_samples_are_bit_identical(shape, theta):
@@ -113,6 +123,7 @@ def test_lane_samples_are_bit_identical(shape, theta):
             np.testing.assert_array_equal(got, want)
 
 
+@needs_jit
 def test_lane_samples_read_non_finite_dt_values_as_the_scalar_code_does():
     rng = np.random.default_rng(3)
     dt = rng.uniform(0.0, 5.0, size=(12, 12))
@@ -127,7 +138,11 @@ def test_lane_samples_read_non_finite_dt_values_as_the_scalar_code_does():
         np.testing.assert_array_equal(got, want)
 
 
-def test_polarity_lanes_match_the_scalar_test():
+@pytest.mark.parametrize("polarity", [
+    pytest.param(vector.polarity, marks=needs_jit, id="vector"),
+    pytest.param(lanes.polarity, id="switched"),
+])
+def test_polarity_lanes_match_the_scalar_test(polarity):
     rng = np.random.default_rng(11)
     for trial in range(300):
         h, w = (int(x) for x in rng.integers(1, 30, 2))
@@ -144,8 +159,8 @@ def test_polarity_lanes_match_the_scalar_test():
         nrm = rng.normal(size=(n, 2))
         nrm[rng.random(n) < 0.1] = 0.0
         dv, du = (float(x) for x in rng.uniform(-2.0, 2.0, 2))
-        want, want_bad = krob.polarity_one_by_one(pts, nrm, grad, dv, du)
-        got, got_bad = krob.polarity(pts, nrm, grad, dv, du)
+        want, want_bad = krob.polarity(pts, nrm, grad, dv, du)
+        got, got_bad = polarity(pts, nrm, grad, dv, du)
         assert got_bad == want_bad
         if not want_bad:
             np.testing.assert_array_equal(got, want)
@@ -166,11 +181,11 @@ def _state_scalar(dt, pts, sig, pol, pose, fit_rotation, tukey_c):
         jac[1, i] = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / (2 * EPS_T)
         if fit_rotation:
             rot = []
-            for t in (theta + klm.EPS_R, theta - klm.EPS_R):
+            for t in (theta + lanes.EPS_R, theta - lanes.EPS_R):
                 ct, st = math.cos(t), math.sin(t)
                 rot.append(bilinear(dt, ct * pts[i, 0] - st * pts[i, 1] + dv,
                                     st * pts[i, 0] + ct * pts[i, 1] + du))
-            jac[2, i] = (rot[0] - rot[1]) / (2 * klm.EPS_R)
+            jac[2, i] = (rot[0] - rot[1]) / (2 * lanes.EPS_R)
         w[i] = (1.0 / (sig[i] * sig[i])) * krob.tukey_many(np.array([r[i] / sig[i]]), tukey_c)[0] * pol[i]
     sw = np.sqrt(w)
     a = sw[:, None] * jac.T
@@ -194,11 +209,11 @@ def test_evaluate_state_lanes_and_tail(n, fit_rotation):
         hess, grad = np.zeros((p, p)), np.zeros(p)
         samples = np.zeros(n)
         if sampled:  # the state a trial step left: samples and Jacobian
-            assert klm.sample_state(dt, pts, pose, np.zeros(2), fit_rotation, samples, jac,
-                                    klm.staging_buffers())
+            assert lanes.sample_state(dt, pts, pose, np.zeros(2), fit_rotation, samples, jac,
+                                      lanes.staging_buffers())
         status, cost, total = klm.evaluate_state(
             dt, pts, 1.0 / (sig * sig), sig, pol, pose, np.zeros(2), fit_rotation, 4.685, r, w,
-            jac, hess, grad, samples, sampled, klm.staging_buffers())
+            jac, hess, grad, samples, sampled, lanes.staging_buffers())
         assert status == (1 if (want_w > 0).any() else 0)
         np.testing.assert_array_equal(r, want_r)
         np.testing.assert_array_equal(w, want_w)
@@ -221,7 +236,7 @@ def test_evaluate_state_refuses_a_non_finite_dt_in_lanes_and_tail(where):
     r, w, jac = np.zeros(11), np.zeros(11), np.zeros((2, 11))
     status, _, _ = klm.evaluate_state(
         dt, pts, np.ones(11), np.ones(11), np.ones(11), np.zeros(3), np.zeros(2), False, 4.685,
-        r, w, jac, np.zeros((2, 2)), np.zeros(2), np.zeros(11), False, klm.staging_buffers())
+        r, w, jac, np.zeros((2, 2)), np.zeros(2), np.zeros(11), False, lanes.staging_buffers())
     assert status == (-1 if where < 11 else 1)
 
 
@@ -237,7 +252,7 @@ def test_trial_cost_samples_jacobian_and_sum(n, fit_rotation):
     p = 3 if fit_rotation else 2
     samples, jac = np.full(n, np.nan), np.full((p, n), np.nan)
     cost, ok = klm.trial_cost(dt, pts, pol, w, pose, np.zeros(2), fit_rotation, samples, jac,
-                              klm.staging_buffers())
+                              lanes.staging_buffers())
     want_r, _, want_jac, *_ = _state_scalar(dt, pts, np.ones(n), np.ones(n), pose, fit_rotation, 4.685)
     assert ok
     np.testing.assert_array_equal(samples, want_r)  # pol = 1 there: the samples themselves
@@ -253,7 +268,7 @@ def test_trial_cost_reports_an_unreadable_jacobian_without_failing_the_cost():
     pts = np.array([[10.0, 18.9], [5.0, 5.0], [6.0, 6.0], [7.0, 7.0], [8.0, 8.0]])
     for n in (4, 5):  # the vertex in the lanes, and with a tail behind it
         cost, ok = klm.trial_cost(dt, pts[:n], np.ones(n), np.ones(n), np.zeros(3), np.zeros(2),
-                                  False, np.zeros(n), np.zeros((2, n)), klm.staging_buffers())
+                                  False, np.zeros(n), np.zeros((2, n)), lanes.staging_buffers())
         assert math.isfinite(cost) and not ok
 
 
@@ -264,15 +279,16 @@ def test_tiny_images_take_the_one_by_one_path():
         pts = np.column_stack([np.linspace(-1, 9, 12), np.linspace(9, -1, 12)])
         samples = np.zeros(12)
         klm.trial_cost(dt, pts, np.ones(12), np.ones(12), np.zeros(3), np.zeros(2), False,
-                       samples, np.zeros((2, 12)), klm.staging_buffers())
+                       samples, np.zeros((2, 12)), lanes.staging_buffers())
         np.testing.assert_array_equal(samples, sample_many(dt, pts))
 
 
 @njit
-def _load_strided(a):  # pragma: no cover - compiled
+def _load_strided(a):
     return load4(a, 0)
 
 
+@needs_jit
 def test_vector_loads_refuse_non_contiguous_arrays_at_compile_time():
     """A strided view must not be read as four consecutive elements."""
     with pytest.raises(numba.core.errors.TypingError):
@@ -280,12 +296,13 @@ def test_vector_loads_refuse_non_contiguous_arrays_at_compile_time():
 
 
 @njit
-def _splat_sum(x):  # pragma: no cover - compiled
+def _splat_sum(x):
     out = np.empty(4)
     store4(out, 0, splat(x) + splat(x) * splat(2.0) - splat(1.0) / splat(4.0))
     return out
 
 
+@needs_jit
 def test_vector_arithmetic_is_lane_wise_ieee():
     x = 0.1
     np.testing.assert_array_equal(_splat_sum(x), np.full(4, x + x * 2.0 - 1.0 / 4.0))
@@ -314,7 +331,7 @@ def test_unaligned_inputs_give_the_same_state():
         hess, grad = np.zeros((2, 2)), np.zeros(2)
         out = klm.evaluate_state(d, p, 1.0 / (sig * sig), sig, pol, pose, np.zeros(2), False,
                                  4.685, r, w, jac, hess, grad, np.zeros(37), False,
-                                 klm.staging_buffers())
+                                 lanes.staging_buffers())
         results.append((out, r, w, jac, hess, grad))
     assert results[0][0] == results[1][0]
     for a, b in zip(results[0][1:], results[1][1:], strict=True):

@@ -1,11 +1,12 @@
-"""The word-at-a-time mask scan against ``np.flatnonzero`` (any run, any buffer)."""
+"""The mask scan (word at a time when compiled, see ``_kernels.lanes``) against
+``np.flatnonzero`` (any run, any buffer)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from dtalign._kernels import bits, coarse
+from dtalign._kernels import coarse, lanes
 
 
 def _words(flat: np.ndarray) -> np.ndarray:
@@ -23,7 +24,7 @@ def test_fill_matches_flatnonzero_on_every_run(seed: int) -> None:
         stop = int(rng.integers(start, n + 1))
         expected = start + np.flatnonzero(flat[start:stop])
         out = np.full(n + 1, -1, dtype=np.int64)
-        k = bits.fill(flat, _words(flat), start, stop, out, 0)
+        k = lanes.fill(flat, _words(flat), start, stop, out, 0)
         assert k == expected.size
         np.testing.assert_array_equal(out[:k], expected)
 
@@ -31,7 +32,7 @@ def test_fill_matches_flatnonzero_on_every_run(seed: int) -> None:
 def test_fill_counts_past_a_full_buffer_without_writing() -> None:
     flat = np.ones(300, dtype=np.uint8)
     out = np.full(10, -1, dtype=np.int64)
-    assert bits.fill(flat, _words(flat), 3, 290, out, 0) == 287
+    assert lanes.fill(flat, _words(flat), 3, 290, out, 0) == 287
     np.testing.assert_array_equal(out, np.arange(3, 13))
 
 

@@ -22,10 +22,12 @@ signatures, so compilation is lazy and ``import dtalign`` stays fast.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, TypeVar
 
 import numba
+import numpy as np
 
 from ._numba_cache import attach_cache
 
@@ -40,7 +42,7 @@ JIT_OPTIONS: dict[str, Any] = {
 
 def kernel(fn: F) -> F:
     """Compile ``fn`` lazily with the project's Numba flags."""
-    return attach_cache(numba.njit(**JIT_OPTIONS)(fn))  # type: ignore[no-any-return]
+    return _as_compiled(attach_cache(numba.njit(**JIT_OPTIONS)(fn)))
 
 
 def inline_kernel(fn: F) -> F:
@@ -51,3 +53,25 @@ def inline_kernel(fn: F) -> F:
     take them, and a call per sample costs more than the sample.
     """
     return attach_cache(numba.njit(inline="always", **JIT_OPTIONS)(fn))  # type: ignore[no-any-return]
+
+
+# -- kernels as Python (NUMBA_DISABLE_JIT=1) ---------------------------------
+#
+# With the JIT disabled, numba.njit returns the Python function itself, whose
+# NumPy scalar arithmetic warns on a division by zero, an overflow or an
+# invalid operation where the compiled code (error_model="numpy") silently
+# gives inf or nan. Such a kernel runs under np.errstate(all="ignore"): the
+# same values as compiled, and no warning the compiled code would not give.
+# (Inline kernels are only called from kernels, inside that state.)
+
+
+def _as_compiled(fn: F) -> F:
+    if not numba.config.DISABLE_JIT:  # type: ignore[attr-defined]
+        return fn
+
+    @functools.wraps(fn)
+    def run(*args: Any) -> Any:
+        with np.errstate(all="ignore"):
+            return fn(*args)
+
+    return run  # type: ignore[return-value]

@@ -28,7 +28,7 @@ from ._constants import (
     DEFAULT_TUKEY_C,
 )
 from ._kernels import fit as _k
-from ._kernels import robust as _robust
+from ._kernels import lanes as _lanes
 from ._results import LMRefineResult
 from ._validation import nonfinite_read
 from .image import _use_libm_hypot
@@ -168,7 +168,7 @@ def _fit_with_replaced_ridge(a: LMArgs) -> LMRefineResult:
     rest, grad = _kernel_args(a, False)
     n = a.vertices.shape[0]
     if a.use_polarity:
-        pol, bad = _robust.polarity(a.vertices, a.normals, grad, a.offset[0], a.offset[1])
+        pol, bad = _lanes.polarity(a.vertices, a.normals, grad, a.offset[0], a.offset[1])
         if bad:
             _raise_for(_k.BAD_GRADIENT)
     else:

@@ -10,6 +10,7 @@ from numpy.typing import ArrayLike
 from . import _validation as check
 from ._args import check_covariance_inputs, tukey_c_value
 from ._constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C
+from ._kernels import lanes as _lanes
 from ._kernels import robust as _k
 from ._validation import FloatArray
 
@@ -45,7 +46,7 @@ def polarity_filter(
     nrm = check.normals(normals_vu, pts.shape[0])
     grad = check.gradient(image_gradient_vu)
     dv, du = check.pair(offset_vu, "offset_vu")
-    accepted, bad = _k.polarity(pts, nrm, grad, dv, du)
+    accepted, bad = _lanes.polarity(pts, nrm, grad, dv, du)
     if bad:
         raise check.nonfinite_read("image_gradient_vu")
     return accepted != 0.0  # type: ignore[no-any-return]

@@ -41,7 +41,7 @@ NONFINITE = 3  # a sample read a NaN or inf from the DT
 
 
 @kernel
-def _samples_at(dt, pts, ov, ou, out):  # pragma: no cover - compiled
+def _samples_at(dt, pts, ov, ou, out):
     """In-bounds bilinear samples of the vertices shifted by ``(ov, ou)``,
     written to ``out`` in vertex order; returns their count."""
     h, w = dt.shape
@@ -80,7 +80,7 @@ NEAR_RING = 2
 
 
 @kernel
-def _axis_tables(coord, m, size):  # pragma: no cover - compiled
+def _axis_tables(coord, m, size):
     """For shift ``k = a - m`` and vertex ``i``: whether ``coord[i] + k`` lies in
     ``[0, size - 1]`` (as computed in float64), its floor and its fraction --
     what every sample of that row (or column) shift reads, formed once."""
@@ -101,7 +101,7 @@ def _axis_tables(coord, m, size):  # pragma: no cover - compiled
 
 
 @kernel
-def _in_bounds_counts(v_in, u_in):  # pragma: no cover - compiled
+def _in_bounds_counts(v_in, u_in):
     """How many vertices each shift keeps in bounds, ``(nv, nu)``. A vertex's
     in-bounds shifts form one rectangle (the test is monotone in each shift),
     added through a 2-D difference array."""
@@ -141,7 +141,7 @@ def _in_bounds_counts(v_in, u_in):  # pragma: no cover - compiled
 
 
 @kernel
-def _region_ok(dt, v_low, u_low):  # pragma: no cover - compiled
+def _region_ok(dt, v_low, u_low):
     """``(finite, non_negative, step)`` of the DT pixels the scan can read;
     ``step`` is the largest difference between horizontal neighbours there."""
     h, w = dt.shape
@@ -164,7 +164,7 @@ def _region_ok(dt, v_low, u_low):  # pragma: no cover - compiled
 
 @kernel
 def _shift_cost(dt, v_in, v_low, v_frac, u_in, u_low, u_frac, a, b, count, bound, carry,
-                buf):  # pragma: no cover - compiled
+                buf):
     """The cost at row shift ``a`` and column shift ``b`` with ``count`` vertices
     in bounds: ``(cost, k, running)``. Once its running sum exceeds ``bound``
     the shift cannot win: it stops when the sum also exceeds
@@ -196,7 +196,7 @@ def _shift_cost(dt, v_in, v_low, v_frac, u_in, u_low, u_frac, a, b, count, bound
 
 
 @kernel
-def secondary_basin(dt, pts, cdv, cdu, mv, mu, radius, min_support):  # pragma: no cover - compiled
+def secondary_basin(dt, pts, cdv, cdu, mv, mu, radius, min_support):
     """Best integer shift outside the converged basin.
 
     Returns ``(status, dv, du, distance, cost, converged_cost)``; ``status``
@@ -247,7 +247,7 @@ def secondary_basin(dt, pts, cdv, cdu, mv, mu, radius, min_support):  # pragma: 
                 carried_steps += 1
                 dv = a - mv
                 du = b - mu
-                distance = math.hypot(dv - cdv, du - cdu)
+                distance = np.hypot(dv - cdv, du - cdu)
                 if distance <= radius:
                     continue
                 count = counts[a, b]

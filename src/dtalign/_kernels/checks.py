@@ -17,7 +17,7 @@ BAD_CENTROID = 4
 
 
 @kernel
-def polyline_status(pts, nrm, sig):  # pragma: no cover - compiled
+def polyline_status(pts, nrm, sig):
     """First failing check and the vertex centroid.
 
     Vertices and normals must be finite (and the vertices' sum too, so the
@@ -55,7 +55,7 @@ def polyline_status(pts, nrm, sig):  # pragma: no cover - compiled
 
 
 @kernel
-def polylines_status(pts, nrm, sig, starts):  # pragma: no cover - compiled
+def polylines_status(pts, nrm, sig, starts):
     """:func:`polyline_status` of each polyline ``starts[j]:starts[j+1]`` of
     the concatenated arrays, up to the first that fails.
 

@@ -6,7 +6,7 @@ For windows up to :data:`DENSE_MAX_COLUMNS` shifts wide, it adds the edge
 row under its window to a row of counters, 16 columns per vector add
 (:func:`overlap_dense`); for wider ones it visits only the edge pixels that
 can meet it (:func:`overlap_sparse`: work proportional to the pixel pairs
-within the window). Masks are scanned a word at a time (:mod:`.bits`).
+within the window). Masks are scanned a word at a time (:mod:`.lanes.bits`).
 Scores are the same integer ratios as the reference, and the argmax uses
 the same total order, so the result is identical.
 """
@@ -16,12 +16,12 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel, kernel
-from .bits import fill
+from .lanes import fill
 from .pairwise import numpy_sum
 
 
 @kernel
-def rasterise(pts, h, w):  # pragma: no cover - compiled
+def rasterise(pts, h, w):
     """Round half to even (``np.rint``) and mark in-image vertices."""
     mask = np.zeros((h, w), dtype=np.bool_)
     for i in range(pts.shape[0]):
@@ -37,7 +37,7 @@ FIRST_BUFFER = 1 << 13
 
 
 @kernel
-def nonzero_in_box(flat, words, width, r_lo, r_hi, c_lo, c_hi):  # pragma: no cover - compiled
+def nonzero_in_box(flat, words, width, r_lo, r_hi, c_lo, c_hi):
     """Row-major ``(rows, cols)`` of the nonzero bytes in rows ``r_lo..r_hi``
     and columns ``c_lo..c_hi`` of a flattened uint8 mask (typically sparse).
 
@@ -91,7 +91,7 @@ def nonzero_in_box(flat, words, width, r_lo, r_hi, c_lo, c_hi):  # pragma: no co
 
 
 @kernel
-def _first_at_least(cols, lo, hi, value):  # pragma: no cover - compiled
+def _first_at_least(cols, lo, hi, value):
     """First index in ``cols[lo:hi]`` (sorted) with ``cols[j] >= value``."""
     while lo < hi:
         mid = (lo + hi) // 2
@@ -103,7 +103,7 @@ def _first_at_least(cols, lo, hi, value):  # pragma: no cover - compiled
 
 
 @kernel
-def row_starts(e_rows, h):  # pragma: no cover - compiled
+def row_starts(e_rows, h):
     """CSR row index of row-major pixels: row ``r`` is ``[starts[r], starts[r + 1])``."""
     row_start = np.zeros(h + 1, dtype=np.int64)
     for j in range(e_rows.shape[0]):
@@ -114,7 +114,7 @@ def row_starts(e_rows, h):  # pragma: no cover - compiled
 
 
 @kernel
-def edge_index(edge):  # pragma: no cover - compiled
+def edge_index(edge):
     """The edge pixels of the whole mask by row: ``(row_start, cols)`` (CSR).
 
     What a batch of polylines against one edge mask shares: one scan of the
@@ -127,14 +127,14 @@ def edge_index(edge):  # pragma: no cover - compiled
 
 
 @inline_kernel
-def shifts_inside(r, c, h, w, mv, mu):  # pragma: no cover - compiled
+def shifts_inside(r, c, h, w, mv, mu):
     """The shifts that keep pixel ``(r, c)`` in an ``h x w`` image:
     ``(dv_lo, dv_hi, du_lo, du_hi)``, inclusive, within the window."""
     return max(-mv, -r), min(mv, h - 1 - r), max(-mu, -c), min(mu, w - 1 - c)
 
 
 @kernel
-def in_image_counts(pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
+def in_image_counts(pv, pu, h, w, mv, mu):
     """How many polyline pixels each shift keeps inside the image, ``(nv, nu)``;
     empty when the window never pushes a pixel off it (every shift keeps all).
 
@@ -161,7 +161,7 @@ def in_image_counts(pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
 
 
 @kernel
-def overlap_sparse(pv, pu, row_start, e_cols, h, w, mv, mu):  # pragma: no cover - compiled
+def overlap_sparse(pv, pu, row_start, e_cols, h, w, mv, mu):
     """Edge overlap of every shift in the window, ``(nv, nu)``.
 
     The polyline pixels come as row-major ``(pv, pu)``, the edge pixels by
@@ -203,7 +203,7 @@ DENSE_MAX_PIXELS = 32767
 
 
 @inline_kernel
-def dense_ok(n_pixels, mu):  # pragma: no cover - compiled
+def dense_ok(n_pixels, mu):
     """Whether :func:`overlap_dense` serves this search (else :func:`overlap_sparse`).
 
     Measured on the SPEC disc limb (200 pixels, 1024^2 edge mask): +-30 px,
@@ -216,7 +216,7 @@ def dense_ok(n_pixels, mu):  # pragma: no cover - compiled
 
 
 @kernel
-def overlap_dense(pv, pu, flat, h, w, mv, mu):  # pragma: no cover - compiled
+def overlap_dense(pv, pu, flat, h, w, mv, mu):
     """:func:`overlap_sparse` computed from the edge mask's bytes ``flat``.
 
     For each polyline pixel and row shift, the edge row under the window
@@ -251,7 +251,7 @@ def overlap_dense(pv, pu, flat, h, w, mv, mu):  # pragma: no cover - compiled
 
 
 @inline_kernel
-def better(score, dv, du, best_score, best_dv, best_du):  # pragma: no cover - compiled
+def better(score, dv, du, best_score, best_dv, best_du):
     """SPEC's order of shifts: a higher score, or an equal one with the smaller
     ``(|dv| + |du|, |dv|, dv, du)``. A NaN score never wins."""
     if score > best_score:
@@ -270,7 +270,7 @@ def better(score, dv, du, best_score, best_dv, best_du):  # pragma: no cover - c
 
 
 @kernel
-def best_scored(overlap, counts, n_pixels, mv, mu, min_support):  # pragma: no cover - compiled
+def best_scored(overlap, counts, n_pixels, mv, mu, min_support):
     """``(dv, du, score)`` of the best shift with ``n >= 1`` and ``n >= min_support``
     in-image pixels; ``score`` is ``overlap / n``, and -1 when none is eligible.
 
@@ -301,14 +301,14 @@ def best_scored(overlap, counts, n_pixels, mv, mu, min_support):  # pragma: no c
 
 
 @kernel
-def best_shift(overlap, counts, mv, mu):  # pragma: no cover - compiled
+def best_shift(overlap, counts, mv, mu):
     """:func:`best_scored`'s shift with no support floor (SPEC section 2's search)."""
     dv, du, _ = best_scored(overlap, counts, 1, mv, mu, 0.0)
     return dv, du
 
 
 @kernel
-def support_of_vertices(pts, h, w):  # pragma: no cover - compiled
+def support_of_vertices(pts, h, w):
     """Row-major unique ``(rows, cols)`` of the pixels :func:`rasterise` would set."""
     flat = np.empty(pts.shape[0], dtype=np.int64)
     n = 0
@@ -328,7 +328,7 @@ def support_of_vertices(pts, h, w):  # pragma: no cover - compiled
 
 
 @kernel
-def flat_words(mask):  # pragma: no cover - compiled
+def flat_words(mask):
     """A C-contiguous bool mask as flat uint8 bytes and a uint64 view of its
     whole words (views, made here: two arrays fewer to pass from Python)."""
     flat = mask.reshape(-1).view(np.uint8)
@@ -336,14 +336,14 @@ def flat_words(mask):  # pragma: no cover - compiled
 
 
 @kernel
-def search_support(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
+def search_support(edge, pv, pu, mv, mu):
     """Best shift for a polyline support given as row-major ``(pv, pu)``."""
     dv, du, _ = search_support_scored(edge, pv, pu, mv, mu, 0.0)
     return dv, du
 
 
 @kernel
-def overlap_tables(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
+def overlap_tables(edge, pv, pu, mv, mu):
     """``(overlap, counts)`` of every shift for a row-major support ``(pv, pu)``
     (``counts`` empty when every shift keeps every pixel inside).
 
@@ -365,7 +365,7 @@ def overlap_tables(edge, pv, pu, mv, mu):  # pragma: no cover - compiled
 
 
 @kernel
-def search_support_scored(edge, pv, pu, mv, mu, min_support):  # pragma: no cover - compiled
+def search_support_scored(edge, pv, pu, mv, mu, min_support):
     """``(dv, du, score)`` of the best shift for a row-major support ``(pv, pu)``."""
     if pv.shape[0] == 0:
         return 0, 0, 0.0
@@ -374,7 +374,7 @@ def search_support_scored(edge, pv, pu, mv, mu, min_support):  # pragma: no cove
 
 
 @kernel
-def overlap_surface(edge, pv, pu, mv, mu, min_support):  # pragma: no cover - compiled
+def overlap_surface(edge, pv, pu, mv, mu, min_support):
     """Every shift's score ``overlap / n`` as :func:`best_scored` forms it,
     ``(2 mv + 1, 2 mu + 1)``; NaN where the shift is not a candidate."""
     nv = 2 * mv + 1
@@ -393,7 +393,7 @@ def overlap_surface(edge, pv, pu, mv, mu, min_support):  # pragma: no cover - co
 
 
 @kernel
-def float_overlap_search(values, pv, pu, mv, mu, min_support):  # pragma: no cover - compiled
+def float_overlap_search(values, pv, pu, mv, mu, min_support):
     """:func:`search_support_scored` for an edge mask of arbitrary float values.
 
     The overlap is then the float64 sum of the values under the in-image
@@ -433,7 +433,7 @@ def float_overlap_search(values, pv, pu, mv, mu, min_support):  # pragma: no cov
 
 
 @kernel
-def search_index(row_start, e_cols, pv, pu, h, w, mv, mu):  # pragma: no cover - compiled
+def search_index(row_start, e_cols, pv, pu, h, w, mv, mu):
     """Best shift for a polyline support against edge pixels indexed by row."""
     if pv.shape[0] == 0:
         return 0, 0
@@ -442,7 +442,7 @@ def search_index(row_start, e_cols, pv, pu, h, w, mv, mu):  # pragma: no cover -
 
 
 @kernel
-def search_index_scored(row_start, e_cols, pv, pu, h, w, mv, mu, min_support):  # pragma: no cover - compiled
+def search_index_scored(row_start, e_cols, pv, pu, h, w, mv, mu, min_support):
     """:func:`search_index` with a support floor: ``(dv, du, score)``."""
     if pv.shape[0] == 0:
         return 0, 0, 0.0
@@ -452,7 +452,7 @@ def search_index_scored(row_start, e_cols, pv, pu, h, w, mv, mu, min_support):  
 
 
 @kernel
-def polyline_support(poly):  # pragma: no cover - compiled
+def polyline_support(poly):
     """Row-major ``(rows, cols)`` of a C-contiguous bool polyline mask's pixels."""
     h, w = poly.shape
     poly_flat, poly_words = flat_words(poly)
@@ -460,7 +460,7 @@ def polyline_support(poly):  # pragma: no cover - compiled
 
 
 @kernel
-def coarse_search(edge, poly, mv, mu):  # pragma: no cover - compiled
+def coarse_search(edge, poly, mv, mu):
     """``(dv, du)`` of the best shift; ``(0, 0)`` when no pixel can stay inside.
 
     Masks are C-contiguous 2-D bool arrays of the same, non-empty shape.
@@ -470,7 +470,7 @@ def coarse_search(edge, poly, mv, mu):  # pragma: no cover - compiled
 
 
 @kernel
-def coarse_search_scored(edge, poly, mv, mu, fraction):  # pragma: no cover - compiled
+def coarse_search_scored(edge, poly, mv, mu, fraction):
     """SPEC 8.2: ``(dv, du, score)``, ``score`` before the ``max(score, 0)``.
 
     ``edge`` and ``poly`` are bool masks of the same, non-empty shape.
@@ -482,7 +482,7 @@ def coarse_search_scored(edge, poly, mv, mu, fraction):  # pragma: no cover - co
 
 
 @kernel
-def coarse_search_values(values, poly, mv, mu, fraction):  # pragma: no cover - compiled
+def coarse_search_values(values, poly, mv, mu, fraction):
     """:func:`coarse_search_scored` for an edge mask of float64 values (summed)."""
     pv, pu = polyline_support(poly)
     if pv.shape[0] == 0:

@@ -12,7 +12,8 @@ import math
 import numpy as np
 
 from .._jit import kernel
-from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop, staging_buffers
+from .lanes import polarity, staging_buffers, summary_lanes
+from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop
 from .pairwise import numpy_sum
 from .ridge import (
     PATCH_MARGIN,
@@ -21,8 +22,7 @@ from .ridge import (
     magnitude_patch,
     ridge_loop,
 )
-from .robust import polarity, symmetric_pinvh
-from .simd import hsum, load4, positive_ones, splat
+from .robust import symmetric_pinvh
 
 #: The LM driver's polish samples its gradient vectors, not a magnitude image.
 _NO_MAGNITUDE = np.zeros((0, 0))
@@ -35,7 +35,7 @@ DIVERGED = 3  # a step or the normal equations overflowed to non-finite values
 
 
 @kernel
-def _failed(error, pose0, n, n_params):  # pragma: no cover - compiled
+def _failed(error, pose0, n, n_params):
     """The tuple :func:`fit` returns with an error code (the rest is unused)."""
     empty = np.zeros(n)
     return (error, pose0.copy(), 0, False, empty, empty.copy(), np.zeros((n_params, n)),
@@ -43,7 +43,7 @@ def _failed(error, pose0, n, n_params):  # pragma: no cover - compiled
 
 
 @kernel
-def accepted_raw_rms(r, pol):  # pragma: no cover - compiled
+def accepted_raw_rms(r, pol):
     """SPEC 8.1's ``raw_rms_px``: ``sqrt(mean(r**2))`` over the vertices the
     seed polarity mask accepted, summed as NumPy's ``mean`` sums (pairwise),
     so it equals the reference's bit for bit; ``+inf`` when none is."""
@@ -59,20 +59,11 @@ def accepted_raw_rms(r, pol):  # pragma: no cover - compiled
 
 
 @kernel
-def _summary(r, w):  # pragma: no cover - compiled
+def _summary(r, w):
     """``(inliers, sum(w), sum(w r^2))``, summed lane-wise as the LM's sums."""
     n = r.shape[0]
     n4 = n - n % 4
-    zero = splat(0.0)
-    count4 = total4 = weighted4 = zero
-    for i in range(0, n4, 4):
-        ri = load4(r, i)
-        wi = load4(w, i)
-        count4 += positive_ones(wi)
-        total4 += wi
-        weighted4 += wi * ri * ri
-    inliers = int(hsum(count4))  # exact: a count below 2**53
-    total, weighted = hsum(total4), hsum(weighted4)
+    inliers, total, weighted = summary_lanes(r, w, n4)
     for i in range(n4, n):
         if w[i] > 0.0:
             inliers += 1
@@ -87,7 +78,7 @@ def fit(
     max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
     ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
     ridge_max_displacement, use_libm,
-):  # pragma: no cover - compiled
+):
     """SPEC section 3, steps 1-5.
 
     Returns ``(error, pose, iterations, converged, r, w, jac, covariance,
@@ -117,7 +108,7 @@ def fit_with_mask(
     max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
     ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
     ridge_max_displacement, use_libm,
-):  # pragma: no cover - compiled
+):
     """:func:`fit` from a given seed polarity mask ``pol`` (1.0 accepted, 0.0 not).
 
     With ``max_iterations == 0`` and no ridge it is SPEC section 3 step 3 and
@@ -151,7 +142,7 @@ def fit_with_mask(
             return _failed(BAD_GRADIENT, pose0, n, n_params)
         if ridge_status == RIDGE_DIVERGED:
             return _failed(DIVERGED, pose0, n, n_params)
-        moved = math.hypot(new_pose[0] - pose[0], new_pose[1] - pose[1])
+        moved = np.hypot(new_pose[0] - pose[0], new_pose[1] - pose[1])
         if not (math.isfinite(new_pose[0]) and math.isfinite(new_pose[1])
                 and math.isfinite(new_pose[2])):
             return _failed(DIVERGED, pose0, n, n_params)

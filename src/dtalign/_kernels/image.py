@@ -177,7 +177,7 @@ def hypot_row(x, y, out, use_libm):
     n = x.size
     if use_libm:
         for j in range(n):
-            out[j] = math.hypot(x[j], y[j])
+            out[j] = np.hypot(x[j], y[j])
         return
     rare = False
     for j in range(n):
@@ -206,7 +206,7 @@ def hypot_row(x, y, out, use_libm):
             if ax < ay:
                 ax, ay = ay, ax
             if not (ax <= _HYPOT_LARGE and (ay >= _HYPOT_TINY or ay == 0.0)):
-                out[j] = math.hypot(x[j], y[j])
+                out[j] = np.hypot(x[j], y[j])
 
 
 @kernel

@@ -15,43 +15,13 @@ import math
 
 import numpy as np
 
-from .._jit import inline_kernel, kernel
+from .._jit import kernel
+from .lanes import PENALTY, lane_cost, lane_sums, sample_state, staging_buffers
 from .robust import solve_step, tukey
-from .sampling import bilinear, transform
-from .simd import (
-    MAX_ELEMENTS,
-    all_finite,
-    any_greater,
-    hsum,
-    load4,
-    splat,
-    sqrt4,
-    store4,
-    tukey4,
-    where_nonzero,
-)
-from .simd_image import (
-    CELLS_PER_SLOT,
-    FRACS_PER_SLOT,
-    bilinear4,
-    finish_state,
-    positions4,
-    stage_state,
-    state4,
-)
 
 #: Mirrors of the constants in dtalign._constants, as compile-time literals.
-PENALTY = 1.0e6
-EPS_T = 0.25
-EPS_R = 1.0e-3
 LAMBDA_MIN = 1.0e-12
 LAMBDA_MAX = 1.0e6
-
-#: Groups of four vertices whose cells are staged at a time (:mod:`.simd_image`):
-#: enough to overlap the groups' loads, few enough for the buffers (6.4 KiB)
-#: to stay in L1. 16 to 64 measured alike (the Jacobian's samples 1.3x
-#: faster than unstaged); 8 kept a third of that gain.
-BLOCK = 16
 
 #: Status of :func:`lm_loop`.
 LOOP_OK = 0
@@ -59,133 +29,11 @@ LOOP_BAD_DT = 1  # a sample read a NaN or inf from the DT
 LOOP_DIVERGED = 2  # the normal equations or a step overflowed
 
 
-@inline_kernel
-def lanes_for(dt, n):  # pragma: no cover - compiled
-    """How many leading vertices are evaluated four at a time (:mod:`.simd`)."""
-    if dt.shape[0] < 2 or dt.shape[1] < 2 or dt.size > MAX_ELEMENTS:
-        return 0
-    return n - n % 4
-
-
-@kernel
-def staging_buffers():  # pragma: no cover - compiled
-    """Scratch for :func:`sample_state`'s staged cells, allocated once per fit."""
-    return (np.empty(BLOCK * CELLS_PER_SLOT, np.int32), np.empty(BLOCK * FRACS_PER_SLOT),
-            np.empty(BLOCK, np.bool_))
-
-
-@kernel
-def sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac, staging):  # pragma: no cover - compiled
-    """The DT at every vertex at ``pose`` into ``samples`` and the Jacobian's
-    columns into ``jac`` (``(P, N)``): five samples per vertex (seven with
-    rotation). Returns False if a sample read a NaN or inf.
-
-    Vertices are taken four at a time (:mod:`.simd_image`), their cells
-    staged a block at a time in ``staging`` (:func:`staging_buffers`); the
-    last ``n % 4`` one by one. Every value is bit-identical to the
-    one-by-one code's.
-    """
-    dv, du, theta = pose[0], pose[1], pose[2]
-    pv, pu = pivot[0], pivot[1]
-    c0, s0 = math.cos(theta), math.sin(theta)
-    tp, tm = theta + EPS_R, theta - EPS_R
-    cp, sp = math.cos(tp), math.sin(tp)
-    cm, sm = math.cos(tm), math.sin(tm)
-    two_eps_t = 2 * EPS_T
-    two_eps_r = 2 * EPS_R
-    n = pts.shape[0]
-    n4 = lanes_for(dt, n)
-    ok = True
-    cells, fracs, staged = staging
-    for i in range(0, n4, 4):
-        g = (i >> 2) % BLOCK
-        if g == 0:  # stage the cells of the next block of groups
-            for h in range(min(BLOCK, (n4 - i) >> 2)):
-                v, u = positions4(pts, i + 4 * h, dv, du, theta, c0, s0, pv, pu)
-                staged[h] = stage_state(dt, v, u, EPS_T, cells, fracs, h)
-        if staged[g]:
-            sample, j_v, j_u = finish_state(dt, cells, fracs, g, two_eps_t)
-        else:
-            v, u = positions4(pts, i, dv, du, theta, c0, s0, pv, pu)
-            sample, j_v, j_u = state4(dt, v, u, EPS_T, two_eps_t)
-        # inf - inf and nan propagate, so one test covers all five samples
-        ok &= all_finite(sample + j_v + j_u)
-        store4(samples, i, sample)
-        store4(jac[0], i, j_v)
-        store4(jac[1], i, j_u)
-        if fit_rotation:
-            vp, up = positions4(pts, i, dv, du, tp, cp, sp, pv, pu)
-            vm, um = positions4(pts, i, dv, du, tm, cm, sm, pv, pu)
-            j_r = (bilinear4(dt, vp, up) - bilinear4(dt, vm, um)) / splat(two_eps_r)
-            ok &= all_finite(j_r)
-            store4(jac[2], i, j_r)
-    for i in range(n4, n):
-        v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pv, pu)
-        sample = bilinear(dt, v, u)
-        j0 = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / two_eps_t
-        j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / two_eps_t
-        ok &= math.isfinite(sample + j0 + j1)
-        samples[i] = sample
-        jac[0, i] = j0
-        jac[1, i] = j1
-        if fit_rotation:
-            vp, up = transform(pts[i, 0], pts[i, 1], dv, du, tp, cp, sp, pv, pu)
-            vm, um = transform(pts[i, 0], pts[i, 1], dv, du, tm, cm, sm, pv, pu)
-            j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / two_eps_r
-            ok &= math.isfinite(j2)
-            jac[2, i] = j2
-    return ok
-
-
-@kernel
-def _lane_sums(samples, pol, jac, inv_var, sig, r, w, tukey_c, n4):  # pragma: no cover - compiled
-    """Residuals and IRLS weights of vertices ``0..n4`` into ``r`` and ``w``,
-    and their lane-wise sums
-    ``(positive, cost, total, g0, g1, g2, h00, h01, h02, h11, h12, h22)``.
-
-    Zero weights add exact zeros (the Jacobian is finite), so unlike the
-    one-by-one sums no vertex is skipped. (Separate loops for translation
-    and rotation measured no faster.)
-    """
-    zero = splat(0.0)
-    penalty = splat(PENALTY)
-    rotation = jac.shape[0] == 3
-    positive = False
-    cost4 = total4 = g0_4 = g1_4 = g2_4 = zero
-    h00_4 = h01_4 = h02_4 = h11_4 = h12_4 = h22_4 = zero
-    for i in range(0, n4, 4):
-        p = load4(pol, i)
-        ri = where_nonzero(p, load4(samples, i), penalty)
-        store4(r, i, ri)
-        wi = load4(inv_var, i) * tukey4(ri / load4(sig, i), tukey_c) * p
-        store4(w, i, wi)
-        positive |= any_greater(wi, zero)
-        swi = sqrt4(wi)
-        cost4 += wi * ri * ri
-        total4 += wi
-        swr = swi * ri
-        a0 = swi * load4(jac[0], i)
-        a1 = swi * load4(jac[1], i)
-        g0_4 += a0 * swr
-        g1_4 += a1 * swr
-        h00_4 += a0 * a0
-        h01_4 += a0 * a1
-        h11_4 += a1 * a1
-        if rotation:
-            a2 = swi * load4(jac[2], i)
-            g2_4 += a2 * swr
-            h02_4 += a0 * a2
-            h12_4 += a1 * a2
-            h22_4 += a2 * a2
-    return (positive, hsum(cost4), hsum(total4), hsum(g0_4), hsum(g1_4), hsum(g2_4),
-            hsum(h00_4), hsum(h01_4), hsum(h02_4), hsum(h11_4), hsum(h12_4), hsum(h22_4))
-
-
 @kernel
 def evaluate_state(
     dt, pts, inv_var, sig, pol, pose, pivot, fit_rotation, tukey_c, r, w, jac, hess, grad,
     samples, sampled, staging,
-):  # pragma: no cover - compiled
+):
     """State at ``pose``: residuals, IRLS weights and Jacobian into ``r, w, jac``,
     and ``H = A^T A``, ``g = A^T (sqrt(w) r)`` (``A = sqrt(w) J``) into
     ``hess, grad``.
@@ -212,7 +60,7 @@ def evaluate_state(
         return -1, 0.0, 0.0
     n = pts.shape[0]
     n4 = n - n % 4
-    (positive, cost, total, g0, g1, g2, h00, h01, h02, h11, h12, h22) = _lane_sums(
+    (positive, cost, total, g0, g1, g2, h00, h01, h02, h11, h12, h22) = lane_sums(
         samples, pol, jac, inv_var, sig, r, w, tukey_c, n4
     )
     status = 1 if positive else 0
@@ -254,7 +102,7 @@ def evaluate_state(
 
 
 @kernel
-def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging):  # pragma: no cover - compiled
+def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging):
     """``sum(w * r * r)`` with residuals at ``pose`` and fixed weights ``w``,
     summed lane-wise as :func:`evaluate_state` sums its cost; and whether
     the state at ``pose`` is readable.
@@ -271,12 +119,7 @@ def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging
     ok = sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac, staging)
     n = pts.shape[0]
     n4 = n - n % 4
-    penalty = splat(PENALTY)
-    total4 = splat(0.0)
-    for i in range(0, n4, 4):
-        ri = where_nonzero(load4(pol, i), load4(samples, i), penalty)
-        total4 += load4(w, i) * ri * ri
-    total = hsum(total4)
+    total = lane_cost(pol, w, samples, n4)
     for i in range(n4, n):
         ri = samples[i] if pol[i] != 0.0 else PENALTY
         total += w[i] * ri * ri
@@ -284,9 +127,9 @@ def trial_cost(dt, pts, pol, w, pose, pivot, fit_rotation, samples, jac, staging
 
 
 @kernel
-def step_norm(step, pivot_distance):  # pragma: no cover - compiled
+def step_norm(step, pivot_distance):
     if step.shape[0] == 2:
-        return math.hypot(step[0], step[1])
+        return np.hypot(step[0], step[1])
     return math.sqrt(step[0] ** 2 + step[1] ** 2 + (step[2] * pivot_distance) ** 2)
 
 
@@ -294,7 +137,7 @@ def step_norm(step, pivot_distance):  # pragma: no cover - compiled
 def lm_loop(
     dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
     damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
-):  # pragma: no cover - compiled
+):
     """The fit of SPEC section 3 steps 2-3.
 
     ``trust_region < 0`` means no trust region. Returns the final pose
@@ -366,7 +209,7 @@ def lm_loop(
             trial[a] = pose[a]
         for a in range(n_params):
             trial[a] = pose[a] + step[a]
-        if trust_region >= 0.0 and math.hypot(trial[0] - dv0, trial[1] - du0) > trust_region:
+        if trust_region >= 0.0 and np.hypot(trial[0] - dv0, trial[1] - du0) > trust_region:
             lam = min(2 * lam, LAMBDA_MAX)
             iterations += 1
             if lam >= LAMBDA_MAX:

@@ -36,7 +36,7 @@ BRACKET_SIGMAS = 6.0
 
 
 @inline_kernel
-def _response(img, i, j):  # pragma: no cover - compiled
+def _response(img, i, j):
     """Immerkaer's response at interior pixel ``(i, j)``, summed as SciPy sums it.
 
     The nine products are added to 0.0 in the kernel's row-major order, as
@@ -58,7 +58,7 @@ def _response(img, i, j):  # pragma: no cover - compiled
 
 
 @kernel
-def _row_responses(img, i, row):  # pragma: no cover - compiled
+def _row_responses(img, i, row):
     """Immerkaer's responses of interior row ``i`` into ``row`` (``W - 2`` values).
 
     Each response is :func:`_response`'s sum, in its order; the loop runs
@@ -85,7 +85,7 @@ def _row_responses(img, i, row):  # pragma: no cover - compiled
 
 
 @kernel
-def immerkaer_interior(img, out):  # pragma: no cover - compiled
+def immerkaer_interior(img, out):
     """Immerkaer's response at every interior pixel, row by row.
 
     ``out[(i - 1) * (W - 2) + (j - 1)]`` for ``1 <= i < H - 1``,
@@ -98,7 +98,7 @@ def immerkaer_interior(img, out):  # pragma: no cover - compiled
 
 
 @kernel
-def _quickselect(a, lo, hi, k):  # pragma: no cover - compiled
+def _quickselect(a, lo, hi, k):
     """Reorder ``a[lo:hi]`` so that ``a[k]`` is its element of rank ``k - lo``.
 
     Elements left of ``k`` are ``<= a[k]``, right of it ``>= a[k]``
@@ -135,7 +135,7 @@ def _quickselect(a, lo, hi, k):  # pragma: no cover - compiled
 
 
 @kernel
-def _ranks_of_all(a, n, k0, k1):  # pragma: no cover - compiled
+def _ranks_of_all(a, n, k0, k1):
     """Elements of rank ``k0`` and ``k1 = k0`` or ``k0 + 1`` of ``a[:n]`` (reordered)."""
     _quickselect(a, 0, n, k0)
     lo = a[k0]
@@ -149,7 +149,7 @@ def _ranks_of_all(a, n, k0, k1):  # pragma: no cover - compiled
 
 
 @inline_kernel
-def _value(x, i, centre, deviations):  # pragma: no cover - compiled
+def _value(x, i, centre, deviations):
     """``x[i]``, or ``abs(x[i] - centre)`` when selecting deviations."""
     if deviations:
         return abs(x[i] - centre)
@@ -157,7 +157,7 @@ def _value(x, i, centre, deviations):  # pragma: no cover - compiled
 
 
 @kernel
-def _bracket(sample, n, k0, k1):  # pragma: no cover - compiled
+def _bracket(sample, n, k0, k1):
     """``(found, lo, hi)``: values of a sorted stride sample of ``n`` values
     that bracket ranks ``k0..k1`` with :data:`BRACKET_SIGMAS` to spare."""
     s = sample.shape[0]
@@ -170,7 +170,7 @@ def _bracket(sample, n, k0, k1):  # pragma: no cover - compiled
 
 
 @kernel
-def _gather(x, n, k0, k1, work):  # pragma: no cover - compiled
+def _gather(x, n, k0, k1, work):
     """One bracketing pass over ``x[:n]``, in place when ``work`` is ``x``.
 
     Returns ``(m, below, ok, touched)``: ``work[:m]`` holds the values
@@ -200,7 +200,7 @@ def _gather(x, n, k0, k1, work):  # pragma: no cover - compiled
 
 
 @kernel
-def _sample_responses(img):  # pragma: no cover - compiled
+def _sample_responses(img):
     """:data:`SAMPLE_SIZE` responses at evenly strided pixels (``n > SAMPLE_SIZE``).
 
     Drawn once per estimate and shared by both medians: each sampled pixel
@@ -220,7 +220,7 @@ def _sample_responses(img):  # pragma: no cover - compiled
 
 
 @kernel
-def _gather_image(img, k0, k1, centre, deviations, work, responses):  # pragma: no cover - compiled
+def _gather_image(img, k0, k1, centre, deviations, work, responses):
     """:func:`_gather` of the image's responses (or their deviations), computed
     a row at a time: no array of a million responses is written and read
     back. ``work`` must hold as many values as the image has responses;
@@ -258,7 +258,7 @@ def _gather_image(img, k0, k1, centre, deviations, work, responses):  # pragma: 
 
 
 @kernel
-def _refine(work, m, below, k0, k1):  # pragma: no cover - compiled
+def _refine(work, m, below, k0, k1):
     """Ranks ``k0, k1`` of all the values, ``work[:m]`` holding those of ranks
     ``below ..``: bracketing passes in place down to :data:`DIRECT_SELECT_MAX`
     values, then a quickselect. Returns ``(ok, a, b)``; ``ok`` is False when
@@ -280,7 +280,7 @@ def _refine(work, m, below, k0, k1):  # pragma: no cover - compiled
 
 
 @kernel
-def _order_pair(x, k0, k1, centre, deviations, work):  # pragma: no cover - compiled
+def _order_pair(x, k0, k1, centre, deviations, work):
     """Elements of rank ``k0`` and ``k1`` (``k0`` or ``k0 + 1``) of the values.
 
     The values are ``x`` or, with ``deviations``, ``abs(x - centre)``;
@@ -298,7 +298,7 @@ def _order_pair(x, k0, k1, centre, deviations, work):  # pragma: no cover - comp
 
 
 @kernel
-def _image_order_pair(img, k0, k1, centre, deviations, responses):  # pragma: no cover - compiled
+def _image_order_pair(img, k0, k1, centre, deviations, responses):
     """:func:`_order_pair` of the image's responses (or their deviations).
 
     One bracketing pass over the image gathers ~9 % of the values; only
@@ -323,7 +323,7 @@ def _image_order_pair(img, k0, k1, centre, deviations, responses):  # pragma: no
 
 
 @kernel
-def noise_statistics(img):  # pragma: no cover - compiled
+def noise_statistics(img):
     """``(median, mad, mean_abs)`` of Immerkaer's interior responses (H, W >= 3).
 
     ``median`` and ``mad`` equal ``np.median(f)`` and

@@ -69,7 +69,7 @@ MAX_DEPTH = 64
 
 
 @kernel
-def pairwise_sum(a, start, n):  # pragma: no cover - compiled
+def pairwise_sum(a, start, n):
     """NumPy's pairwise sum of ``a[start:start + n]`` (without the leading ``0.0 +``).
 
     NumPy recurses; this walks the same tree with an explicit stack (Numba's

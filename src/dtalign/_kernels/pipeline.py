@@ -40,7 +40,7 @@ def fit_polylines(
     ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm, lo, hi,
     errors, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
     r_all, w_all,
-):  # pragma: no cover - compiled
+):
     """Fit polylines ``j`` in ``lo:hi`` (rows ``starts[j]:starts[j+1]`` of the
     concatenated ``pts, nrm, sig``), writing row ``j`` of the outputs.
 

@@ -19,8 +19,6 @@ their count. Two exact ways to the same sums:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .._jit import inline_kernel, kernel
@@ -29,13 +27,13 @@ from .pairwise import BLOCK, UNROLL, numpy_sum
 
 
 @inline_kernel
-def _weight(edge, grad, r, c, nhv, nhu):  # pragma: no cover - compiled
+def _weight(edge, grad, r, c, nhv, nhu):
     """A vertex's weight at pixel ``(r, c)``: NaN stays NaN, as ``np.maximum``."""
     if not edge[r, c]:
         return 0.0
     gv = grad[r, c, 0]
     gu = grad[r, c, 1]
-    s = math.hypot(gv, gu)
+    s = np.hypot(gv, gu)
     if s == 0.0:
         s = 1.0
     cos = (nhv * gv + nhu * gu) / s
@@ -43,7 +41,7 @@ def _weight(edge, grad, r, c, nhv, nhu):  # pragma: no cover - compiled
 
 
 @kernel
-def _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support, surface):  # pragma: no cover - compiled
+def _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support, surface):
     """The general scan: per row shift, each column shift's in-bounds weights
     gathered in vertex order, then summed. Each candidate's score is also
     written to ``surface`` unless it is empty."""
@@ -82,7 +80,7 @@ def _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support, surface):  
 
 
 @kernel
-def _tree_plan(n):  # pragma: no cover - compiled
+def _tree_plan(n):
     """NumPy's summation tree of ``n`` values (:mod:`.pairwise`) as data.
 
     Returns the leaf blocks ``(start, length)`` left to right and the tree
@@ -134,7 +132,7 @@ def _tree_plan(n):  # pragma: no cover - compiled
 
 
 @kernel
-def _edge_gradients(grad, row_start, e_cols, r_lo, r_hi):  # pragma: no cover - compiled
+def _edge_gradients(grad, row_start, e_cols, r_lo, r_hi):
     """``(g_v, g_u, s)`` of every indexed edge pixel, ``s = hypot(g)`` (1 where
     it is 0): formed once per pixel, not once per vertex that meets it."""
     m = e_cols.shape[0]
@@ -147,13 +145,13 @@ def _edge_gradients(grad, row_start, e_cols, r_lo, r_hi):  # pragma: no cover - 
             b = grad[r, e_cols[j], 1]
             gv[j] = a
             gu[j] = b
-            s = math.hypot(a, b)
+            s = np.hypot(a, b)
             norm[j] = 1.0 if s == 0.0 else s
     return gv, gu, norm
 
 
 @kernel
-def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu, surface):  # pragma: no cover - compiled
+def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu, surface):
     """Scores when every vertex stays inside the image under every shift.
 
     Vertex ``i`` sits at place ``i`` of NumPy's tree for every shift: in its
@@ -240,7 +238,7 @@ def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu, surf
 
 
 @kernel
-def polarity_search(edge, grad, pts, nrm, mv, mu, min_support):  # pragma: no cover - compiled
+def polarity_search(edge, grad, pts, nrm, mv, mu, min_support):
     """``(dv, du, best_score)``; ``best_score`` is -1 when no shift is eligible.
 
     ``edge`` is a C-contiguous bool mask, ``grad`` its ``(H, W, 2)``
@@ -251,7 +249,7 @@ def polarity_search(edge, grad, pts, nrm, mv, mu, min_support):  # pragma: no co
 
 
 @kernel
-def polarity_surface(edge, grad, pts, nrm, mv, mu, min_support):  # pragma: no cover - compiled
+def polarity_surface(edge, grad, pts, nrm, mv, mu, min_support):
     """Every shift's score as :func:`polarity_search` forms it,
     ``(2 mv + 1, 2 mu + 1)``; NaN where the shift is not a candidate."""
     surface = np.full((2 * mv + 1, 2 * mu + 1), np.nan)
@@ -260,7 +258,7 @@ def polarity_surface(edge, grad, pts, nrm, mv, mu, min_support):  # pragma: no c
 
 
 @kernel
-def polarity_scan(edge, grad, pts, nrm, mv, mu, min_support, surface):  # pragma: no cover - compiled
+def polarity_scan(edge, grad, pts, nrm, mv, mu, min_support, surface):
     """:func:`polarity_search`, also writing each candidate's score to
     ``surface`` unless it is empty."""
     h, w = edge.shape
@@ -273,7 +271,7 @@ def polarity_scan(edge, grad, pts, nrm, mv, mu, min_support, surface):  # pragma
     for i in range(n):
         bv[i] = np.rint(pts[i, 0])
         bu[i] = np.rint(pts[i, 1])
-        norm = math.hypot(nrm[i, 0], nrm[i, 1])
+        norm = np.hypot(nrm[i, 0], nrm[i, 1])
         if norm == 0.0:
             norm = 1.0
         nhv[i] = nrm[i, 0] / norm

@@ -13,7 +13,8 @@ import math
 import numpy as np
 
 from .._jit import kernel
-from .lm import EPS_R, step_norm
+from .lanes import EPS_R
+from .lm import step_norm
 from .robust import irls_weight, normal_equations, solve_step
 from .sampling import TILE, bilinear, fill_tiles, sample_magnitude, transform
 
@@ -33,7 +34,7 @@ PATCH_MARGIN = 8
 
 
 @kernel
-def magnitude_patch(grad, pts, dv, du, reach):  # pragma: no cover - compiled
+def magnitude_patch(grad, pts, dv, du, reach):
     """An unfilled magnitude patch over the box the profiles can reach.
 
     Returns ``(patch, tiles, r0, c0)``: the patch is filled tile by tile as
@@ -62,7 +63,7 @@ def magnitude_patch(grad, pts, dv, du, reach):  # pragma: no cover - compiled
 
 
 @kernel
-def peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot):  # pragma: no cover
+def peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot):
     """Sub-pixel signed distance ``t*`` to the magnitude peak along each normal.
 
     Writes ``t*`` into ``out``, 1.0/0.0 validity into ``valid`` and the
@@ -122,7 +123,7 @@ def peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, dv, 
 def ridge_loop(
     magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pivot_distance,
     max_iterations, step_tolerance, tukey_c, half, sample_step,
-):  # pragma: no cover - compiled
+):
     """Gauss-Newton on ``t*``; returns the final pose, iterations, converged
     and a status (:data:`RIDGE_OK`, :data:`RIDGE_BAD_FIELD`, :data:`RIDGE_DIVERGED`).
 

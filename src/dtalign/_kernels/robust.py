@@ -7,12 +7,10 @@ import math
 import numpy as np
 
 from .._jit import inline_kernel, kernel
-from .simd import MAX_ELEMENTS, store4
-from .simd_image import polarity4
 
 
 @inline_kernel
-def tukey(x, c):  # pragma: no cover - compiled
+def tukey(x, c):
     """Biweight of one scaled residual: ``(1 - s^2)^2`` for ``|s| <= 1``, else 0.
 
     A select rather than a branch (``t * t`` is formed either way and
@@ -24,7 +22,7 @@ def tukey(x, c):  # pragma: no cover - compiled
 
 
 @kernel
-def tukey_many(r, c):  # pragma: no cover - compiled
+def tukey_many(r, c):
     out = np.empty(r.shape[0])
     for i in range(r.shape[0]):
         out[i] = tukey(r[i], c)
@@ -32,13 +30,13 @@ def tukey_many(r, c):  # pragma: no cover - compiled
 
 
 @kernel
-def irls_weight(r, sigma, c, accepted):  # pragma: no cover - compiled
+def irls_weight(r, sigma, c, accepted):
     """``(1 / sigma^2) * tukey(r / sigma) * polarity`` in the reference's order."""
     return (1.0 / (sigma * sigma)) * tukey(r / sigma, c) * accepted
 
 
 @inline_kernel
-def _polarity_at(pts, nrm, grad, i, dv, du):  # pragma: no cover - compiled
+def _polarity_at(pts, nrm, grad, i, dv, du):
     """Vertex ``i``'s polarity flag (1.0 or 0.0), and whether the gradient
     vector it read is not finite."""
     iv = np.rint(pts[i, 0] + dv)
@@ -54,8 +52,13 @@ def _polarity_at(pts, nrm, grad, i, dv, du):  # pragma: no cover - compiled
 
 
 @kernel
-def polarity_one_by_one(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
-    """:func:`polarity`, vertex by vertex (what its four-vertex lanes must match)."""
+def polarity(pts, nrm, grad, dv, du):
+    """1.0 where the normal points up the gradient at the shifted pixel, else 0.0.
+
+    Also returns True if a gradient value it read was NaN or inf (the flags
+    are then incomplete). Vertex by vertex: the plain twin of
+    :func:`dtalign._kernels.lanes.vector.polarity`.
+    """
     out = np.zeros(pts.shape[0])
     for i in range(pts.shape[0]):
         out[i], bad = _polarity_at(pts, nrm, grad, i, dv, du)
@@ -65,29 +68,7 @@ def polarity_one_by_one(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
 
 
 @kernel
-def polarity(pts, nrm, grad, dv, du):  # pragma: no cover - compiled
-    """1.0 where the normal points up the gradient at the shifted pixel, else 0.0.
-
-    Also returns True if a gradient value it read was NaN or inf. Four
-    vertices at a time (:func:`.simd_image.polarity4`), the rest one by one.
-    """
-    n = pts.shape[0]
-    out = np.zeros(n)
-    n4 = n - n % 4 if grad.size <= MAX_ELEMENTS else 0
-    for i in range(0, n4, 4):
-        flags, bad = polarity4(pts, nrm, grad, i, dv, du)
-        if bad:
-            return out, True
-        store4(out, i, flags)
-    for i in range(n4, n):
-        out[i], bad = _polarity_at(pts, nrm, grad, i, dv, du)
-        if bad:
-            return out, True
-    return out, False
-
-
-@kernel
-def normal_equations(jac, w, r, n_params):  # pragma: no cover - compiled
+def normal_equations(jac, w, r, n_params):
     """``H = A^T A`` and ``g = A^T (sqrt(w) r)`` with ``A = sqrt(w) J``.
 
     Accumulated row by row (sequential sums) over the first ``n_params``
@@ -112,7 +93,7 @@ def normal_equations(jac, w, r, n_params):  # pragma: no cover - compiled
 
 
 @kernel
-def pinvh(matrix, rcond):  # pragma: no cover - compiled
+def pinvh(matrix, rcond):
     """Symmetric pseudoinverse, following ``scipy.linalg.pinvh(a, rtol=rcond)``.
 
     Eigenvalues with ``|s| <= rcond * max|s|`` are dropped and the result is
@@ -139,7 +120,7 @@ def pinvh(matrix, rcond):  # pragma: no cover - compiled
 
 
 @kernel
-def symmetric_pinvh(matrix, rcond):  # pragma: no cover - compiled
+def symmetric_pinvh(matrix, rcond):
     """``0.5 * (P + P^T)`` with ``P = pinvh(matrix, rcond)``: the covariance map.
 
     Returns ``(covariance, ok)``; ``ok`` is False (and the covariance all
@@ -156,7 +137,7 @@ def symmetric_pinvh(matrix, rcond):  # pragma: no cover - compiled
 
 
 @kernel
-def solve_step(matrix, rhs, rcond):  # pragma: no cover - compiled
+def solve_step(matrix, rhs, rcond):
     """``-solve(matrix, rhs)``; ``-pinvh(matrix) @ rhs`` when singular.
 
     Gaussian elimination with partial pivoting (first largest pivot and

@@ -28,7 +28,7 @@ def clamp(x, hi):
 
 
 @inline_kernel
-def cell(h, w, v, u):  # pragma: no cover - compiled
+def cell(h, w, v, u):
     """Corner rows/columns ``v0, u0, v1, u1`` and fractions ``fv, fu`` of the
     bilinear cell at ``(v, u)``, clamped to an ``h x w`` image."""
     v = clamp(v, h - 1.0)
@@ -39,26 +39,26 @@ def cell(h, w, v, u):  # pragma: no cover - compiled
 
 
 @inline_kernel
-def blend(a, b, c, d, fv, fu):  # pragma: no cover - compiled
+def blend(a, b, c, d, fv, fu):
     """Corners ``a = (v0, u0)``, ``b = (v0, u1)``, ``c = (v1, u0)``,
     ``d = (v1, u1)`` weighted in the order of SPEC section 2."""
     return a * (1 - fv) * (1 - fu) + b * (1 - fv) * fu + c * fv * (1 - fu) + d * fv * fu
 
 
 @inline_kernel
-def bilinear(dt, v, u):  # pragma: no cover - compiled
+def bilinear(dt, v, u):
     """``dt`` sampled at ``(v, u)``, clamped to the image."""
     v0, u0, v1, u1, fv, fu = cell(dt.shape[0], dt.shape[1], v, u)
     return blend(dt[v0, u0], dt[v0, u1], dt[v1, u0], dt[v1, u1], fv, fu)
 
 
 @kernel
-def _bilinear_hypot(grad, v, u):  # pragma: no cover - compiled
+def _bilinear_hypot(grad, v, u):
     """:func:`bilinear` of ``hypot(g_v, g_u)`` straight from the gradient vectors."""
     v0, u0, v1, u1, fv, fu = cell(grad.shape[0], grad.shape[1], v, u)
     return blend(
-        math.hypot(grad[v0, u0, 0], grad[v0, u0, 1]), math.hypot(grad[v0, u1, 0], grad[v0, u1, 1]),
-        math.hypot(grad[v1, u0, 0], grad[v1, u0, 1]), math.hypot(grad[v1, u1, 0], grad[v1, u1, 1]),
+        np.hypot(grad[v0, u0, 0], grad[v0, u0, 1]), np.hypot(grad[v0, u1, 0], grad[v0, u1, 1]),
+        np.hypot(grad[v1, u0, 0], grad[v1, u0, 1]), np.hypot(grad[v1, u1, 0], grad[v1, u1, 1]),
         fv, fu,
     )
 
@@ -68,7 +68,7 @@ TILE = 16
 
 
 @kernel
-def fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr0, pr1, pc0, pc1):  # pragma: no cover
+def fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr0, pr1, pc0, pc1):
     """Form ``hypot(g_v, g_u)`` in every unfilled tile covering rows ``pr0..pr1``
     and columns ``pc0..pc1`` of the patch (out of line: it runs once per tile)."""
     for tr in range(pr0 // TILE, pr1 // TILE + 1):
@@ -88,7 +88,7 @@ def fill_tiles(patch, tiles, grad, r0, c0, use_libm, pr0, pr1, pc0, pc1):  # pra
 
 
 @inline_kernel
-def sample_magnitude(magnitude, patch, tiles, grad, r0, c0, use_libm, v, u):  # pragma: no cover - compiled
+def sample_magnitude(magnitude, patch, tiles, grad, r0, c0, use_libm, v, u):
     """Bilinear gradient magnitude at ``(v, u)``.
 
     With an empty ``grad``, this samples the magnitude image ``magnitude``.
@@ -120,7 +120,7 @@ def sample_magnitude(magnitude, patch, tiles, grad, r0, c0, use_libm, v, u):  # 
 
 
 @inline_kernel
-def transform(v, u, dv, du, theta, cos_t, sin_t, pv, pu):  # pragma: no cover - compiled
+def transform(v, u, dv, du, theta, cos_t, sin_t, pv, pu):
     """Rotate ``(v, u)`` about the pivot, then translate.
 
     ``cos_t``/``sin_t`` are ``cos(theta)``/``sin(theta)``, computed once per
@@ -134,7 +134,7 @@ def transform(v, u, dv, du, theta, cos_t, sin_t, pv, pu):  # pragma: no cover - 
 
 
 @kernel
-def sample_many(dt, pts):  # pragma: no cover - compiled
+def sample_many(dt, pts):
     """``dt`` sampled at every row of ``pts``."""
     n = pts.shape[0]
     out = np.empty(n)

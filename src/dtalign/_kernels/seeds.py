@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .._jit import kernel
@@ -11,7 +9,7 @@ from .coarse import better
 
 
 @kernel
-def top_k(surface, mv, mu, k, separation):  # pragma: no cover - compiled
+def top_k(surface, mv, mu, k, separation):
     """Up to ``k`` local maxima of ``surface`` (rows ``dv + mv``, columns
     ``du + mu``; NaN marks a shift that is no candidate), best first in the
     coarse searches' order, each at least ``separation`` from those before.
@@ -62,6 +60,6 @@ def top_k(surface, mv, mu, k, separation):  # pragma: no cover - compiled
         count += 1
         for a in range(nv):
             for b in range(nu):
-                if peak[a, b] and math.hypot(a - mv - best_dv, b - mu - best_du) < separation:
+                if peak[a, b] and np.hypot(a - mv - best_dv, b - mu - best_du) < separation:
                     peak[a, b] = False
     return count, dv_out, du_out, score_out

@@ -30,7 +30,7 @@ ROUNDS = 18_000
 
 
 @kernel
-def fp_throughput(rounds):  # pragma: no cover - compiled
+def fp_throughput(rounds):
     """``LANES`` independent chains of ``x * (1 + 1e-7) + 1e-9``, ``rounds`` times.
 
     Returns their sum (so the work cannot be optimised away).

@@ -14,7 +14,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from .._jit import inline_kernel, kernel
+from ..._jit import inline_kernel, kernel
 
 #: The lowest bit of every byte.
 LOW_BITS = np.uint64(0x0101010101010101)
@@ -24,7 +24,7 @@ BLOCK = 32
 
 
 @intrinsic
-def trailing_zeros(typingctx, x):  # type: ignore[no-untyped-def]  # pragma: no cover
+def trailing_zeros(typingctx, x):  # type: ignore[no-untyped-def]
     """Index of the lowest set bit of a nonzero uint64 (LLVM ``cttz``)."""
     if x != types.uint64:
         return None
@@ -36,7 +36,7 @@ def trailing_zeros(typingctx, x):  # type: ignore[no-untyped-def]  # pragma: no 
 
 
 @inline_kernel
-def byte_bits(x):  # pragma: no cover - compiled
+def byte_bits(x):
     """Bit ``8k`` set exactly where byte ``k`` of ``x`` is nonzero; all other bits clear.
 
     Right shifts by 4, 2 and 1 (7 in all) fold each byte onto its lowest bit
@@ -49,13 +49,13 @@ def byte_bits(x):  # pragma: no cover - compiled
 
 
 @inline_kernel
-def from_byte(b):  # pragma: no cover - compiled
+def from_byte(b):
     """Bits of bytes ``b..7`` of a word (``0 <= b < 8``)."""
     return ALL_BITS << np.uint64(8 * b)
 
 
 @kernel
-def emit(bits, base, out, k):  # pragma: no cover - compiled
+def emit(bits, base, out, k):
     """Write ``base + k`` for every byte flagged in ``bits`` (see :func:`byte_bits`)
     from ``out[k]`` on; returns the new count (indices past ``out``'s end are
     counted, not written)."""
@@ -70,7 +70,7 @@ def emit(bits, base, out, k):  # pragma: no cover - compiled
 
 
 @kernel
-def _bytes(flat, start, stop, out, k):  # pragma: no cover - compiled
+def _bytes(flat, start, stop, out, k):
     """:func:`fill` of the few bytes past the last whole word of the buffer."""
     for i in range(start, stop):
         if flat[i] != 0:
@@ -81,7 +81,7 @@ def _bytes(flat, start, stop, out, k):  # pragma: no cover - compiled
 
 
 @kernel
-def fill(flat, words, start, stop, out, k):  # pragma: no cover - compiled
+def fill(flat, words, start, stop, out, k):
     """Write the indices of the nonzero bytes of ``flat[start:stop]`` from ``out[k]``.
 
     ``words`` views the whole words of the same buffer as uint64. Returns

@@ -37,10 +37,12 @@ from .simd import (
     _V2D,
     _V4D,
     _V4I,
+    _address,
     _align,
     _contiguous,
     _intrinsic_call,
     _k,
+    _store,
     _vector,
     float4,
 )
@@ -49,11 +51,7 @@ from .simd import (
 def _pairs_at(b, base, lanes, align):  # type: ignore[no-untyped-def]
     """``(x[i], x[i + 1])`` at the four lane indices ``i`` of a float64 buffer,
     as two vectors, from four 16-byte loads."""
-    loads = []
-    for i in lanes:
-        ld = b.load(b.bitcast(b.gep(base, [i], inbounds=True), _V2D.as_pointer()))
-        ld.align = align
-        loads.append(ld)
+    loads = [b.load(_address(b, base, i), typ=_V2D, align=align) for i in lanes]
     x = b.shuffle_vector(loads[0], loads[1], ir.Constant(_V4I, [0, 1, 2, 3]))
     y = b.shuffle_vector(loads[2], loads[3], ir.Constant(_V4I, [0, 1, 2, 3]))
     return (b.shuffle_vector(x, y, ir.Constant(_V4I, [0, 2, 4, 6])),
@@ -63,9 +61,8 @@ def _pairs_at(b, base, lanes, align):  # type: ignore[no-untyped-def]
 def _lanes_of_pairs(context, b, arrtype, value, i):  # type: ignore[no-untyped-def]
     """Columns 0 and 1 of rows ``i..i+3`` of an ``(n, 2)`` C array, one 64-byte load."""
     a = context.make_array(arrtype)(context, b, value)
-    p = b.gep(a.data, [b.mul(i, ir.Constant(_I64, 2))], inbounds=True)
-    ld = b.load(b.bitcast(p, ir.VectorType(_F64, 8).as_pointer()))
-    ld.align = _align(arrtype)
+    p = _address(b, a.data, b.mul(i, ir.Constant(_I64, 2)))
+    ld = b.load(p, typ=ir.VectorType(_F64, 8), align=_align(arrtype))
     return (b.shuffle_vector(ld, ld, ir.Constant(_V4I, [0, 2, 4, 6])),
             b.shuffle_vector(ld, ld, ir.Constant(_V4I, [1, 3, 5, 7])))
 
@@ -79,7 +76,7 @@ class _Image:
         h, w = cgutils.unpack_tuple(builder, a.shape, 2)
         self.data = a.data
         self.align = _align(arrtype)
-        self.data_below = builder.gep(a.data, [w], inbounds=True)  # one row down
+        self.data_below = _address(builder, a.data, w)  # one row down
         self.w = self._splat_i(builder.trunc(w, _I32))
         self.last_v = builder.sub(h, ir.Constant(_I64, 1))
         self.last_u = builder.sub(w, ir.Constant(_I64, 1))
@@ -132,8 +129,7 @@ class _Image:
         out = ir.Constant(_V4D, ir.Undefined)
         for k in range(4):
             i = b.zext(b.extract_element(idx, _k(k)), _I64)
-            ld = b.load(b.gep(self.data, [i], inbounds=True))
-            ld.align = self.align
+            ld = b.load(_address(b, self.data, i), typ=_F64, align=self.align)
             out = b.insert_element(out, ld, _k(k))
         return out
 
@@ -197,13 +193,10 @@ class _Image:
         b = self.b
         for c, (rw, cl) in enumerate(cells):
             at = b.add(b.mul(slot, ir.Constant(_I64, CELLS_PER_SLOT)), ir.Constant(_I64, 4 * c))
-            st = b.store(b.add(rw[0], cl[0]), b.bitcast(b.gep(cell_buf, [at], inbounds=True), _V4I.as_pointer()))
-            st.align = 4
+            _store(b, b.add(rw[0], cl[0]), _address(b, cell_buf, at, _I32), 4)
             at = b.add(b.mul(slot, ir.Constant(_I64, FRACS_PER_SLOT)), ir.Constant(_I64, 8 * c))
             for j, f in enumerate((rw[2], cl[2])):
-                ptr = b.gep(frac_buf, [b.add(at, ir.Constant(_I64, 4 * j))], inbounds=True)
-                st = b.store(f, b.bitcast(ptr, _V4D.as_pointer()))
-                st.align = 8
+                _store(b, f, _address(b, frac_buf, b.add(at, ir.Constant(_I64, 4 * j))), 8)
         return self._inside(cells)
 
     def finish(self, count, cell_buf, frac_buf, slot):  # type: ignore[no-untyped-def]
@@ -219,16 +212,14 @@ class _Image:
         for c in range(count):
             at = b.add(b.mul(slot, ir.Constant(_I64, CELLS_PER_SLOT)), ir.Constant(_I64, 4 * c))
             lanes = [
-                b.zext(b.load(b.gep(cell_buf, [b.add(at, ir.Constant(_I64, k))], inbounds=True)), _I64)
+                b.zext(b.load(_address(b, cell_buf, b.add(at, ir.Constant(_I64, k)), _I32), typ=_I32), _I64)
                 for k in range(4)
             ]
             at = b.add(b.mul(slot, ir.Constant(_I64, FRACS_PER_SLOT)), ir.Constant(_I64, 8 * c))
             fr = []
             for j in range(2):
-                ptr = b.gep(frac_buf, [b.add(at, ir.Constant(_I64, 4 * j))], inbounds=True)
-                ld = b.load(b.bitcast(ptr, _V4D.as_pointer()))
-                ld.align = 8
-                fr.append(ld)
+                ptr = _address(b, frac_buf, b.add(at, ir.Constant(_I64, 4 * j)))
+                fr.append(b.load(ptr, typ=_V4D, align=8))
             fv, fu = fr
             out.append(self._inner(lanes, fv, b.fsub(one, fv), fu, b.fsub(one, fu)))
         return out

@@ -23,7 +23,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, models, overload, register_model
 
-from .._jit import inline_kernel
+from ..._jit import inline_kernel
 
 _F64 = ir.DoubleType()
 _I32 = ir.IntType(32)
@@ -31,6 +31,8 @@ _I64 = ir.IntType(64)
 _V4D = ir.VectorType(_F64, 4)
 _V4I = ir.VectorType(_I32, 4)
 _V2D = ir.VectorType(_F64, 2)
+#: The one pointer type of opaque-pointer IR (llvmlite drops typed pointers).
+_PTR = ir.PointerType()
 
 #: Largest number of DT elements whose cell indices fit 32-bit lanes.
 MAX_ELEMENTS = 2**31 - 1
@@ -76,6 +78,36 @@ def _align(arrtype):  # type: ignore[no-untyped-def]
     """The alignment a load from ``arrtype``'s data may assume: 8 bytes for
     float64 arrays NumPy aligned, 1 for unaligned views (of a byte buffer)."""
     return arrtype.dtype.bitwidth // 8 if arrtype.aligned else 1
+
+
+def _opaque(builder, ptr):  # type: ignore[no-untyped-def]
+    """``ptr`` as an opaque pointer: Numba still hands out typed ones, and the
+    loads and stores below name the type they access instead (a no-op cast)."""
+    return ptr if ptr.type.is_opaque else builder.bitcast(ptr, _PTR)
+
+
+def _address(builder, base, index, etype=_F64):  # type: ignore[no-untyped-def]
+    """The address of element ``index`` of type ``etype`` from ``base``."""
+    return builder.gep(_opaque(builder, base), [index], inbounds=True, source_etype=etype)
+
+
+def _store(builder, value, ptr, align):  # type: ignore[no-untyped-def]
+    """``*ptr = value`` for a vector ``value``, through an opaque pointer.
+
+    llvmlite's ``store`` insists that a typed pointer (which Numba still
+    hands out) point to the value's type, which would take a typed-pointer
+    cast; ``llvm.masked.store`` takes an opaque ``ptr``, and LLVM folds its
+    all-true mask into an ordinary store.
+    """
+    lanes = value.type.count
+    name = f"llvm.masked.store.v{lanes}{value.type.element.intrinsic_name}.p0"
+    mask = ir.Constant(ir.VectorType(ir.IntType(1), lanes), [1] * lanes)
+    fn = cgutils.get_or_insert_function(
+        builder.module,
+        ir.FunctionType(ir.VoidType(), [value.type, _PTR, _I32, mask.type]),
+        name,
+    )
+    builder.call(fn, [value, ptr, _k(align), mask])
 
 
 def _intrinsic_call(builder, name, vtype, *args):  # type: ignore[no-untyped-def]
@@ -143,10 +175,8 @@ def load4(typingctx, arr, i):  # type: ignore[no-untyped-def]
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         a = context.make_array(signature.args[0])(context, builder, args[0])
-        p = builder.gep(a.data, [args[1]], inbounds=True)
-        ld = builder.load(builder.bitcast(p, _V4D.as_pointer()))
-        ld.align = _align(signature.args[0])
-        return ld
+        return builder.load(_address(builder, a.data, args[1]), typ=_V4D,
+                            align=_align(signature.args[0]))
 
     return float4(arr, types.int64), codegen
 
@@ -159,9 +189,7 @@ def store4(typingctx, arr, i, x):  # type: ignore[no-untyped-def]
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         a = context.make_array(signature.args[0])(context, builder, args[0])
-        p = builder.gep(a.data, [args[1]], inbounds=True)
-        st = builder.store(args[2], builder.bitcast(p, _V4D.as_pointer()))
-        st.align = _align(signature.args[0])
+        _store(builder, args[2], _address(builder, a.data, args[1]), _align(signature.args[0]))
         return context.get_dummy_value()
 
     return types.none(arr, types.int64, float4), codegen
@@ -261,6 +289,6 @@ _all_equal = _mask_test("_all_equal", "==", True, True)
 
 
 @inline_kernel
-def all_finite(x):  # pragma: no cover - compiled
+def all_finite(x):
     """Whether every lane of ``x`` is finite (``x - x`` is NaN for NaN and inf)."""
     return _all_equal(x - x, splat(0.0))
