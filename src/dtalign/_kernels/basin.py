@@ -143,23 +143,37 @@ def _in_bounds_counts(v_in, u_in):
 @kernel
 def _region_ok(dt, v_low, u_low):
     """``(finite, non_negative, step)`` of the DT pixels the scan can read;
-    ``step`` is the largest difference between horizontal neighbours there."""
+    ``step`` bounds the difference between horizontal neighbours there.
+
+    A distance transform's steps are at most 1, so the common case is
+    settled by counting (loops LLVM vectorises, unlike float max/min
+    reductions without fast math): the pixels that are not finite, that are
+    negative, and the steps above 1. Only a DT with a larger step pays for
+    the exact largest step, in a second pass.
+    """
     h, w = dt.shape
     r0 = v_low.min()
     r1 = min(v_low.max() + 1, h - 1)
     c0 = u_low.min()
     c1 = min(u_low.max() + 1, w - 1)
-    finite = True
-    non_negative = True
-    step = 0.0
+    bad = 0
+    negative = 0
+    steep = 0
     for r in range(r0, r1 + 1):
+        row = dt[r]
         for c in range(c0, c1 + 1):
-            x = dt[r, c]
-            finite &= math.isfinite(x)
-            non_negative &= x >= 0.0
-            if c > c0:
-                step = max(step, abs(x - dt[r, c - 1]))
-    return finite, non_negative, step
+            x = row[c]
+            bad += not (x - x == 0.0)  # NaN or inf
+            negative += x < 0.0
+        for c in range(c0 + 1, c1 + 1):
+            steep += abs(row[c] - row[c - 1]) > 1.0
+    step = 1.0
+    if steep > 0 and bad == 0:
+        step = 0.0
+        for r in range(r0, r1 + 1):
+            for c in range(c0 + 1, c1 + 1):
+                step = max(step, abs(dt[r, c] - dt[r, c - 1]))
+    return bad == 0, negative == 0, step
 
 
 @kernel
