@@ -26,9 +26,16 @@ import textwrap
 from collections.abc import Iterator
 from pathlib import Path
 
+import numba
 import pytest
 
 import dtalign
+
+# Under NUMBA_DISABLE_JIT nothing is compiled, so there is no cache to damage
+# or to find: these tests are about compiled code only.
+pytestmark = pytest.mark.skipif(
+    numba.config.DISABLE_JIT, reason="NUMBA_DISABLE_JIT: no compiled code, no cache"
+)
 
 #: The children import the same dtalign as this process (source tree or install).
 SRC = Path(dtalign.__file__).resolve().parents[1]
