@@ -301,13 +301,6 @@ def best_scored(overlap, counts, n_pixels, mv, mu, min_support):
 
 
 @kernel
-def best_shift(overlap, counts, mv, mu):
-    """:func:`best_scored`'s shift with no support floor (SPEC section 2's search)."""
-    dv, du, _ = best_scored(overlap, counts, 1, mv, mu, 0.0)
-    return dv, du
-
-
-@kernel
 def support_of_vertices(pts, h, w):
     """Row-major unique ``(rows, cols)`` of the pixels :func:`rasterise` would set."""
     flat = np.empty(pts.shape[0], dtype=np.int64)
@@ -433,17 +426,9 @@ def float_overlap_search(values, pv, pu, mv, mu, min_support):
 
 
 @kernel
-def search_index(row_start, e_cols, pv, pu, h, w, mv, mu):
-    """Best shift for a polyline support against edge pixels indexed by row."""
-    if pv.shape[0] == 0:
-        return 0, 0
-    overlap = overlap_sparse(pv, pu, row_start, e_cols, h, w, mv, mu)
-    return best_shift(overlap, in_image_counts(pv, pu, h, w, mv, mu), mv, mu)
-
-
-@kernel
 def search_index_scored(row_start, e_cols, pv, pu, h, w, mv, mu, min_support):
-    """:func:`search_index` with a support floor: ``(dv, du, score)``."""
+    """Best shift ``(dv, du, score)`` for a polyline support against edge pixels
+    indexed by row (:func:`row_starts`), with a support floor."""
     if pv.shape[0] == 0:
         return 0, 0, 0.0
     overlap = overlap_sparse(pv, pu, row_start, e_cols, h, w, mv, mu)
@@ -457,16 +442,6 @@ def polyline_support(poly):
     h, w = poly.shape
     poly_flat, poly_words = flat_words(poly)
     return nonzero_in_box(poly_flat, poly_words, w, 0, h - 1, 0, w - 1)
-
-
-@kernel
-def coarse_search(edge, poly, mv, mu):
-    """``(dv, du)`` of the best shift; ``(0, 0)`` when no pixel can stay inside.
-
-    Masks are C-contiguous 2-D bool arrays of the same, non-empty shape.
-    """
-    pv, pu = polyline_support(poly)
-    return search_support(edge, pv, pu, mv, mu)
 
 
 @kernel
