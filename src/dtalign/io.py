@@ -101,7 +101,8 @@ def _pillow_array(p: Path) -> np.ndarray:
         from PIL import Image
     except ImportError:
         raise ImportError(
-            f"reading {p.suffix or 'image'} files needs Pillow: pip install dtalign[cli]"
+            f"reading {p.suffix or 'image'} files needs Pillow: pip install pillow "
+            "(or install dtalign with its extra: pip install '.[cli]' in a clone)"
         ) from None
     try:
         with Image.open(p) as img:
