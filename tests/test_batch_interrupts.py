@@ -98,6 +98,13 @@ SCRIPT = textwrap.dedent(
         products, polys, search_window_vu=W, workers=2, errors="collect"), serial)
     calls["fit_images-2"] = (2, lambda: fit_images(images, search_window_vu=W, workers=2),
                              serial_images)
+    # with progress the calling thread waits for the pool's reports and runs the callback
+    calls["fit_many-progress-2"] = (2, lambda: fit_many(
+        products, polys, search_window_vu=W, workers=2, progress=lambda done, total: None),
+        serial)
+    calls["fit_images-progress-2"] = (2, lambda: fit_images(
+        images, search_window_vu=W, workers=2, progress=lambda done, total: None),
+        serial_images)
     calls["map_ordered-2"] = (2, lambda: map_ordered(lambda p: fit_polyline_products(
         products, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=W), polys,
         workers=2), serial)

@@ -19,8 +19,9 @@ shuts it down before it returns, so no thread, queue or flag outlives a
 call to be found by the next one. Its workers take the next item from the
 call's queue (a ``collections.deque``, whose ``popleft`` is
 thread-safe): a thread on a slower core simply takes fewer. Called from the
-main thread, where Python runs signal handlers, the batch runs entirely in
-the pool and the calling thread only waits, so an exception a handler
+main thread, where Python runs signal handlers (or with ``progress``), the
+batch runs entirely in the pool and the calling thread only waits (and
+reports progress), so an exception a handler
 raises (KeyboardInterrupt, a ``SIGALRM`` timeout's) arrives in that wait,
 never inside an item (where it would pass for the item's error, or turn
 into a SystemError inside Numba's boxing of a kernel's result). It sets the
@@ -51,6 +52,31 @@ Collected are the errors of an item's data and fit and, in
 cannot be loaded, an image that cannot be prepared); an item of neither
 accepted form, a bad option or a bad ``workers`` raises at once.
 
+Progress
+--------
+``progress=callback`` calls ``callback(done, total)`` once per completed
+item (a polyline of :func:`fit_many`, an image of :func:`fit_images`):
+``done`` is 1, 2, ..., ``total``, the number of items. The calls are made
+from the calling thread, which waits while the pool fits and reports each
+item as a worker finishes it (in completion order, perhaps a little after),
+so the callback needs no lock and may drive a progress bar or a GUI; it
+changes nothing in the results. With ``errors="collect"`` a failed item
+counts as completed (its place holds its error), so a call that returns
+has reported ``done == total``; with ``errors="raise"`` the calls stop at
+the first failure. If the callback raises, the batch stops as on an
+interrupt (no item starts, the items in progress finish, their results are
+dropped, no thread outlives the call) and its exception propagates
+unchanged: it is the caller's error, not an item's, so ``errors="collect"``
+does not collect it. ``progress=True`` shows a tqdm bar on standard error
+(tqdm comes with the ``cli`` extra); for a bar of one's own (a notebook
+widget of ``tqdm.auto``, other options) pass its update as the callback::
+
+    from tqdm.auto import tqdm
+
+    with tqdm(total=len(polylines), unit="polyline") as bar:
+        fits = fit_many(products, polylines, search_window_vu=(30, 30),
+                        progress=lambda done, total: bar.update(done - bar.n))
+
 Examples
 --------
 >>> from dtalign import scenes
@@ -70,11 +96,19 @@ import inspect
 import math
 import numbers
 import os
+import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import CancelledError, Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import (
+    CancelledError,
+    Executor,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    as_completed,
+)
+from contextlib import contextmanager
 from types import MappingProxyType
 from typing import Any, Literal, TypeVar, overload
 
@@ -149,6 +183,70 @@ def _check_options(options: dict[str, Any]) -> None:
         check_seeds(options["seeds"])
 
 
+def _check_progress(progress: Any) -> Callable[[int, int], Any] | bool | None:
+    if progress is None or isinstance(progress, bool) or callable(progress):
+        return progress
+    raise TypeError(
+        f"progress must be a callable progress(done, total), True (a tqdm bar) or None, "
+        f"got {type(progress).__name__}"
+    )
+
+
+class _Progress:
+    """Items completed, counted by the thread that completes each and reported
+    by the calling thread as ``callback(done, total)``, one call per item.
+
+    The workers only :meth:`tick` (``SimpleQueue.put`` never blocks and takes
+    no lock the calling thread could hold when an interrupt lands); the
+    calling thread waits in :meth:`report`, whose ``get`` a signal handler's
+    exception interrupts as it does any other wait.
+    """
+
+    def __init__(self, callback: Callable[[int, int], Any], total: int) -> None:
+        self.callback, self.total, self.done = callback, total, 0
+        self._ticks: queue.SimpleQueue[int] = queue.SimpleQueue()
+
+    def tick(self, k: int = 1) -> None:
+        """``k`` more items are complete (any thread)."""
+        self._ticks.put(k)
+
+    def close(self) -> None:
+        """The work is over (any thread): :meth:`report` returns."""
+        self._ticks.put(0)
+
+    def step(self) -> None:
+        """Report one more item (the calling thread)."""
+        self.done += 1
+        self.callback(self.done, self.total)
+
+    def report(self) -> None:
+        """Report each tick until :meth:`close` (the calling thread)."""
+        while k := self._ticks.get():
+            for _ in range(k):
+                self.step()
+
+
+@contextmanager
+def _reporter(progress: Callable[[int, int], Any] | bool | None, total: int,
+              unit: str) -> Iterator[_Progress | None]:
+    """The call's :class:`_Progress` (None without ``progress``); with
+    ``progress=True``, one that drives a tqdm bar, closed on the way out."""
+    if progress is None or progress is False:
+        yield None
+    elif progress is True:
+        try:
+            from tqdm import tqdm
+        except ImportError:
+            raise ModuleNotFoundError(
+                "progress=True needs tqdm (pip install tqdm); or pass a callable "
+                "progress(done, total)"
+            ) from None
+        with tqdm(total=total, unit=unit) as bar:
+            yield _Progress(lambda done, _: bar.update(done - bar.n), total)
+    else:
+        yield _Progress(progress, total)
+
+
 def _named(exc: Exception, label: str, index: int) -> Exception:
     """``exc`` as the error of item ``index``: the same type, the message
     ``f"{label}: {exc}"``, an ``index`` attribute and ``exc`` as its cause.
@@ -172,8 +270,9 @@ def _named(exc: Exception, label: str, index: int) -> Exception:
     return named
 
 
-def _shielded(body: Callable[[threading.Event], _R]) -> _R:
-    """``body(abort)``, in a thread of its own when called from the main thread.
+def _shielded(body: Callable[[threading.Event], _R], report: _Progress | None = None) -> _R:
+    """``body(abort)``, in a thread of its own when called from the main
+    thread or with a ``report`` to make.
 
     Python runs signal handlers in the main thread only, and a handler's
     exception (KeyboardInterrupt, a timeout's) lands wherever that thread
@@ -183,12 +282,14 @@ def _shielded(body: Callable[[threading.Event], _R]) -> _R:
     ``abort``, which every worker looks at before its next item, waits for
     the threads to stop (each finishes the item it holds) and propagates.
     (One that lands while the pool starts its thread, or joins it, leaves
-    that thread to stop on its own: it finds ``abort`` set.) Elsewhere (a
-    task of an enclosing batch) ``body`` runs in the calling thread with a
-    fresh ``abort``.
+    that thread to stop on its own: it finds ``abort`` set.) With ``report``
+    the calling thread, wherever it is, reports the items ``body`` ticks
+    until ``body`` ends; an exception of the callback stops the batch as an
+    interrupt does. Elsewhere (a task of an enclosing batch) ``body`` runs
+    in the calling thread with a fresh ``abort``.
     """
     abort = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
+    if report is None and threading.current_thread() is not threading.main_thread():
         return body(abort)
 
     def run() -> _R:
@@ -206,6 +307,9 @@ def _shielded(body: Callable[[threading.Event], _R]) -> _R:
             if exc.__context__ is None:
                 raise
             raise exc.__context__ from None
+        if report is not None:
+            future.add_done_callback(lambda _: report.close())
+            report.report()
         return future.result()
     except BaseException:
         abort.set()
@@ -216,7 +320,7 @@ def _shielded(body: Callable[[threading.Event], _R]) -> _R:
 
 def _run_ordered(
     fn: Callable[[int, threading.Event], _R], n: int, workers: int, *, stop_early: bool,
-    abort: threading.Event,
+    abort: threading.Event, on_done: Callable[[], Any] | None = None,
 ) -> tuple[list[_R | None], dict[int, Exception]]:
     """``fn(i, abort)`` for ``i`` in ``range(n)`` on ``workers`` threads (the
     calling thread and ``workers - 1`` of a pool): ``(results, errors)``.
@@ -228,7 +332,8 @@ def _run_ordered(
     ``errors``. Once ``abort`` is set (by :func:`_shielded`, or here when any
     other exception reaches a worker) no worker takes another item, and the
     call raises (``CancelledError`` if nothing else); ``fn`` passes
-    ``abort`` on to nested loops.
+    ``abort`` on to nested loops. ``on_done()`` is called by the worker after
+    each item that returned or raised an ``Exception``.
     """
     failed = threading.Event()
     results: list[_R | None] = [None] * n
@@ -250,6 +355,8 @@ def _run_ordered(
             except BaseException:
                 abort.set()
                 raise
+            if on_done is not None:
+                on_done()
 
     helpers = min(workers, n) - 1
     if helpers <= 0:
@@ -369,12 +476,14 @@ def results_equal(a: Any, b: Any) -> bool:
 @overload
 def fit_many(
     products: ImageProducts, polylines: Iterable[Any], *, search_window_vu: Any,
-    workers: int = ..., errors: Literal["raise"] = ..., **options: Any,
+    workers: int = ..., errors: Literal["raise"] = ...,
+    progress: Callable[[int, int], Any] | bool | None = ..., **options: Any,
 ) -> list[PolylineFit]: ...
 @overload
 def fit_many(
     products: ImageProducts, polylines: Iterable[Any], *, search_window_vu: Any,
-    workers: int = ..., errors: Literal["collect"], **options: Any,
+    workers: int = ..., errors: Literal["collect"],
+    progress: Callable[[int, int], Any] | bool | None = ..., **options: Any,
 ) -> list[PolylineFit | Exception]: ...
 def fit_many(
     products: ImageProducts,
@@ -383,6 +492,7 @@ def fit_many(
     search_window_vu: Any,
     workers: int = DEFAULT_WORKERS,
     errors: str = "raise",
+    progress: Callable[[int, int], Any] | bool | None = None,
     **options: Any,
 ) -> list[Any]:
     """Fit many polylines against one image's products, on ``workers`` threads.
@@ -406,6 +516,15 @@ def fit_many(
         ``polylines[i]: ...``, with ``index`` i). ``"collect"``: fit every
         polyline; a failed one's place in the result holds its error
         (see the module docstring).
+    progress : callable or bool, optional
+        ``progress(done, total)`` is called once per completed polyline,
+        ``done`` = 1, 2, ..., ``total`` (the number of polylines), from the
+        calling thread while the pool fits (in completion order; a failed
+        polyline collected with ``errors="collect"`` counts as completed).
+        If it raises, the batch stops (the fits in progress finish, nothing
+        else starts) and its exception propagates unchanged. ``True``
+        shows a tqdm progress bar (tqdm is needed); None or False (default):
+        no report. See the module docstring's "Progress" section.
     **options
         Passed to :func:`dtalign.pipeline.fit_polyline_products` for every
         polyline (``fit_rotation``, ``trust_region_px``, ...).
@@ -420,7 +539,8 @@ def fit_many(
     ------
     TypeError
         If ``products`` is not an ``ImageProducts``, a polyline has neither
-        form, ``workers`` is not an int, or an option is unknown.
+        form, ``workers`` is not an int, ``progress`` is neither callable
+        nor a bool nor None, or an option is unknown.
     ValueError
         If ``workers < 1`` or ``errors`` is unknown; a bad option value;
         with ``errors="raise"``, the error of the first failing polyline.
@@ -429,10 +549,13 @@ def fit_many(
         raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
     n = _check_workers(workers)
     collect = _check_errors(errors)
+    progress = _check_progress(progress)
     _check_options(options)
     parts = [_polyline_parts(item, i) for i, item in enumerate(polylines)]
-    out = _shielded(lambda abort: _fit_parts(products, parts, search_window_vu, options, n,
-                                             collect, abort))
+    with _reporter(progress, len(parts), "polyline") as report:
+        tick = None if report is None else report.tick
+        out = _shielded(lambda abort: _fit_parts(products, parts, search_window_vu, options, n,
+                                                 collect, abort, tick), report)
     _log(out, "polylines")
     return out
 
@@ -453,8 +576,10 @@ def _log(results: list[Any], label: str) -> None:
 def _fit_parts(
     products: ImageProducts, parts: list[tuple[Any, Any, Any]], window: Any,
     options: dict[str, Any], workers: int, collect: bool, abort: threading.Event,
+    tick: Callable[[int], Any] | None = None,
 ) -> list[Any]:
-    """:func:`fit_many` of checked arguments; ``abort``: an enclosing batch's stop event.
+    """:func:`fit_many` of checked arguments; ``abort``: an enclosing batch's stop event;
+    ``tick(k)``: ``k`` more polylines are complete (fitted, or failed and collected).
 
     Raising: the first polyline is checked with everything the polylines
     share (:func:`dtalign._fitjobs.plan`), which fixes which error a bad
@@ -485,7 +610,7 @@ def _fit_parts(
                 raise
             raise _named(exc, "polylines[0]", 0) from exc
         batch, error = _fitjobs.prepare(shared, parts, first)
-        fits, fit_errors = _fit_batch(shared, batch, workers, True, abort, examine)
+        fits, fit_errors = _fit_batch(shared, batch, workers, True, abort, examine, tick)
         if fit_errors:  # a kernel error, before the first bad polyline
             j = min(fit_errors)
             raise _named(fit_errors[j], f"polylines[{j}]", j)
@@ -497,12 +622,14 @@ def _fit_parts(
     while len(out) < len(parts):
         s = len(out)
         batch, error = _fitjobs.prepare(shared, parts[s:])
-        fits, fit_errors = _fit_batch(shared, batch, workers, False, abort, examine)
+        fits, fit_errors = _fit_batch(shared, batch, workers, False, abort, examine, tick)
         for j, fit_error in fit_errors.items():
             fits[j] = _named(fit_error, f"polylines[{s + j}]", s + j)
         out += fits
         if error is not None:
             out.append(_named(error, f"polylines[{len(out)}]", len(out)))
+            if tick is not None:
+                tick(1)
     return out
 
 
@@ -526,7 +653,7 @@ def _call_error(products: ImageProducts, plan_kw: dict[str, Any], exc: Exception
 
 def _fit_batch(
     shared: Any, batch: Any, workers: int, stop_early: bool, abort: threading.Event,
-    examine: int | None = None,
+    examine: int | None = None, tick: Callable[[int], Any] | None = None,
 ) -> tuple[list[Any], dict[int, Exception]]:
     """Fit the checked polylines of ``batch``, one call of the compiled loop per
     polyline on ``workers`` threads, then make their result objects.
@@ -539,7 +666,8 @@ def _fit_batch(
     fits divided evenly among them. With ``examine`` (the number of starts)
     each fit is then examined against rival basins as
     :func:`~dtalign.pipeline.fit_polyline_products` does
-    (:func:`dtalign.hypotheses.examine`), on the same threads.
+    (:func:`dtalign.hypotheses.examine`), on the same threads. ``tick(k)``
+    counts the polylines done: fitted (examined, with ``examine``) or failed.
     """
     k = batch.n
     if k == 0:
@@ -555,7 +683,9 @@ def _fit_batch(
         if failed:
             _fitjobs.raise_for(int(codes[j]))
 
-    _, errors = _run_ordered(fit, k, workers, stop_early=stop_early, abort=abort)
+    on_fit = None if tick is None or examine is not None else lambda: tick(1)
+    _, errors = _run_ordered(fit, k, workers, stop_early=stop_early, abort=abort,
+                             on_done=on_fit)
     if errors and stop_early:
         return [], errors
     fits: list[Any] = _fitjobs.wrap(shared, batch, _fitjobs.readonly_views(out), 0, k)
@@ -571,6 +701,8 @@ def _fit_batch(
     from . import hypotheses
 
     good = [j for j, f in enumerate(fits) if f is not None]
+    if tick is not None and errors:  # failed fits are not examined: done
+        tick(len(errors))
     bounds = batch.starts.tolist()
 
     def one(i: int, _: threading.Event) -> Any:
@@ -583,7 +715,8 @@ def _fit_batch(
                                   refit=lambda seed: _fitjobs.fit_from(shared, item, seed))
 
     examined, failures = _run_ordered(one, len(good), workers, stop_early=stop_early,
-                                      abort=abort)
+                                      abort=abort,
+                                      on_done=None if tick is None else lambda: tick(1))
     for i, j in enumerate(good):
         fits[j] = examined[i]
         if i in failures:
@@ -631,13 +764,15 @@ def _fit_image(
 def fit_images(
     items: Iterable[Any], *, search_window_vu: Any, workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
-    errors: Literal["raise"] = ..., **options: Any,
+    errors: Literal["raise"] = ..., progress: Callable[[int, int], Any] | bool | None = ...,
+    **options: Any,
 ) -> list[list[PolylineFit]]: ...
 @overload
 def fit_images(
     items: Iterable[Any], *, search_window_vu: Any, workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
-    errors: Literal["collect"], **options: Any,
+    errors: Literal["collect"], progress: Callable[[int, int], Any] | bool | None = ...,
+    **options: Any,
 ) -> list[list[PolylineFit | Exception] | Exception]: ...
 def fit_images(
     items: Iterable[Any],
@@ -647,6 +782,7 @@ def fit_images(
     executor: str | Executor = "thread",
     config: ImageDerivativesConfig | None = None,
     errors: str = "raise",
+    progress: Callable[[int, int], Any] | bool | None = None,
     **options: Any,
 ) -> list[Any]:
     """Prepare and fit many images, one image per task.
@@ -682,6 +818,16 @@ def fit_images(
         failed polyline's place in its image's list holds its own (see the
         module docstring); every ordinary exception of an image's task is
         collected, loader errors included.
+    progress : callable or bool, optional
+        ``progress(done, total)`` is called once per completed image (all
+        its polylines fitted), ``done`` = 1, 2, ..., ``total`` (the number
+        of images), from the calling thread, with any executor (in
+        completion order; a failed image collected with ``errors="collect"``
+        counts as completed). If it raises, the batch stops (the images in
+        progress finish, nothing else starts; on an ``Executor`` of the
+        caller's, the tasks it runs already finish there) and its exception
+        propagates unchanged. ``True`` shows a tqdm progress bar (tqdm is
+        needed); None or False (default): no report.
     **options
         Passed to :func:`dtalign.pipeline.fit_polyline_products`.
 
@@ -693,7 +839,8 @@ def fit_images(
     Raises
     ------
     TypeError
-        On a malformed item, a bad ``workers`` type or an unknown option.
+        On a malformed item, a bad ``workers`` type, a ``progress`` neither
+        callable nor a bool nor None, or an unknown option.
     ValueError
         If ``workers < 1``, ``executor`` or ``errors`` is unknown; with
         ``errors="raise"``, the first failing image's error.
@@ -704,20 +851,23 @@ def fit_images(
         raise ValueError(f"executor must be one of {_EXECUTORS} or an Executor, got {executor!r}")
     if config is not None and not isinstance(config, ImageDerivativesConfig):
         raise TypeError(f"config must be an ImageDerivativesConfig, got {type(config).__name__}")
+    progress = _check_progress(progress)
     _check_options(options)
     jobs = [
         (*_image_parts(item, i), search_window_vu, config, options, collect)
         for i, item in enumerate(items)
     ]
-    if isinstance(executor, Executor):
-        results, failures = _on_executor(executor, jobs, not collect)
-    elif executor == "process" and n > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=min(n, len(jobs))) as pool:
-            results, failures = _on_executor(pool, jobs, not collect)
-    else:
-        results, failures = _shielded(lambda abort: _run_ordered(
-            lambda i, a: _fit_image(jobs[i], a), len(jobs), n, stop_early=not collect,
-            abort=abort))
+    with _reporter(progress, len(jobs), "image") as report:
+        if isinstance(executor, Executor):
+            results, failures = _on_executor(executor, jobs, not collect, report)
+        elif executor == "process" and n > 1 and len(jobs) > 1:
+            with ProcessPoolExecutor(max_workers=min(n, len(jobs))) as pool:
+                results, failures = _on_executor(pool, jobs, not collect, report)
+        else:
+            on_done = None if report is None else report.tick
+            results, failures = _shielded(lambda abort: _run_ordered(
+                lambda i, a: _fit_image(jobs[i], a), len(jobs), n, stop_early=not collect,
+                abort=abort, on_done=on_done), report)
     for i, exc in sorted(failures.items()):
         image = jobs[i][0]
         label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
@@ -733,15 +883,22 @@ def fit_images(
 
 
 def _on_executor(
-    pool: Executor, jobs: list[Any], stop_early: bool
+    pool: Executor, jobs: list[Any], stop_early: bool, report: _Progress | None = None,
 ) -> tuple[list[Any], dict[int, Exception]]:
     """:func:`_fit_image` of each job on ``pool``, like :func:`_run_ordered`:
     every image is submitted; once one fails (``stop_early``), or on any
-    other exception, the ones not started yet are cancelled."""
+    other exception (the ``report`` callback's included), the ones not
+    started yet are cancelled. ``report`` is made here, in the calling
+    thread, as the images complete."""
     futures = [pool.submit(_fit_image, job) for job in jobs]
     results: list[Any] = [None] * len(jobs)
     errors: dict[int, Exception] = {}
     try:
+        if report is not None:
+            for future in as_completed(futures):
+                if stop_early and future.exception() is not None:
+                    break  # the call raises: the loop below finds the first failure
+                report.step()
         for i, future in enumerate(futures):
             try:
                 results[i] = future.result()
