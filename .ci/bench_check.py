@@ -56,8 +56,8 @@ NOISE_LOADED_RUNS = 12
 #: Measured 2026-11-22 on the 2-core development machine in three campaigns
 #: of quick runs: A (10 runs) while other engineers' test suites kept 1.0-1.6
 #: cores busy, 3 of them with an extra busy-loop process; B (10 runs) quiet,
-#: 4 with a busy-loop process on one core; C (15 runs, after this session's
-#: speed-ups) quiet, 5 with a busy-loop process. Per workload: median ratio /
+#: 4 with a busy-loop process on one core; C (15 runs, of faster kernels
+#: than A and B's) quiet, 5 with a busy-loop process. Per workload: median ratio /
 #: lowest ratio / (median - lowest) / median. The spread used is the largest
 #: of the three, rounded up to the next 5 % (A's shared machine sets most),
 #: and the achieved median C's lower one (quiet or busy-loop runs). D (5
@@ -73,8 +73,8 @@ FLOORS: dict[str, tuple[float, float, float]] = {
     "coarse_50": (300.0, 599.0, 0.20),
     # SPEC 8's scans (issue 13), 2026-12-01, runs while other sessions shared
     # the two cores (1.1-1.7 cores busy): coarse_scored 409-412x; polarity
-    # 299-432x; basin 128x before its early drop, then 659x (a run where the
-    # load slowed the reference most) and 194x (bench_check, 1.1 cores busy):
+    # 299-432x; basin 659x (a run where the load slowed the reference most)
+    # and 194x (bench_check, 1.1 cores busy):
     # the basin's 300x target is not met; its floor guards the 194x achieved.
     # The margins are those of the rows above with the same kind of kernel
     # (coarse_30's for the mask searches), until quiet campaigns measure them.

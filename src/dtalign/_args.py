@@ -242,7 +242,7 @@ def check_lm_inputs(
     ``polyline``, when given, is :func:`dtalign._validation.polyline`'s
     result for the three per-vertex keywords, which a caller has already
     checked (the pipeline checks them first, for its own messages): it
-    stands for that check (~5 us warm).
+    stands for that check, which is then not run twice.
     """
     if polyline is None:
         polyline = check.polyline(

@@ -48,8 +48,8 @@ FloatArray = check.FloatArray
 @functools.cache
 def _deps() -> SimpleNamespace:
     """What the fits use from modules that import Numba, imported on first use
-    (importing :mod:`dtalign.pipeline` must not import Numba) and then kept:
-    an import statement costs ~1 us each time it runs."""
+    (importing :mod:`dtalign.pipeline` must not import Numba) and then kept,
+    so that no import statement runs again on each fit."""
     from ._args import check_lm_inputs
     from ._kernels import coarse
     from ._kernels.checks import OK, polyline_status, polylines_status
@@ -193,7 +193,7 @@ def _plain(v: Any, n: Any, s: Any) -> bool:
     if not (type(v) is np.ndarray and type(n) is np.ndarray and type(s) is np.ndarray):
         return False
     shape = v.shape
-    # native float64 is one dtype instance: identity, not equality (~4x faster)
+    # native float64 is one dtype instance: identity, no dtype comparison
     return (
         v.dtype is _F8 and n.dtype is _F8 and s.dtype is _F8 and len(shape) == 2
         and shape[1] == 2 and shape[0] > 0 and n.shape == shape and s.shape == (shape[0],)
@@ -211,8 +211,8 @@ def _concatenated(
 
     Checked per list, not per polyline: the casting rule ``"no"`` refuses
     any dtype but native float64, the concatenation any mix of dimensions,
-    and the results' shapes and the lengths do the rest: cheaper than
-    :func:`_plain`'s six attribute reads per polyline (~80 ns each).
+    and the results' shapes and the lengths do the rest: a few calls per
+    list rather than :func:`_plain`'s six attribute reads per polyline.
     """
     if set(map(type, vs + ns + ss)) != {np.ndarray}:
         return None

@@ -320,9 +320,9 @@ def polyline(
 ) -> tuple[FloatArray, FloatArray, FloatArray, tuple[float, float]]:
     """Vertices (N > 0), normals and sigmas: the first checks of LM and ridge.
 
-    Shapes are checked here in SPEC order; values in one compiled pass
-    (~1 us instead of ~15 us of NumPy calls), which also returns the vertex
-    centroid, the default rotation pivot.
+    Shapes are checked here in SPEC order; values in one compiled pass (one
+    call on every fit, where NumPy would make one per check), which also
+    returns the vertex centroid, the default rotation pivot.
     """
     from ._kernels.checks import BAD_CENTROID, BAD_NORMALS, BAD_VERTICES, polyline_status
 

@@ -300,9 +300,9 @@ def _sigma_list(cov: FloatArray) -> list[float]:
     """:func:`_sigmas_from_cov` of one ``(P, P)`` covariance, as Python floats.
 
     A positive diagonal (the usual case) takes ``math.sqrt``: the same
-    correctly rounded IEEE square root as ``np.sqrt``, without six ufunc
-    calls and ``np.errstate`` (1.6 us instead of 6.7 us of a ~0.2 ms
-    pipeline fit). Anything else (zero of either sign, negative, NaN) goes
+    correctly rounded IEEE square root as ``np.sqrt``, without the six
+    ufunc calls and ``np.errstate`` that every fit's result would otherwise
+    pay. Anything else (zero of either sign, negative, NaN) goes
     through :func:`_sigmas_from_cov` itself.
     """
     diag = np.diagonal(cov).tolist()

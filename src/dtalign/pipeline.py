@@ -314,9 +314,9 @@ class PolylineFit:
 
         The option beside the prior covariance, as
         ``curve_fit(absolute_sigma=False)``: use it when the vertex sigmas
-        you passed are only relative weights. Over 100 seeded disc scenes
-        its one-sigma was within a factor 2 of the fits' real scatter
-        (``tests/test_uncertainty.py``); the prior one was 4-8x too large.
+        you passed are only relative weights. Over 120 seeded disc scenes
+        its one-sigma is within a factor 2 of the fits' real scatter, the
+        prior one's is not (``tests/test_uncertainty.py`` checks both).
         All ``inf`` when degenerate.
         """
         cov = np.asarray(self.lm.covariance)

@@ -340,7 +340,7 @@ def log_fits(fits: Sequence[Any], label: str = "polylines") -> None:
     for i, fit in enumerate(fits):
         lm = fit.lm
         # what fit_problems needs for a status worse than OK, read first: a
-        # batch of clean fits costs ~0.3 us each here, not the full check
+        # clean fit (most of a batch) costs a few reads here, not the full check
         if (info or lm.degenerate or fit.at_window_edge
                 or 2 * lm.inlier_count < lm.residuals_px.shape[0]):
             log_fit(fit, f"{label}[{i}]")

@@ -206,11 +206,11 @@ DENSE_MAX_PIXELS = 32767
 def dense_ok(n_pixels, mu):
     """Whether :func:`overlap_dense` serves this search (else :func:`overlap_sparse`).
 
-    Measured on the SPEC disc limb (200 pixels, 1024^2 edge mask): +-30 px,
-    dense 31 us against 65 us for the sparse correlation plus 20 us for its
-    edge scan; +-50 px, 97 us against 99 + 20 us. Wider windows cost the
-    dense path in proportion to their width, the sparse one to the edge
-    pixels within.
+    The dense path costs in proportion to the window's width (a row of
+    counters per column shift), the sparse one to the edge pixels within
+    the window, plus the scan of the edge mask that indexes them; on the
+    benchmark's limb the dense path is the faster at +-30 and +-50 px
+    (docs/benchmarks.rst, "What was tried"), hence DENSE_MAX_COLUMNS.
     """
     return n_pixels <= DENSE_MAX_PIXELS and 2 * mu + 1 <= DENSE_MAX_COLUMNS
 

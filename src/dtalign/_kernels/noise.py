@@ -21,8 +21,10 @@ from .._jit import inline_kernel, kernel
 #: Values up to this many are selected directly (a sample would not pay).
 DIRECT_SELECT_MAX = 16384
 
-#: Sample size of the bracket: its sort costs ~0.3 ms, and the bracket of
-#: ``+-BRACKET_SIGMAS`` sample standard deviations then holds ~9 % of the values.
+#: Sample size of the bracket: a larger sample narrows the bracket (as one
+#: over its square root) for a longer sort, which at this size stays small
+#: beside the pass over the image; the bracket of ``+-BRACKET_SIGMAS``
+#: sample standard deviations then holds ~9 % of the values.
 SAMPLE_SIZE = 4096
 
 #: Bracketing passes over the gathered values before the quickselect takes

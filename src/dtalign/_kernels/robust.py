@@ -97,9 +97,9 @@ def pinvh(matrix, rcond):
     """Symmetric pseudoinverse, following ``scipy.linalg.pinvh(a, rtol=rcond)``.
 
     Eigenvalues with ``|s| <= rcond * max|s|`` are dropped and the result is
-    ``(u * (1/s)) @ u.T`` summed in the same order. SciPy's call overhead is
-    ~50 us for a 2x2 matrix, a third of a whole compiled LM fit; the
-    eigensolver here is LAPACK's too (``syevd`` rather than SciPy's
+    ``(u * (1/s)) @ u.T`` summed in the same order. Compiled because SciPy's
+    call overhead on a 2x2 matrix is a large share of a whole compiled LM
+    fit; the eigensolver here is LAPACK's too (``syevd`` rather than SciPy's
     ``syevr``), so the two agree to rounding (tested to 1e-12 relative).
     """
     n = matrix.shape[0]

@@ -5,12 +5,13 @@ whether two threads of floating-point-heavy code each run as fast as one
 does alone. SHA-256 is a chain of dependent rounds: one thread leaves most
 of a core's execution units idle. Two virtual CPUs that share one physical
 core (as SMT siblings on the host would, whatever the guest's ``lscpu``
-says) then still scale ~1.9x on it, while code that keeps the floating-point pipes
-busy, as the LM's four-lane bilinear sampling does, scales far less. On
-the 2-core development VM, in the same minutes, a single multiply-add
-chain scaled 1.83-1.91x, these 32 independent chains 1.31-1.82x, and
-:func:`~dtalign.batch.fit_many`'s compiled loop alone tracked the latter
-(1.57x when it was 1.33x, 1.80x when it was 1.79x).
+says) then still scale nearly 2x on it, while code that keeps the
+floating-point pipes busy, as the LM's four-lane bilinear sampling does,
+scales far less. So this control runs many independent multiply-add
+chains, bound by the pipes' throughput as the fits are: it is what two
+threads of such code get from the machine at that moment, and
+:func:`~dtalign.batch.fit_many`'s compiled loop alone follows it where a
+single chain does not (docs/benchmarks.rst, "What was tried").
 """
 
 from __future__ import annotations

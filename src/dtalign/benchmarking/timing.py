@@ -256,10 +256,10 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     on two virtual CPUs that share one physical core's execution units;
     code that keeps the FP pipes busy does not. A third control runs
     ``fit_many``'s compiled loop alone on the same 64 fits
-    (``loop_control_ratio``: no Python at all while the threads fit). On
-    this 2-core VM that loop has scaled anywhere from 1.05x to 1.94x while
-    the SHA-256 control scaled 1.8-1.9x. It follows the FP-throughput
-    control.
+    (``loop_control_ratio``: no Python at all while the threads fit). That
+    loop's scaling follows the FP-throughput control, not the SHA-256 one,
+    so a batch ratio below target with a low FP control is the machine's
+    (docs/benchmarks.rst, "What was tried").
     """
     from .. import scenes
     from ..batch import fit_images, fit_many, map_ordered, results_equal
