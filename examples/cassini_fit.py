@@ -6,9 +6,9 @@ variable ``DTALIGN_CASSINI_DIR`` points) as summary PNGs: a grey image with
 the navigation model drawn over it in pure red. For each frame this script
 
 1. splits the PNG into a clean grey image and the red overlay
-   (:func:`dtalign.cassini.load_cassini_overlay_frame`),
+   (:func:`dtalign.io.cassini.load_cassini_overlay_frame`),
 2. traces the overlay into a model polyline with normals
-   (:func:`dtalign.cassini.overlay_polylines`),
+   (:func:`dtalign.io.cassini.overlay_polylines`),
 3. fits the overlay as drawn (the *base* fit: where the image's edges are
    relative to the drawing), then the overlay displaced by a known offset,
    and checks that the fit returns base + displacement,
@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dtalign import cassini, io, pipeline
+from dtalign import io, pipeline
+from dtalign.io import cassini
 
 FRAMES = {
     "tethys": dict(

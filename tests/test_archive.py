@@ -30,7 +30,7 @@ def example(tmp_path_factory):
 
 def test_package_imports_no_dask():
     code = (
-        "import sys, dtalign, dtalign.pipeline, dtalign.batch, dtalign.cli, dtalign.archive\n"
+        "import sys, dtalign, dtalign.pipeline, dtalign.pipeline.batch, dtalign.cli, dtalign.archive\n"
         "dtalign.cli.build_parser()\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed'))\n"
         "print(bad)\n"

@@ -1,4 +1,4 @@
-"""dtalign.batch: threaded and process batches give exactly the serial results, in order."""
+"""dtalign.pipeline.batch: threaded and process batches give exactly the serial results, in order."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 
 import dtalign
 from dtalign import scenes
-from dtalign.batch import fit_images, fit_many, map_ordered, results_equal
+from dtalign.pipeline.batch import fit_images, fit_many, map_ordered, results_equal
 from dtalign.pipeline import fit_polyline_products, prepare_image
 
 WINDOW = (12, 12)
@@ -46,7 +46,7 @@ def wide():
     """A scene whose DT is over FULL_SCAN_MAX_SIZE pixels: a NaN in it is found
     only where a fit reads it (in the compiled loop), not by the up-front
     checks. Its products and twelve polylines, as the ``polylines`` fixture."""
-    from dtalign._validation import FULL_SCAN_MAX_SIZE
+    from dtalign.api.checks import FULL_SCAN_MAX_SIZE
 
     scene = scenes.navigation_scene(shape=(288, 288), radius=60.0, n_vertices=80,
                                     offset_vu=(3.4, -2.2), search_window=12)
@@ -430,7 +430,7 @@ def test_map_ordered_starts_nothing_after_a_failure():
 def test_default_workers_are_the_usable_cpus():
     import os
 
-    from dtalign import batch
+    from dtalign.pipeline import batch
 
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     assert batch.DEFAULT_WORKERS == usable
@@ -459,7 +459,7 @@ class _Subclass(np.ndarray):
 
 
 def _plain_variants():
-    """Polylines that :func:`dtalign._fitjobs._plain` accepts or refuses, by name."""
+    """Polylines that :func:`dtalign.pipeline.jobs._plain` accepts or refuses, by name."""
     rng = np.random.default_rng(5)
     v = rng.normal(size=(7, 2))
     n = v / np.hypot(v[:, :1], v[:, 1:])
@@ -486,7 +486,7 @@ def _plain_variants():
 @pytest.mark.parametrize("kind", sorted(_plain_variants()))
 @pytest.mark.parametrize("position", [0, 3])
 def test_bulk_shape_check_agrees_with_the_per_polyline_one(kind, position):
-    from dtalign._fitjobs import _concatenated, _plain
+    from dtalign.pipeline.jobs import _concatenated, _plain
 
     good = _plain_variants()["plain"]
     items = [good] * 5
@@ -506,7 +506,7 @@ def test_lm_checks_given_the_checked_polyline_equal_the_full_ones(products, poly
     """``plan`` hands the LM checks the polyline it already checked; the
     result must be what the LM's own polyline check gives."""
     from dtalign import _validation
-    from dtalign._args import check_lm_inputs
+    from dtalign.api._args import check_lm_inputs
 
     p = polylines[1]
     kw = {

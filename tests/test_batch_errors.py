@@ -1,4 +1,4 @@
-"""dtalign.batch errors: named items, an index attribute, and errors="collect" (issue 18.6/18.4)."""
+"""dtalign.pipeline.batch errors: named items, an index attribute, and errors="collect" (issue 18.6/18.4)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dtalign import scenes
-from dtalign.batch import fit_images, fit_many, results_equal
+from dtalign.pipeline.batch import fit_images, fit_many, results_equal
 from dtalign.pipeline import fit_polyline_products, prepare_image
 
 WINDOW = (12, 12)
@@ -207,7 +207,7 @@ def test_fit_images_in_a_process_pool_names_the_item(nav, tmp_path):
 
 
 def test_an_exception_whose_type_formats_its_own_message_keeps_it(products, items):
-    from dtalign.batch import _named
+    from dtalign.pipeline.batch import _named
 
     exc = _named(KeyError("k"), "images[2]", 2)
     assert isinstance(exc, KeyError) and exc.index == 2 and str(exc) == "'k'"

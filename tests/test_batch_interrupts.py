@@ -35,7 +35,7 @@ SCRIPT = textwrap.dedent(
     import faulthandler, json, os, signal, statistics, sys, threading, time
 
     from dtalign import _fitjobs, scenes
-    from dtalign.batch import fit_images, fit_many, map_ordered, results_equal
+    from dtalign.pipeline.batch import fit_images, fit_many, map_ordered, results_equal
     from dtalign.pipeline import fit_polyline_products, prepare_image
 
     POINTS, SMALL = int(sys.argv[1]), sys.argv[2] == "small"

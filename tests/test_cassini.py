@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtalign import cassini, io, pipeline
+from dtalign import io, pipeline
+from dtalign.io import cassini
 
 pytestmark = pytest.mark.cassini
 

@@ -148,7 +148,7 @@ def test_docs_build_with_w_offline(tmp_path):
     guide = (tmp_path / "html" / "guide.html").read_text(encoding="utf-8")
     assert "https://docs.scipy.org/doc/scipy/reference/generated/scipy.linalg.pinvh.html" in guide
     batch = (tmp_path / "html" / "api" / "batch.html").read_text(encoding="utf-8")
-    assert 'id="dtalign.batch.fit_many"' in batch
+    assert 'id="dtalign.pipeline.batch.fit_many"' in batch
 
 
 # --------------------------------------------------------------------------- packaging
@@ -228,4 +228,4 @@ def test_plot_fit_draws_into_a_given_axes(fit, tmp_path):
 
 def test_every_public_module_imports():
     modules = [importlib.import_module(name) for name in _public_modules()]
-    assert {"dtalign.batch", "dtalign.reference", "dtalign.pipeline"} <= {m.__name__ for m in modules}
+    assert {"dtalign.pipeline.batch", "dtalign.reference", "dtalign.pipeline"} <= {m.__name__ for m in modules}

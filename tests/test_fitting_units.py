@@ -562,7 +562,7 @@ def test_navigation_scene_all_three_polylines_recovered(derivatives):
     [np.nan, np.nan], [2.0, 3.0],
 ])
 def test_single_fit_sigmas_equal_the_vectorised_ones(diag):
-    from dtalign.observability import _sigma_list, _sigmas_from_cov
+    from dtalign.pipeline.observability import _sigma_list, _sigmas_from_cov
 
     rng = np.random.default_rng(len(diag))
     cov = rng.normal(size=(len(diag), len(diag)))

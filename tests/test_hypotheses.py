@@ -9,10 +9,10 @@ import pytest
 
 import dtalign
 from dtalign import scenes
-from dtalign.batch import fit_many
-from dtalign.hypotheses import AMBIGUITY_THRESHOLD, robust_cost
+from dtalign.pipeline.batch import fit_many
+from dtalign.pipeline.hypotheses import AMBIGUITY_THRESHOLD, robust_cost
 from dtalign.pipeline import fit_polyline_products, prepare_image
-from dtalign.status import FitReason
+from dtalign.pipeline.status import FitReason
 
 
 @pytest.fixture(scope="module")

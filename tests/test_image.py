@@ -1,4 +1,4 @@
-"""Tests of :mod:`dtalign.image` against the NumPy/SciPy specification.
+"""Tests of :mod:`dtalign.api.image` against the NumPy/SciPy specification.
 
 The compiled image side must be a drop-in for
 :mod:`dtalign.reference.image` (SPEC sections 1 and 5): same checks and
@@ -22,10 +22,10 @@ import scipy.ndimage
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from dtalign import image as cimage
-from dtalign._image_args import ImageDerivativesConfig as SharedConfig
+from dtalign.api import image as cimage
+from dtalign.api._image_args import ImageDerivativesConfig as SharedConfig
 from dtalign._kernels import image as kernels
-from dtalign.image import (
+from dtalign.api.image import (
     ImageDerivativesConfig,
     build_image_edge_dt,
     compute_all_image_derivatives,

@@ -8,7 +8,7 @@ import pytest
 import dtalign
 from dtalign import reference, scenes
 from dtalign._kernels import noise as kernels
-from dtalign.products import estimate_noise_sigma
+from dtalign.pipeline.products import estimate_noise_sigma
 
 
 def _images():
@@ -74,7 +74,10 @@ def test_bad_images_are_refused_by_name():
 
 def test_fit_polyline_checks_the_image_once(monkeypatch):
     """prepare_image checked it, then estimate_noise_sigma and the derivatives again."""
-    from dtalign import _image_args, image, pipeline, products
+    from dtalign import pipeline
+    from dtalign.api import _image_args
+    from dtalign.api import image
+    from dtalign.pipeline import products
 
     calls = []
     original = _image_args.check_image

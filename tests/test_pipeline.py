@@ -321,22 +321,34 @@ def test_public_names_listed():
         assert hasattr(pipeline, name)
 
 
-def test_moved_names_still_importable_from_their_old_modules():
-    # The observability helpers moved to dtalign.observability and the Cassini
-    # loaders to dtalign.cassini; the old modules re-export the same objects.
-    from dtalign import cassini, io, observability
+def test_subpackages_reexport_their_modules_names():
+    # dtalign.pipeline re-exports the one-call fit, the products and the
+    # observability helpers; dtalign.io re-exports the file functions of
+    # dtalign.io.files (the Cassini helpers of dtalign.io.cassini build on
+    # them and are not imported by the package: CHANGELOG, Unreleased).
+    from dtalign import io
+    from dtalign.io import files
+    from dtalign.pipeline import fit, observability
 
-    for name in observability.__all__:
-        assert name in pipeline.__all__ and getattr(pipeline, name) is getattr(observability, name)
-    for name in cassini.__all__:
-        assert name in io.__all__ and getattr(io, name) is getattr(cassini, name)
+    for module in (fit, observability, products_module()):
+        for name in module.__all__:
+            assert name in pipeline.__all__ and getattr(pipeline, name) is getattr(module, name)
+    assert sorted(io.__all__) == sorted(files.__all__)
+    for name in files.__all__:
+        assert getattr(io, name) is getattr(files, name)
+
+
+def products_module():
+    from dtalign.pipeline import products
+
+    return products
 
 
 def test_image_products_names_reexported_from_pipeline():
     # estimate_noise_sigma, ImageProducts and prepare_image moved to
-    # dtalign.products; pipeline and the top-level package re-export the same objects.
+    # dtalign.pipeline.products; pipeline and the top-level package re-export the same objects.
     import dtalign
-    from dtalign import products
+    from dtalign.pipeline import products
     from dtalign.pipeline import ImageProducts as ImageProductsFromPipeline
     from dtalign.pipeline import estimate_noise_sigma as estimate_from_pipeline
     from dtalign.pipeline import prepare_image as prepare_from_pipeline
@@ -346,7 +358,7 @@ def test_image_products_names_reexported_from_pipeline():
         assert name in pipeline.__all__
         assert getattr(pipeline, name) is getattr(products, name)
         assert getattr(dtalign, name) is getattr(products, name)
-        assert getattr(products, name).__module__ == "dtalign.products"
+        assert getattr(products, name).__module__ == "dtalign.pipeline.products"
     assert prepare_from_pipeline is products.prepare_image
     assert ImageProductsFromPipeline is products.ImageProducts
     assert estimate_from_pipeline is products.estimate_noise_sigma
@@ -357,7 +369,7 @@ def test_image_products_names_reexported_from_pipeline():
 def test_importing_pipeline_and_products_does_not_import_numba():
     # The compiled functions are looked up on dtalign at call time.
     script = (
-        "import sys, dtalign.pipeline, dtalign.products; "
+        "import sys, dtalign.pipeline, dtalign.pipeline.products; "
         "print(sorted(m for m in sys.modules if m == 'numba' or m.startswith('dtalign._kernels')))"
     )
     src = os.path.abspath(os.path.join(os.path.dirname(pipeline.__file__), os.pardir))

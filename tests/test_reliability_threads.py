@@ -184,7 +184,7 @@ def _equal(a, b) -> bool:
 
 def _batch_jobs():
     """Batch calls (threads, a process pool) over the disc and navigation scenes."""
-    from dtalign import batch
+    from dtalign.pipeline import batch
 
     prods = _products()
     sc, nav = prods["disc"][0], prods["nav"][0]
@@ -221,8 +221,8 @@ def test_fits_change_no_global_state(serial):
 
 
 def test_batch_keeps_no_module_level_state_or_threads():
-    """dtalign.batch holds no containers between calls and leaves no thread running."""
-    from dtalign import batch
+    """dtalign.pipeline.batch holds no containers between calls and leaves no thread running."""
+    from dtalign.pipeline import batch
 
     before = threading.active_count()
     for job in _batch_jobs().values():

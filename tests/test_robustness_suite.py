@@ -299,7 +299,7 @@ def test_harness_reads_an_enum_status_by_its_value():
         OK = "ok"
         AMBIGUOUS = "ambiguous"
 
-    from dtalign.status import FitStatus
+    from dtalign.pipeline.status import FitStatus
 
     for status, flagged in ((Verdict.OK, 0.0), (Verdict.AMBIGUOUS, 1.0), (FitStatus.OK, 0.0),
                             (FitStatus.FAILED, 1.0)):

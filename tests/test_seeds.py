@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import dtalign
-from dtalign.seeds import top_k_seeds
+from dtalign.pipeline.seeds import top_k_seeds
 from test_parity_scans import SEEDS, _scene
 
 

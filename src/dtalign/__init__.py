@@ -18,7 +18,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from ._constants import (
+from ._version import __version__
+from .api.constants import (
     _INFINITY_DT_PENALTY_PX,
     DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
     DEFAULT_DT_HALF_WIDTH_PX,
@@ -35,51 +36,49 @@ from ._constants import (
     DEFAULT_TUKEY_C,
 )
 
-__version__ = "0.1.0"
-
 # public name -> submodule that defines it
 _LAZY: dict[str, str] = {
-    "CoarseSearchResult": "._results",
-    "LMRefineResult": "._results",
-    "RidgeRefineResult": "._results",
-    "SecondaryBasin": "._results",
-    "coarse_ncc_search": ".coarse",
-    "coarse_ncc_search_scored": ".coarse",
-    "coarse_polarity_search_scored": ".coarse",
-    "find_secondary_dt_minimum": ".basin",
-    "DTFitGateConfig": ".gates",
-    "DTFitGateVerdict": ".gates",
-    "evaluate_dt_fit_gates": ".gates",
-    "build_polyline_mask": ".coarse",
-    "polarity_filter": ".weights",
-    "tukey_biweight_weights": ".weights",
-    "information_matrix_to_covariance": ".weights",
-    "lm_subpixel_refine": ".lm",
-    "gradient_ridge_refine": ".ridge",
-    "sample_dt_bilinear": ".sampling",
-    "apply_translation": ".sampling",
-    "ImageDerivativesConfig": "._image_args",
-    "compute_image_gradient_vu": ".image",
-    "build_image_edge_dt": ".image",
-    "compute_all_image_derivatives": ".image",
+    "CoarseSearchResult": ".api.results",
+    "LMRefineResult": ".api.results",
+    "RidgeRefineResult": ".api.results",
+    "SecondaryBasin": ".api.results",
+    "coarse_ncc_search": ".api.coarse",
+    "coarse_ncc_search_scored": ".api.coarse",
+    "coarse_polarity_search_scored": ".api.coarse",
+    "find_secondary_dt_minimum": ".api.basin",
+    "DTFitGateConfig": ".api.gates",
+    "DTFitGateVerdict": ".api.gates",
+    "evaluate_dt_fit_gates": ".api.gates",
+    "build_polyline_mask": ".api.coarse",
+    "polarity_filter": ".api.weights",
+    "tukey_biweight_weights": ".api.weights",
+    "information_matrix_to_covariance": ".api.weights",
+    "lm_subpixel_refine": ".api.lm",
+    "gradient_ridge_refine": ".api.ridge",
+    "sample_dt_bilinear": ".api.sampling",
+    "apply_translation": ".api.sampling",
+    "ImageDerivativesConfig": ".api._image_args",
+    "compute_image_gradient_vu": ".api.image",
+    "build_image_edge_dt": ".api.image",
+    "compute_all_image_derivatives": ".api.image",
     # beyond the drop-in surface: the one-call pipeline
-    "ImageProducts": ".pipeline",
-    "PolylineFit": ".pipeline",
-    "covariance_with_unobservable_inf": ".observability",
-    "normal_information_covariance": ".observability",
-    "null_directions": ".observability",
-    "observable_rank": ".observability",
-    "estimate_noise_sigma": ".pipeline",
-    "fit_polyline": ".pipeline",
-    "fit_polyline_products": ".pipeline",
-    "prepare_image": ".pipeline",
+    "ImageProducts": ".pipeline.products",
+    "PolylineFit": ".pipeline.fit",
+    "covariance_with_unobservable_inf": ".pipeline.observability",
+    "normal_information_covariance": ".pipeline.observability",
+    "null_directions": ".pipeline.observability",
+    "observable_rank": ".pipeline.observability",
+    "estimate_noise_sigma": ".pipeline.products",
+    "fit_polyline": ".pipeline.fit",
+    "fit_polyline_products": ".pipeline.fit",
+    "prepare_image": ".pipeline.products",
 }
 
 #: Private names today's techniques import (SPEC section 8.6): importable,
 #: not in ``__all__``.
 _PRIVATE_LAZY: dict[str, str] = {
-    "_rotate_vertices": ".sampling",
-    "_rotate_directions": ".sampling",
+    "_rotate_vertices": ".api.sampling",
+    "_rotate_directions": ".api.sampling",
 }
 
 __all__ = [
@@ -114,45 +113,39 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # static analysers see ordinary imports
-    from ._image_args import ImageDerivativesConfig
-    from ._results import CoarseSearchResult, LMRefineResult, RidgeRefineResult, SecondaryBasin
-    from .basin import find_secondary_dt_minimum
-    from .coarse import (
+    from .api._image_args import ImageDerivativesConfig
+    from .api.basin import find_secondary_dt_minimum
+    from .api.coarse import (
         build_polyline_mask,
         coarse_ncc_search,
         coarse_ncc_search_scored,
         coarse_polarity_search_scored,
     )
-    from .gates import DTFitGateConfig, DTFitGateVerdict, evaluate_dt_fit_gates
-    from .image import (
+    from .api.gates import DTFitGateConfig, DTFitGateVerdict, evaluate_dt_fit_gates
+    from .api.image import (
         build_image_edge_dt,
         compute_all_image_derivatives,
         compute_image_gradient_vu,
     )
-    from .lm import lm_subpixel_refine
-    from .observability import (
-        covariance_with_unobservable_inf,
-        normal_information_covariance,
-        null_directions,
-        observable_rank,
-    )
-    from .pipeline import (
-        ImageProducts,
-        PolylineFit,
-        estimate_noise_sigma,
-        fit_polyline,
-        fit_polyline_products,
-        prepare_image,
-    )
-    from .ridge import gradient_ridge_refine
-    from .sampling import (
+    from .api.lm import lm_subpixel_refine
+    from .api.results import CoarseSearchResult, LMRefineResult, RidgeRefineResult, SecondaryBasin
+    from .api.ridge import gradient_ridge_refine
+    from .api.sampling import (
         _rotate_directions,
         _rotate_vertices,
         apply_translation,
         sample_dt_bilinear,
     )
-    from .weights import (
+    from .api.weights import (
         information_matrix_to_covariance,
         polarity_filter,
         tukey_biweight_weights,
     )
+    from .pipeline.fit import PolylineFit, fit_polyline, fit_polyline_products
+    from .pipeline.observability import (
+        covariance_with_unobservable_inf,
+        normal_information_covariance,
+        null_directions,
+        observable_rank,
+    )
+    from .pipeline.products import ImageProducts, estimate_noise_sigma, prepare_image

@@ -449,8 +449,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             raise CLIError(f"--save {save_dir}: folder is not writable")
     messages = _Messages()
 
-    from . import pipeline, scenes
-    from ._constants import DEFAULT_LM_MAX_ITERATIONS
+    import dtalign.pipeline as pipeline
+    import dtalign.scenes as scenes
+
+    from .api.constants import DEFAULT_LM_MAX_ITERATIONS
 
     rotation = 0.0 if args.rotation is None else float(args.rotation)
     t0 = time.perf_counter()
@@ -536,7 +538,7 @@ def _save_demo(scene: Any, folder: Path, args: argparse.Namespace, messages: _Me
     """Write the demo scene as an image and a polyline CSV that ``fit`` reads."""
     import numpy as np
 
-    from .io import save_polyline_csv
+    from .io.files import save_polyline_csv
 
     image, polyline = folder / "demo.npy", folder / "demo.csv"
     np.save(image, scene.image)
@@ -699,7 +701,8 @@ def _window(text: str) -> tuple[int, int]:
 
 
 def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int]) -> tuple[Any, Any, Any]:
-    from . import io, pipeline
+    import dtalign.io as io
+    import dtalign.pipeline as pipeline
 
     image = io.load_image(job.image)
     poly = io.load_polyline_csv(job.polyline)
@@ -888,17 +891,18 @@ def _cmd_overlay(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from . import io
+    from .io.cassini import load_cassini_overlay_frame, overlay_polylines
+    from .io.files import concatenate_polylines, save_polyline_csv
     from .scenes import Polyline
 
-    frame = io.load_cassini_overlay_frame(args.png)
-    lines = io.overlay_polylines(frame, shape=args.shape, n_lines=args.n_lines)
-    model = io.concatenate_polylines(lines, name=Path(args.png).stem)
+    frame = load_cassini_overlay_frame(args.png)
+    lines = overlay_polylines(frame, shape=args.shape, n_lines=args.n_lines)
+    model = concatenate_polylines(lines, name=Path(args.png).stem)
     moved = Polyline(
         model.name, model.vertices_vu - np.asarray(args.displace), model.normals_vu, model.sigmas
     )
     np.save(args.image, frame.image)
-    io.save_polyline_csv(args.polyline, moved)
+    save_polyline_csv(args.polyline, moved)
     print(
         f"{args.png}: {frame.image.shape[0]} x {frame.image.shape[1]} image "
         f"({frame.header_rows} header rows cropped) -> {args.image}; "
@@ -946,7 +950,7 @@ def _parse(argv: list[str]) -> argparse.Namespace | int:
     except SystemExit as exc:  # argparse printed help or its usage error
         return int(exc.code or 0)
     if args.version:
-        from . import __version__
+        from ._version import __version__
 
         print(f"{PROG} {__version__}")
         return 0

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import _validation as check
-from ._constants import POLARITY_PENALTY_RESIDUAL
+from .api import checks as check
+from .api.constants import POLARITY_PENALTY_RESIDUAL
 
 __all__ = ["plot_fit", "plot_residual_histogram"]
 

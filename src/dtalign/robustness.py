@@ -674,7 +674,7 @@ def plain_fit(scene: HardScene) -> Any:
     option at its default. The result's ``status`` (``ok``, ``suspect`` or
     ``failed``, from :mod:`dtalign.status`) is what :func:`evaluate` reads.
     """
-    from .pipeline import fit_polyline
+    from .pipeline.fit import fit_polyline
 
     p = scene.polyline
     return fit_polyline(

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION as SEED_SUPPORT
 from .._jit import kernel
+from ..api.constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION as SEED_SUPPORT
 from .coarse import (
     best_scored,
     dense_ok,

@@ -46,7 +46,7 @@ def make_example(
     broken : bool, optional
         Also list a missing image and a corrupt one, to see the failures table.
     """
-    from ..io import save_polyline_csv
+    from ..io.files import save_polyline_csv
     from ..scenes import navigation_scene
 
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:

@@ -84,7 +84,7 @@ _CONFIG_FIELDS = ("image_gradient_sigma_px", "edge_threshold_k_sigma", "dt_half_
 
 def fit_option_names() -> frozenset[str]:
     """Keyword options :func:`dtalign.pipeline.fit_polyline_products` accepts (not the window)."""
-    from ..pipeline import fit_polyline_products
+    from ..pipeline.fit import fit_polyline_products
 
     return frozenset(
         name

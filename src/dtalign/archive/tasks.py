@@ -194,8 +194,10 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
         says where it failed (``read``, ``prepare`` or ``fit``) and whose
         ``error`` names the file or polyline.
     """
-    from .. import io, pipeline
-    from ..image import ImageDerivativesConfig
+    import dtalign.io as io
+    import dtalign.pipeline as pipeline
+
+    from ..api.image import ImageDerivativesConfig
 
     worker = _worker_name()
     t0 = time.perf_counter()
@@ -249,7 +251,8 @@ def warm_up() -> float:
     Runs a few fits on a small synthetic disc: translation, trust region,
     rotation with the ridge polish. Returns the seconds it took.
     """
-    from .. import pipeline, scenes
+    import dtalign.pipeline as pipeline
+    import dtalign.scenes as scenes
 
     t0 = time.perf_counter()
     scene = scenes.disc_scene(shape=_WARM_SHAPE, radius=30.0, n_vertices=32, search_window=3)

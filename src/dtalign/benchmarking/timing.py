@@ -178,7 +178,8 @@ def measure_noise_overhead(inputs: Inputs, repeats: int, min_sample_s: float) ->
     is estimated / given, and passes at or below
     :data:`~dtalign.benchmarking.workloads.NOISE_OVERHEAD_TARGET`.
     """
-    from ..pipeline import estimate_noise_sigma, fit_polyline
+    from ..pipeline.fit import fit_polyline
+    from ..pipeline.products import estimate_noise_sigma
 
     kw = fit_polyline_keywords(inputs)
     sigma = estimate_noise_sigma(inputs.image)
@@ -216,8 +217,8 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     a call per polyline, result objects)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from .._fitjobs import _deps, loop_inputs, plan, prepare
-    from ..batch import _FIT_DEFAULTS, _polyline_parts
+    from ..pipeline.batch import _FIT_DEFAULTS, _polyline_parts
+    from ..pipeline.jobs import _deps, loop_inputs, plan, prepare
 
     parts = [_polyline_parts(p, i) for i, p in enumerate(polylines)]
     lm = {**_FIT_DEFAULTS, "trust_region_px": 1.0}
@@ -262,8 +263,8 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     (docs/benchmarks.rst, "What was tried").
     """
     from .. import scenes
-    from ..batch import fit_images, fit_many, map_ordered, results_equal
-    from ..pipeline import prepare_image
+    from ..pipeline.batch import fit_images, fit_many, map_ordered, results_equal
+    from ..pipeline.products import prepare_image
     from . import fpload
 
     scene = scenes.navigation_scene()

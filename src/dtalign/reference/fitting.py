@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from .. import _validation as check
-from .._args import (
+from ..api import checks as check
+from ..api._args import (
     check_basin_inputs,
     check_coarse_inputs,
     check_covariance_inputs,
@@ -27,7 +27,8 @@ from .._args import (
     no_information_covariance,
     tukey_c_value,
 )
-from .._constants import (
+from ..api.checks import FloatArray
+from ..api.constants import (
     DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,
@@ -45,8 +46,7 @@ from .._constants import (
     POLARITY_PENALTY_RESIDUAL,
     RIDGE_CURVATURE_EPS,
 )
-from .._results import CoarseSearchResult, LMRefineResult, RidgeRefineResult, SecondaryBasin
-from .._validation import FloatArray
+from ..api.results import CoarseSearchResult, LMRefineResult, RidgeRefineResult, SecondaryBasin
 
 # --------------------------------------------------------------------------
 # Sampling and pose (SPEC 2: bilinear sampler, pose transform)

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import scipy.ndimage
 
-from .._constants import DEFAULT_IMAGE_GRADIENT_SIGMA_PX, NOISE_SIGMA_FLOOR
-from .._image_args import check_image, check_noise_sigma, check_sigma_px, resolve_config
-from .._validation import FloatArray, smoothing_sigma
+from ..api._image_args import check_image, check_noise_sigma, check_sigma_px, resolve_config
+from ..api.checks import FloatArray, smoothing_sigma
+from ..api.constants import DEFAULT_IMAGE_GRADIENT_SIGMA_PX, NOISE_SIGMA_FLOOR
 
 #: Sector test of the Canny thinning: tan(67.5 deg) = 1 + sqrt(2).
 _SECTOR_K = 1.0 + np.sqrt(2.0)

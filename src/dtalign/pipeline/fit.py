@@ -31,10 +31,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import _validation as check
-from . import hypotheses as _hypotheses
-from . import status as _status
-from ._constants import (
+from ..api import checks as check
+from ..api._image_args import ImageDerivativesConfig
+from ..api.constants import (
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,
     DEFAULT_LM_STEP_TOLERANCE,
@@ -42,8 +41,9 @@ from ._constants import (
     DEFAULT_TUKEY_C,
     POLARITY_PENALTY_RESIDUAL,
 )
-from ._image_args import ImageDerivativesConfig
-from ._results import LMRefineResult, _summary_text
+from ..api.results import LMRefineResult, _summary_text
+from . import hypotheses as _hypotheses
+from . import status as _status
 from .hypotheses import Ambiguity, Hypothesis
 from .observability import (
     _sigma_list,
@@ -604,7 +604,7 @@ def fit_polyline_products(
         On malformed vertices, normals, sigmas, window, pivot or LM
         parameters; the message names the argument.
     """
-    from . import _fitjobs
+    from . import jobs as _fitjobs
 
     seeds = _hypotheses.check_seeds(seeds)
     shared, item = _fitjobs.plan(

@@ -14,8 +14,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from . import _validation as check
-from ._validation import FloatArray
+from . import checks as check
+from .checks import FloatArray
 
 
 def tukey_c_value(c: Any, name: str = "c") -> float:

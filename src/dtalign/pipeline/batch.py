@@ -115,9 +115,10 @@ from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
-from . import _fitjobs
-from ._image_args import ImageDerivativesConfig
-from .pipeline import ImageProducts, PolylineFit, fit_polyline_products, prepare_image
+from ..api._image_args import ImageDerivativesConfig
+from . import jobs as _fitjobs
+from .fit import PolylineFit, fit_polyline_products
+from .products import ImageProducts, prepare_image
 from .status import log_fit, log_fits, logger
 
 __all__ = ["DEFAULT_WORKERS", "fit_images", "fit_many", "map_ordered", "results_equal"]
@@ -754,7 +755,7 @@ def _fit_image(
     (module level: picklable for a process pool)."""
     image, noise, parts, window, config, options, collect = job
     if _is_path(image):
-        from .io import load_image
+        from ..io.files import load_image
 
         image = load_image(image)
     products = prepare_image(image, noise, config=config)

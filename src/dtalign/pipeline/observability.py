@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import _validation as check
-from ._constants import DEFAULT_PINVH_RCOND
+from ..api import checks as check
+from ..api.constants import DEFAULT_PINVH_RCOND
 
 __all__ = [
     "covariance_with_unobservable_inf",

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ._constants import DEFAULT_IMAGE_GRADIENT_SIGMA_PX, NOISE_SIGMA_FLOOR
+from .._kernels import image as _k
 from ._image_args import (
     ImageDerivativesConfig,
     check_image,
@@ -26,8 +26,8 @@ from ._image_args import (
     check_sigma_px,
     resolve_config,
 )
-from ._kernels import image as _k
-from ._validation import FloatArray, smoothing_sigma
+from .checks import FloatArray, smoothing_sigma
+from .constants import DEFAULT_IMAGE_GRADIENT_SIGMA_PX, NOISE_SIGMA_FLOOR
 
 __all__ = [
     "ImageDerivativesConfig",

@@ -14,13 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from . import _validation as check
-from ._args import check_polarity_search_inputs, min_support_fraction_value
-from ._constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
-from ._kernels import coarse as _coarse
-from ._kernels import polarity_search as _ps
-from ._kernels import seeds as _k
-from ._results import CoarseSearchResult
+from .._kernels import coarse as _coarse
+from .._kernels import polarity_search as _ps
+from .._kernels import seeds as _k
+from ..api import checks as check
+from ..api._args import check_polarity_search_inputs, min_support_fraction_value
+from ..api.constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
+from ..api.results import CoarseSearchResult
 
 __all__ = ["DEFAULT_SEED_SEPARATION_PX", "top_k_seeds"]
 

@@ -4,10 +4,8 @@
   and ``.fits`` when astropy is installed.
 * :func:`load_polyline_csv` / :func:`save_polyline_csv`: a model polyline
   as CSV with the header columns ``v,u,nv,nu,sigma``.
-* :class:`~dtalign.cassini.CassiniFrame`,
-  :func:`~dtalign.cassini.load_cassini_overlay_frame` and
-  :func:`~dtalign.cassini.overlay_polylines` live in :mod:`dtalign.cassini`
-  and are re-exported here.
+* The Cassini summary PNGs are read by :mod:`dtalign.io.cassini`, which
+  builds on this module (never the reverse).
 
 Every loader raises a :class:`ValueError` (or :class:`FileNotFoundError`)
 whose message names the file and what is wrong with it, so a command line
@@ -25,17 +23,13 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .cassini import CassiniFrame, load_cassini_overlay_frame, overlay_polylines
-from .scenes import Polyline
+from ..scenes import Polyline
 
 __all__ = [
-    "CassiniFrame",
     "POLYLINE_COLUMNS",
     "concatenate_polylines",
-    "load_cassini_overlay_frame",
     "load_image",
     "load_polyline_csv",
-    "overlay_polylines",
     "save_polyline_csv",
 ]
 

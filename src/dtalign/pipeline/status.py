@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from ._constants import POLARITY_PENALTY_RESIDUAL
+from ..api.constants import POLARITY_PENALTY_RESIDUAL
 
 __all__ = [
     "FitReason",

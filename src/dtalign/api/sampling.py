@@ -7,9 +7,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import _validation as check
-from ._kernels import sampling as _k
-from ._validation import FloatArray
+from .._kernels import sampling as _k
+from . import checks as check
+from .checks import FloatArray
 
 __all__ = ["apply_translation", "sample_dt_bilinear"]
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._constants import DEFAULT_TUKEY_C
+from ..api.constants import DEFAULT_TUKEY_C
 
 __all__ = [
     "AMBIGUITY_THRESHOLD",
@@ -78,8 +78,8 @@ def robust_cost(
     loss's maximum ``c^2 / 6``, as a vertex far from any edge does. Returns
     ``(cost, inliers)``, inliers being the vertices below that maximum.
     """
-    from .sampling import _rotate_directions, _rotate_vertices, sample_dt_bilinear
-    from .weights import polarity_filter
+    from ..api.sampling import _rotate_directions, _rotate_vertices, sample_dt_bilinear
+    from ..api.weights import polarity_filter
 
     pts = _rotate_vertices(vertices_vu, pivot_vu, rotation_rad)
     nrm = _rotate_directions(normals_vu, rotation_rad)
@@ -286,8 +286,8 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
     import dataclasses
     import time
 
-    from .basin import find_secondary_dt_minimum
-    from .sampling import _rotate_vertices
+    from ..api.basin import find_secondary_dt_minimum
+    from ..api.sampling import _rotate_vertices
     from .seeds import top_k_seeds
 
     t0 = time.perf_counter()

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._image_args import ImageDerivativesConfig, check_image, check_noise_sigma, resolve_config
+from ..api._image_args import ImageDerivativesConfig, check_image, check_noise_sigma, resolve_config
 
 __all__ = [
     "ImageProducts",
@@ -48,7 +48,7 @@ def _compute_all_image_derivatives(
     Imported at call time: importing this module must not import the
     compiled kernels.
     """
-    from .image import _all_derivatives
+    from ..api.image import _all_derivatives
 
     return _all_derivatives(image, noise_sigma, config)
 
@@ -127,7 +127,7 @@ def _estimate_noise_sigma_checked(arr: FloatArray) -> float:
     """
     if arr.shape[0] < 3 or arr.shape[1] < 3:
         return 0.0
-    from ._kernels.noise import noise_statistics
+    from .._kernels.noise import noise_statistics
 
     _, mad, mean_abs = noise_statistics(arr)
     if mad > 0.0:

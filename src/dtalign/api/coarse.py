@@ -7,12 +7,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import _validation as check
+from .._kernels import coarse as _k
+from .._kernels import polarity_search as _ps
+from . import checks as check
 from ._args import check_coarse_inputs, check_polarity_search_inputs
-from ._constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
-from ._kernels import coarse as _k
-from ._kernels import polarity_search as _ps
-from ._results import CoarseSearchResult
+from .constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
+from .results import CoarseSearchResult
 
 __all__ = [
     "CoarseSearchResult",

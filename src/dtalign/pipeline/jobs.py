@@ -27,8 +27,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from . import _validation as check
-from ._constants import (
+from ..api import checks as check
+from ..api.constants import (
     DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
     DEFAULT_LM_STEP_TOLERANCE,
     DEFAULT_RIDGE_MAX_ITERATIONS,
@@ -39,8 +39,8 @@ from ._constants import (
 from .products import ImageProducts
 
 if TYPE_CHECKING:
-    from ._args import LMArgs
-    from .pipeline import PolylineFit
+    from ..api._args import LMArgs
+    from .fit import PolylineFit
 
 FloatArray = check.FloatArray
 
@@ -50,15 +50,15 @@ def _deps() -> SimpleNamespace:
     """What the fits use from modules that import Numba, imported on first use
     (importing :mod:`dtalign.pipeline` must not import Numba) and then kept,
     so that no import statement runs again on each fit."""
-    from ._args import check_lm_inputs
-    from ._kernels import coarse
-    from ._kernels.checks import OK, polyline_status, polylines_status
-    from ._kernels.pipeline import fit_polylines
-    from ._kernels.polarity_search import polarity_search
-    from ._results import LMRefineResult
-    from .image import _use_libm_hypot
-    from .lm import _NO_GRADIENT, _RIDGE_HALF, _fit, _raise_for
-    from .pipeline import PolylineFit
+    from .._kernels import coarse
+    from .._kernels.checks import OK, polyline_status, polylines_status
+    from .._kernels.pipeline import fit_polylines
+    from .._kernels.polarity_search import polarity_search
+    from ..api._args import check_lm_inputs
+    from ..api.image import _use_libm_hypot
+    from ..api.lm import _NO_GRADIENT, _RIDGE_HALF, _fit, _raise_for
+    from ..api.results import LMRefineResult
+    from .fit import PolylineFit
 
     return SimpleNamespace(
         check_lm_inputs=check_lm_inputs, coarse=coarse, OK=OK, polyline_status=polyline_status,

@@ -324,7 +324,7 @@ def polyline(
     call on every fit, where NumPy would make one per check), which also
     returns the vertex centroid, the default rotation pivot.
     """
-    from ._kernels.checks import BAD_CENTROID, BAD_NORMALS, BAD_VERTICES, polyline_status
+    from .._kernels.checks import BAD_CENTROID, BAD_NORMALS, BAD_VERTICES, polyline_status
 
     verts = _vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
     norms = _normals_shape(normals_vu, verts.shape[0])

@@ -14,9 +14,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .._kernels import fit as _k
+from .._kernels import lanes as _lanes
 from . import ridge as _ridge_module
 from ._args import LMArgs, check_lm_inputs
-from ._constants import (
+from .checks import nonfinite_read
+from .constants import (
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,
     DEFAULT_LM_STEP_TOLERANCE,
@@ -27,11 +30,8 @@ from ._constants import (
     DEFAULT_RIDGE_SAMPLE_STEP_PX,
     DEFAULT_TUKEY_C,
 )
-from ._kernels import fit as _k
-from ._kernels import lanes as _lanes
-from ._results import LMRefineResult
-from ._validation import nonfinite_read
 from .image import _use_libm_hypot
+from .results import LMRefineResult
 
 #: The ridge polish inside LM runs with its defaults (SPEC section 3 step 4).
 _RIDGE_HALF = round(DEFAULT_RIDGE_HALF_WIDTH_PX / DEFAULT_RIDGE_SAMPLE_STEP_PX)

@@ -7,12 +7,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import _validation as check
+from .._kernels import lanes as _lanes
+from .._kernels import robust as _k
+from . import checks as check
 from ._args import check_covariance_inputs, tukey_c_value
-from ._constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C
-from ._kernels import lanes as _lanes
-from ._kernels import robust as _k
-from ._validation import FloatArray
+from .checks import FloatArray
+from .constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C
 
 __all__ = [
     "information_matrix_to_covariance",

@@ -6,11 +6,11 @@ from typing import Any
 
 from numpy.typing import ArrayLike
 
+from .._kernels import basin as _k
 from ._args import check_basin_inputs
-from ._constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
-from ._kernels import basin as _k
-from ._results import SecondaryBasin
-from ._validation import nonfinite_read
+from .checks import nonfinite_read
+from .constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
+from .results import SecondaryBasin
 
 __all__ = ["SecondaryBasin", "find_secondary_dt_minimum"]
 

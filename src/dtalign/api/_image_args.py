@@ -8,13 +8,13 @@ from typing import Any
 
 import numpy as np
 
-from . import _validation as check
-from ._constants import (
+from . import checks as check
+from .checks import FloatArray
+from .constants import (
     DEFAULT_DT_HALF_WIDTH_PX,
     DEFAULT_EDGE_THRESHOLD_K_SIGMA,
     DEFAULT_IMAGE_GRADIENT_SIGMA_PX,
 )
-from ._validation import FloatArray
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 Each is a grey image with the navigation model drawn over it in pure red.
 :func:`load_cassini_overlay_frame` splits it into a clean image and the
 overlay; :func:`overlay_polylines` traces the overlay into model polylines
-with normals. Both are also importable from :mod:`dtalign.io`.
+with normals. This module reads the PNG through :mod:`dtalign.io.files`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .scenes import Polyline
+from ..scenes import Polyline
 
 __all__ = [
     "CassiniFrame",
@@ -112,7 +112,7 @@ def load_cassini_overlay_frame(
         If the file is not an RGB image, or ``header_rows`` is invalid.
     """
     # Imported here: dtalign.io imports this module to re-export its names.
-    from .io import _existing, _pillow_array
+    from .files import _existing, _pillow_array
 
     p = _existing(png_path, "Cassini frame")
     rgb = _pillow_array(p)
