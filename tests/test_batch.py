@@ -12,8 +12,8 @@ import pytest
 
 import dtalign
 from dtalign import scenes
-from dtalign.pipeline.batch import fit_images, fit_many, map_ordered, results_equal
 from dtalign.pipeline import fit_polyline_products, prepare_image
+from dtalign.pipeline.batch import fit_images, fit_many, map_ordered, results_equal
 
 WINDOW = (12, 12)
 
@@ -506,7 +506,7 @@ def test_lm_checks_given_the_checked_polyline_equal_the_full_ones(products, poly
     """``plan`` hands the LM checks the polyline it already checked; the
     result must be what the LM's own polyline check gives."""
     from dtalign import _validation
-    from dtalign.api._args import check_lm_inputs
+    from dtalign.api.checks import check_lm_inputs
 
     p = polylines[1]
     kw = {

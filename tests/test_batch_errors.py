@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from dtalign import scenes
-from dtalign.pipeline.batch import fit_images, fit_many, results_equal
 from dtalign.pipeline import fit_polyline_products, prepare_image
+from dtalign.pipeline.batch import fit_images, fit_many, results_equal
 
 WINDOW = (12, 12)
 

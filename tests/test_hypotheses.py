@@ -9,9 +9,9 @@ import pytest
 
 import dtalign
 from dtalign import scenes
+from dtalign.pipeline import fit_polyline_products, prepare_image
 from dtalign.pipeline.batch import fit_many
 from dtalign.pipeline.hypotheses import AMBIGUITY_THRESHOLD, robust_cost
-from dtalign.pipeline import fit_polyline_products, prepare_image
 from dtalign.pipeline.status import FitReason
 
 

@@ -22,15 +22,15 @@ import scipy.ndimage
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from dtalign.api import image as cimage
-from dtalign.api._image_args import ImageDerivativesConfig as SharedConfig
 from dtalign._kernels import image as kernels
+from dtalign.api import image as cimage
 from dtalign.api.image import (
     ImageDerivativesConfig,
     build_image_edge_dt,
     compute_all_image_derivatives,
     compute_image_gradient_vu,
 )
+from dtalign.api.results import ImageDerivativesConfig as SharedConfig
 from dtalign.reference import image as rimage
 from dtalign.scenes import disc_scene, navigation_scene
 

@@ -25,10 +25,10 @@ from numba.core.registry import CPUDispatcher
 
 import dtalign
 from _parity_cases import ParityCase, build_cases, make_image
-from dtalign.api._args import check_lm_inputs
 from dtalign._kernels import fit as kfit
 from dtalign._kernels import lanes
 from dtalign._kernels.lanes import plain, vector
+from dtalign.api.checks import check_lm_inputs
 from dtalign.api.lm import _kernel_args
 
 pytestmark = pytest.mark.skipif(

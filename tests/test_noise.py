@@ -75,7 +75,7 @@ def test_bad_images_are_refused_by_name():
 def test_fit_polyline_checks_the_image_once(monkeypatch):
     """prepare_image checked it, then estimate_noise_sigma and the derivatives again."""
     from dtalign import pipeline
-    from dtalign.api import _image_args
+    from dtalign.api import checks as _image_args
     from dtalign.api import image
     from dtalign.pipeline import products
 

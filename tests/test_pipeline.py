@@ -348,10 +348,10 @@ def test_image_products_names_reexported_from_pipeline():
     # estimate_noise_sigma, ImageProducts and prepare_image moved to
     # dtalign.pipeline.products; pipeline and the top-level package re-export the same objects.
     import dtalign
-    from dtalign.pipeline import products
     from dtalign.pipeline import ImageProducts as ImageProductsFromPipeline
     from dtalign.pipeline import estimate_noise_sigma as estimate_from_pipeline
     from dtalign.pipeline import prepare_image as prepare_from_pipeline
+    from dtalign.pipeline import products
 
     assert sorted(products.__all__) == ["ImageProducts", "estimate_noise_sigma", "prepare_image"]
     for name in products.__all__:

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from dtalign import scenes
-from dtalign.api.constants import DEFAULT_LM_STEP_TOLERANCE, DEFAULT_RIDGE_SAMPLE_STEP_PX
 from dtalign._kernels import ridge as rk
+from dtalign.api.constants import DEFAULT_LM_STEP_TOLERANCE, DEFAULT_RIDGE_SAMPLE_STEP_PX
 from dtalign.api.image import _use_libm_hypot
 from dtalign.reference import compute_all_image_derivatives
 

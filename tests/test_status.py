@@ -20,11 +20,11 @@ import pytest
 
 import dtalign
 from dtalign import scenes
-from dtalign.pipeline.batch import fit_images, fit_many
 from dtalign.io import save_polyline_csv
 from dtalign.pipeline import fit_polyline, fit_polyline_products, prepare_image
-from dtalign.scenes import Polyline
+from dtalign.pipeline.batch import fit_images, fit_many
 from dtalign.pipeline.status import FitReason, FitStatus
+from dtalign.scenes import Polyline
 
 TRUE = (3.4, -2.2)
 

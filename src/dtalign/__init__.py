@@ -57,7 +57,7 @@ _LAZY: dict[str, str] = {
     "gradient_ridge_refine": ".api.ridge",
     "sample_dt_bilinear": ".api.sampling",
     "apply_translation": ".api.sampling",
-    "ImageDerivativesConfig": ".api._image_args",
+    "ImageDerivativesConfig": ".api.results",
     "compute_image_gradient_vu": ".api.image",
     "build_image_edge_dt": ".api.image",
     "compute_all_image_derivatives": ".api.image",
@@ -113,7 +113,6 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # static analysers see ordinary imports
-    from .api._image_args import ImageDerivativesConfig
     from .api.basin import find_secondary_dt_minimum
     from .api.coarse import (
         build_polyline_mask,
@@ -128,7 +127,13 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         compute_image_gradient_vu,
     )
     from .api.lm import lm_subpixel_refine
-    from .api.results import CoarseSearchResult, LMRefineResult, RidgeRefineResult, SecondaryBasin
+    from .api.results import (
+        CoarseSearchResult,
+        ImageDerivativesConfig,
+        LMRefineResult,
+        RidgeRefineResult,
+        SecondaryBasin,
+    )
     from .api.ridge import gradient_ridge_refine
     from .api.sampling import (
         _rotate_directions,

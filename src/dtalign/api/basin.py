@@ -7,8 +7,7 @@ from typing import Any
 from numpy.typing import ArrayLike
 
 from .._kernels import basin as _k
-from ._args import check_basin_inputs
-from .checks import nonfinite_read
+from .checks import check_basin_inputs, nonfinite_read
 from .constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
 from .results import SecondaryBasin
 

@@ -6,16 +6,25 @@ float64 array (or a Python scalar). Kernels never validate, so everything a
 kernel could trip on (a NaN cast to an index, a wrong trailing dimension)
 must be refused here. The message fragments quoted in SPEC section 1 are
 part of the drop-in contract.
+
+The one module of argument checks, in three parts: the per-argument
+helpers; the whole-call checks of the fitting stages (``check_lm_inputs``
+and its siblings), shared by the compiled path and the reference so that
+both check in the same order (which decides the message a caller sees) and
+convert every array exactly once; and the image side's checks.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
+
+from .results import ImageDerivativesConfig
 
 FloatArray = NDArray[np.float64]
 
@@ -461,3 +470,406 @@ def smoothing_sigma(sigma: float, shape: tuple[int, ...], name: str = "sigma_px"
             f"{tuple(shape)}; at least {MIN_SIGMA_CAP_PX:g} px): a wider Gaussian gives a "
             f"nearly flat image at a cost that grows with sigma; got {sigma!r}"
         )
+
+
+# ---------------------------------------------------------------------------
+# Whole-call checks of the fitting stages (the reference runs the same ones)
+# ---------------------------------------------------------------------------
+
+
+def tukey_c_value(c: Any, name: str = "c") -> float:
+    """The biweight cutoff: a finite number > 0."""
+    value = real(c, name)
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"{name} must be a positive finite number; got {c!r}")
+    return value
+
+
+def _rcond(value: Any, name: str) -> float:
+    out = real(value, name)
+    if not (math.isfinite(out) and out >= 0.0):
+        raise ValueError(f"{name} must be finite and >= 0, got {out!r}")
+    return out
+
+
+def _nonnegative_or_inf(value: Any, name: str) -> float:
+    """A bound that may be +inf (no bound) but not NaN or negative."""
+    out = real(value, name)
+    if math.isnan(out) or out < 0.0:
+        raise ValueError(f"{name} must be >= 0 (NaN refused), got {out!r}")
+    return out
+
+
+def no_information_covariance(n_params: int) -> FloatArray:
+    """The all-``+inf`` covariance that marks an LM fit with no information
+    (SPEC section 3 step 5; ``information_matrix_to_covariance`` itself
+    returns zeros there, SPEC section 2)."""
+    return np.full((n_params, n_params), np.inf)
+
+
+def check_covariance_inputs(jacobian: Any, weights: Any, rcond: Any) -> tuple[FloatArray, FloatArray, float]:
+    """Checks of :func:`information_matrix_to_covariance`."""
+    jac = _as_float_array(jacobian, "jacobian")
+    if jac.ndim != 2:
+        raise ValueError(f"jacobian must be 2-D; got ndim={jac.ndim}")
+    w = _as_float_array(weights, "weights")
+    if w.ndim != 1 or w.shape[0] != jac.shape[0]:
+        raise ValueError(
+            "weights must be a 1-D vector matching the Jacobian rows; "
+            f"got weights {w.shape}, jacobian {jac.shape}"
+        )
+    require_finite(jac, "jacobian")
+    require_finite(w, "weights")
+    if (w < 0.0).any():
+        raise ValueError("weights must be non-negative")
+    return jac, w, _rcond(rcond, "rcond")
+
+
+def min_support_fraction_value(value: Any) -> float:
+    """SPEC 8.2's support floor: a real number in ``[0, 1]`` (NaN refused)."""
+    fraction = real(value, "min_support_fraction")
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"min_support_fraction must be in [0, 1]; got {value!r}")
+    return fraction
+
+
+def _clip_window(mv: int, mu: int, shape: tuple[int, ...]) -> tuple[int, int]:
+    """A shift of H or more rows moves every pixel of the image off it:
+    margins beyond the image change no result of a mask search."""
+    return min(mv, max(shape[0] - 1, 0)), min(mu, max(shape[1] - 1, 0))
+
+
+def _clip_window_for(verts: FloatArray, mv: int, mu: int, shape: tuple[int, ...]) -> tuple[int, int]:
+    """Margins beyond which no vertex (in the image or off it) can land in it:
+    a shift larger than ``max |coordinate| + size`` changes no result."""
+    if verts.shape[0] == 0:
+        return min(mv, 0), min(mu, 0)
+    reach = np.abs(verts).max(axis=0)
+    return (min(mv, int(reach[0]) + shape[0] + 1), min(mu, int(reach[1]) + shape[1] + 1))
+
+
+def check_coarse_inputs(
+    edge_mask: Any, polyline_mask: Any, search_window_vu: Any, min_support_fraction: Any = 0.0
+) -> tuple[np.ndarray, NDArray[np.bool_], int, int, float]:
+    """Checks of ``coarse_ncc_search[_scored]`` in SPEC 8.2's order.
+
+    Returns the edge mask (bool when its values are 0/1, else its float64
+    values, which the overlap sums), the polyline mask as bool, the window
+    clipped to the image, and the support fraction.
+    """
+    e = np.asarray(edge_mask)
+    p = np.asarray(polyline_mask)
+    if e.ndim != 2 or p.ndim != 2:
+        raise ValueError(
+            f"edge_mask and polyline_mask must be 2-D; got ndims {e.ndim}, {p.ndim}"
+        )
+    if e.shape != p.shape:
+        raise ValueError(f"shape mismatch: edge_mask {e.shape} vs polyline_mask {p.shape}")
+    mv, mu = search_window(search_window_vu)
+    fraction = min_support_fraction_value(min_support_fraction)
+    edge = mask_values(e, "edge_mask")
+    poly = mask2d(p, "polyline_mask")
+    mv, mu = _clip_window(mv, mu, e.shape)
+    return edge, poly, mv, mu, fraction
+
+
+#: Bounds on a vertex scan's work after its window is clipped: at most this
+#: many shifts, and at most this many (shift row or column) x vertex table
+#: entries (the basin scan's axis tables, ~17 bytes each). Far beyond any
+#: real search (a +-50 window over 20,000 vertices is 2e6 entries); they keep
+#: a polyline thrown far off the frame with a huge window from running for
+#: hours or exhausting memory.
+MAX_SCAN_SHIFTS = 1 << 26
+MAX_SCAN_TABLE = 1 << 26
+
+
+def _check_scan_size(mv: int, mu: int, n_vertices: int) -> None:
+    shifts = (2 * mv + 1) * (2 * mu + 1)
+    table = (2 * mv + 2 * mu + 2) * n_vertices
+    if shifts > MAX_SCAN_SHIFTS or table > MAX_SCAN_TABLE:
+        raise ValueError(
+            f"search_window_vu is too large for this polyline: {shifts} shifts of "
+            f"{n_vertices} vertices (at most {MAX_SCAN_SHIFTS} shifts and "
+            f"{MAX_SCAN_TABLE} shift-vertex pairs per axis)"
+        )
+
+
+class PolaritySearchArgs(NamedTuple):
+    """Validated arguments of ``coarse_polarity_search_scored``."""
+
+    edge: NDArray[np.bool_]
+    gradient: FloatArray
+    vertices: FloatArray
+    normals: FloatArray
+    mv: int
+    mu: int
+    fraction: float
+
+
+def check_polarity_search_inputs(
+    edge_mask: Any, image_gradient_vu: Any, vertices_vu: Any, normals_vu: Any,
+    search_window_vu: Any, min_support_fraction: Any,
+) -> PolaritySearchArgs:
+    """Checks of ``coarse_polarity_search_scored`` in SPEC 8.3's order.
+
+    The gradient may hold NaN (such a vertex's weight, and its shift's
+    score, is NaN, which never wins); vertices and normals must be finite.
+    """
+    e = np.asarray(edge_mask)
+    if e.ndim != 2:
+        raise ValueError(f"edge_mask must be 2-D; got ndim={e.ndim}")
+    grad = _as_float_array(image_gradient_vu, "image_gradient_vu")
+    if grad.ndim != 3 or grad.shape[2] != 2:
+        raise ValueError(f"image_gradient_vu must have shape (H, W, 2); got {grad.shape}")
+    if grad.shape[:2] != e.shape:
+        raise ValueError(
+            f"shape mismatch: edge_mask {e.shape} vs image_gradient_vu {grad.shape[:2]}"
+        )
+    verts = vertices(vertices_vu, "vertices_vu")
+    norms = normals(normals_vu, verts.shape[0])
+    mv, mu = search_window(search_window_vu)
+    fraction = min_support_fraction_value(min_support_fraction)
+    mv, mu = _clip_window_for(verts, mv, mu, e.shape)
+    _check_scan_size(mv, mu, verts.shape[0])
+    return PolaritySearchArgs(mask2d(e, "edge_mask"), grad, verts, norms, mv, mu, fraction)
+
+
+class BasinArgs(NamedTuple):
+    """Validated arguments of ``find_secondary_dt_minimum``."""
+
+    dt: FloatArray
+    vertices: FloatArray
+    converged: tuple[float, float]
+    mv: int
+    mu: int
+    exclude_radius: float
+    fraction: float
+
+
+def check_basin_inputs(
+    image_edge_dt: Any, vertices_vu: Any, converged_offset_vu: Any, search_window_vu: Any,
+    exclude_radius_px: Any, min_support_fraction: Any,
+) -> BasinArgs:
+    """Checks of ``find_secondary_dt_minimum`` (the reference checks nothing:
+    what it accepts gives the same result here; non-finite or mis-shaped input
+    is refused naming the argument). Margins are ``int()`` of the window
+    entries, as SPEC 8.4 says; a negative one scans nothing."""
+    dt = image2d(image_edge_dt, "image_edge_dt")
+    verts = vertices(vertices_vu, "vertices_vu")
+    converged = pair(converged_offset_vu, "converged_offset_vu")
+    wv, wu = pair(search_window_vu, "search_window_vu")
+    radius = finite_real(exclude_radius_px, "exclude_radius_px")
+    fraction = min_support_fraction_value(min_support_fraction)
+    # int() as the reference takes it, after bounding what no vertex can use
+    mv, mu = (int(max(min(m, float(1 << 53)), -1.0)) for m in (wv, wu))
+    if mv >= 0 and mu >= 0:
+        mv, mu = _clip_window_for(verts, mv, mu, dt.shape)
+        _check_scan_size(mv, mu, verts.shape[0])
+    return BasinArgs(dt, verts, converged, mv, mu, radius, fraction)
+
+
+class LMArgs(NamedTuple):
+    """Validated, converted arguments of ``lm_subpixel_refine``."""
+
+    vertices: FloatArray
+    normals: FloatArray
+    sigmas: FloatArray
+    dt: FloatArray
+    gradient: FloatArray | None
+    offset: tuple[float, float]
+    rotation: float
+    fit_rotation: bool
+    pivot: tuple[float, float]
+    pivot_distance: float
+    use_polarity: bool
+    max_iterations: int
+    damping: float
+    step_tolerance: float
+    tukey_c: float
+    pinvh_rcond: float
+    trust_region_px: float | None
+    tikhonov_alpha: float
+    final_gradient_ridge: bool
+
+
+def check_lm_inputs(
+    kw: Mapping[str, Any],
+    checked: tuple[FloatArray, FloatArray, FloatArray, tuple[float, float]] | None = None,
+) -> LMArgs:
+    """Check ``lm_subpixel_refine``'s keywords in SPEC section 1's order.
+
+    ``checked``, when given, is :func:`polyline`'s
+    result for the three per-vertex keywords, which a caller has already
+    checked (the pipeline checks them first, for its own messages): it
+    stands for that check, which is then not run twice.
+    """
+    if checked is None:
+        checked = polyline(
+            kw["vertices_vu"], kw["normals_vu"], kw["sigma_normal_per_vertex_px"]
+        )
+    verts, norms, sig, centroid = checked
+    dt = image2d(kw["image_edge_dt"], "image_edge_dt")
+    fit_rotation = bool(kw["fit_rotation"])
+    offset, rotation, pivot, distance = pose(
+        verts,
+        fit_rotation=fit_rotation,
+        pivot_vu=kw["pivot_vu"],
+        pivot_distance_px=kw["pivot_distance_px"],
+        initial_offset_vu=kw["initial_offset_vu"],
+        initial_rotation_rad=kw["initial_rotation_rad"],
+        centroid=centroid,
+    )
+    has_gradient = kw["image_gradient_vu"] is not None
+    if kw["final_gradient_ridge"] and not has_gradient:
+        raise ValueError("final_gradient_ridge=True requires image_gradient_vu")
+    if kw["use_polarity"] and not has_gradient:
+        raise ValueError("use_polarity=True requires image_gradient_vu")
+    grad = gradient(kw["image_gradient_vu"]) if has_gradient else None
+    trust = kw["trust_region_px"]
+    return LMArgs(
+        vertices=verts,
+        normals=norms,
+        sigmas=sig,
+        dt=dt,
+        gradient=grad,
+        offset=offset,
+        rotation=rotation,
+        fit_rotation=fit_rotation,
+        pivot=pivot,
+        pivot_distance=distance,
+        use_polarity=bool(kw["use_polarity"]),
+        max_iterations=iteration_count(kw["max_iterations"], "max_iterations"),
+        damping=nonnegative_real(kw["damping"], "damping"),
+        step_tolerance=nonnegative_real(kw["step_tolerance_px"], "step_tolerance_px"),
+        tukey_c=tukey_c_value(kw["tukey_c"], "tukey_c"),
+        pinvh_rcond=_rcond(kw["pinvh_rcond"], "pinvh_rcond"),
+        trust_region_px=None if trust is None else _nonnegative_or_inf(trust, "trust_region_px"),
+        tikhonov_alpha=nonnegative_real(kw["tikhonov_alpha"], "tikhonov_alpha"),
+        final_gradient_ridge=bool(kw["final_gradient_ridge"]),
+    )
+
+
+class RidgeArgs(NamedTuple):
+    """Validated, converted arguments of ``gradient_ridge_refine``."""
+
+    vertices: FloatArray
+    normals: FloatArray
+    sigmas: FloatArray
+    magnitude: FloatArray
+    offset: tuple[float, float]
+    rotation: float
+    fit_rotation: bool
+    pivot: tuple[float, float]
+    pivot_distance: float
+    weight_mask: FloatArray
+    max_iterations: int
+    step_tolerance: float
+    tukey_c: float
+    half_width: float
+    sample_step: float
+    max_total_displacement: float
+
+
+def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
+    """Check ``gradient_ridge_refine``'s keywords (LM's order for the shared ones)."""
+    verts, norms, sig, centroid = polyline(
+        kw["vertices_vu"], kw["normals_vu"], kw["sigma_normal_per_vertex_px"]
+    )
+    magnitude = image2d(kw["gradient_magnitude"], "gradient_magnitude")
+    fit_rotation = bool(kw["fit_rotation"])
+    offset, rotation, pivot, distance = pose(
+        verts,
+        fit_rotation=fit_rotation,
+        pivot_vu=kw["pivot_vu"],
+        pivot_distance_px=kw["pivot_distance_px"],
+        initial_offset_vu=kw["initial_offset_vu"],
+        initial_rotation_rad=kw["initial_rotation_rad"],
+        centroid=centroid,
+    )
+    half_width = positive_real(kw["half_width_px"], "half_width_px")
+    sample_step = positive_real(kw["sample_step_px"], "sample_step_px")
+    ratio = half_width / sample_step
+    if math.isfinite(ratio) and round(ratio) < 1:
+        raise ValueError(
+            "half_width_px / sample_step_px must round to at least 1: the profile "
+            f"needs three samples (got {half_width!r} and {sample_step!r})"
+        )
+    ridge_profile_size(half_width, sample_step)
+    return RidgeArgs(
+        vertices=verts,
+        normals=norms,
+        sigmas=sig,
+        magnitude=magnitude,
+        offset=offset,
+        rotation=rotation,
+        fit_rotation=fit_rotation,
+        pivot=pivot,
+        pivot_distance=distance,
+        weight_mask=weight_mask(kw["weight_mask"], verts.shape[0]),
+        max_iterations=iteration_count(kw["max_iterations"], "max_iterations"),
+        step_tolerance=nonnegative_real(kw["step_tolerance_px"], "step_tolerance_px"),
+        tukey_c=tukey_c_value(kw["tukey_c"], "tukey_c"),
+        half_width=half_width,
+        sample_step=sample_step,
+        max_total_displacement=_nonnegative_or_inf(
+            kw["max_total_displacement_px"], "max_total_displacement_px"
+        ),
+    )
+
+
+# ---------------------------------------------------------------------------
+# The image side (SPEC sections 1 and 5)
+# ---------------------------------------------------------------------------
+
+
+def resolve_config(config: Any) -> ImageDerivativesConfig:
+    """``None`` means the defaults; anything else must be the config type."""
+    if config is None:
+        return ImageDerivativesConfig()
+    if not isinstance(config, ImageDerivativesConfig):
+        raise TypeError(
+            f"config must be an ImageDerivativesConfig or None, got {type(config).__name__}"
+        )
+    return config
+
+
+def check_image(image_ext: Any) -> FloatArray:
+    """A non-empty, finite 2-D image as C-contiguous float64."""
+    arr = np.asarray(image_ext)
+    if arr.ndim != 2:
+        raise TypeError(f"image_ext must be 2-D; got ndim={arr.ndim}")
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"image_ext must be a real numeric array, got dtype {arr.dtype}")
+    if arr.size == 0:
+        raise ValueError(f"image_ext must not be empty, got shape {arr.shape}")
+    out = np.ascontiguousarray(arr, dtype=np.float64)
+    if not np.isfinite(out).all():
+        raise ValueError(
+            "image_ext must contain only finite values; NaN or +/-inf would propagate "
+            "through gaussian_filter / sobel and poison every derivative downstream"
+        )
+    return readonly(out)
+
+
+def check_sigma_px(sigma_px: Any) -> float:
+    """The Gaussian sigma: finite and > 0."""
+    try:
+        value = real(sigma_px, "sigma_px")
+    except TypeError as exc:
+        raise ValueError(f"sigma_px must be a finite positive number; got {sigma_px!r}") from exc
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"sigma_px must be a finite positive number; got {sigma_px!r}")
+    return value
+
+
+def check_noise_sigma(image_noise_sigma: Any) -> float:
+    """The image noise sigma: finite and >= 0."""
+    try:
+        value = real(image_noise_sigma, "image_noise_sigma")
+    except TypeError as exc:
+        raise ValueError(
+            f"image_noise_sigma must be finite and >= 0; got {image_noise_sigma!r}"
+        ) from exc
+    if not (math.isfinite(value) and value >= 0.0):
+        raise ValueError(f"image_noise_sigma must be finite and >= 0; got {value!r}")
+    return value

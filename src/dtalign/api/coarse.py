@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike
 from .._kernels import coarse as _k
 from .._kernels import polarity_search as _ps
 from . import checks as check
-from ._args import check_coarse_inputs, check_polarity_search_inputs
+from .checks import check_coarse_inputs, check_polarity_search_inputs
 from .constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
 from .results import CoarseSearchResult
 

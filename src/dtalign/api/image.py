@@ -19,15 +19,16 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._kernels import image as _k
-from ._image_args import (
-    ImageDerivativesConfig,
+from .checks import (
+    FloatArray,
     check_image,
     check_noise_sigma,
     check_sigma_px,
     resolve_config,
+    smoothing_sigma,
 )
-from .checks import FloatArray, smoothing_sigma
 from .constants import DEFAULT_IMAGE_GRADIENT_SIGMA_PX, NOISE_SIGMA_FLOOR
+from .results import ImageDerivativesConfig
 
 __all__ = [
     "ImageDerivativesConfig",

@@ -17,8 +17,7 @@ from numpy.typing import ArrayLike
 from .._kernels import fit as _k
 from .._kernels import lanes as _lanes
 from . import ridge as _ridge_module
-from ._args import LMArgs, check_lm_inputs
-from .checks import nonfinite_read
+from .checks import LMArgs, check_lm_inputs, nonfinite_read
 from .constants import (
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,

@@ -1,16 +1,29 @@
-"""Frozen result types returned by the fitters (SPEC sections 3 and 4)."""
+"""Frozen result types returned by the fitters (SPEC sections 3 and 4), and
+the image side's configuration, :class:`ImageDerivativesConfig` (section 5)."""
 
 from __future__ import annotations
 
 import dataclasses
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["CoarseSearchResult", "LMRefineResult", "RidgeRefineResult", "SecondaryBasin"]
+from .constants import (
+    DEFAULT_DT_HALF_WIDTH_PX,
+    DEFAULT_EDGE_THRESHOLD_K_SIGMA,
+    DEFAULT_IMAGE_GRADIENT_SIGMA_PX,
+)
+
+__all__ = [
+    "CoarseSearchResult",
+    "ImageDerivativesConfig",
+    "LMRefineResult",
+    "RidgeRefineResult",
+    "SecondaryBasin",
+]
 
 #: Arrays up to this many elements are printed in full by ``summary()`` (a
 #: 3 x 3 covariance); larger ones (per-vertex residuals) as a digest.
@@ -259,3 +272,37 @@ class SecondaryBasin:
     distance_px: float
     cost_px: float
     converged_cost_px: float
+
+
+@dataclass(frozen=True)
+class ImageDerivativesConfig:
+    """Tunables of the image-side products.
+
+    Parameters
+    ----------
+    image_gradient_sigma_px : float
+        Gaussian pre-smoothing sigma of the Sobel gradient, pixels.
+    edge_threshold_k_sigma : float
+        Edge threshold on the gradient magnitude, in noise sigmas.
+    dt_half_width_px : float
+        Truncation of the edge distance transform, pixels.
+
+    Every field must be a finite positive number (ValueError otherwise).
+    """
+
+    image_gradient_sigma_px: float = DEFAULT_IMAGE_GRADIENT_SIGMA_PX
+    edge_threshold_k_sigma: float = DEFAULT_EDGE_THRESHOLD_K_SIGMA
+    dt_half_width_px: float = DEFAULT_DT_HALF_WIDTH_PX
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            ok = (
+                not isinstance(value, (bool, np.bool_))
+                and isinstance(value, (int, float, np.integer, np.floating))
+                and math.isfinite(float(value))
+                and float(value) > 0.0
+            )
+            if not ok:
+                raise ValueError(f"{f.name} must be a finite positive number; got {value!r}")
+            object.__setattr__(self, f.name, float(value))

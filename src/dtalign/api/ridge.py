@@ -9,8 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._kernels import ridge as _k
-from ._args import check_ridge_inputs
-from .checks import nonfinite_read
+from .checks import check_ridge_inputs, nonfinite_read
 from .constants import (
     DEFAULT_LM_STEP_TOLERANCE,
     DEFAULT_RIDGE_HALF_WIDTH_PX,

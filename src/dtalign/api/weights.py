@@ -10,8 +10,7 @@ from numpy.typing import ArrayLike
 from .._kernels import lanes as _lanes
 from .._kernels import robust as _k
 from . import checks as check
-from ._args import check_covariance_inputs, tukey_c_value
-from .checks import FloatArray
+from .checks import FloatArray, check_covariance_inputs, tukey_c_value
 from .constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C
 
 __all__ = [

@@ -197,7 +197,7 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
     import dtalign.io as io
     import dtalign.pipeline as pipeline
 
-    from ..api.image import ImageDerivativesConfig
+    from ..api.results import ImageDerivativesConfig
 
     worker = _worker_name()
     t0 = time.perf_counter()

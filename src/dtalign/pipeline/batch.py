@@ -115,7 +115,7 @@ from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
-from ..api._image_args import ImageDerivativesConfig
+from ..api.results import ImageDerivativesConfig
 from . import jobs as _fitjobs
 from .fit import PolylineFit, fit_polyline_products
 from .products import ImageProducts, prepare_image

@@ -32,7 +32,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..api import checks as check
-from ..api._image_args import ImageDerivativesConfig
 from ..api.constants import (
     DEFAULT_LM_DAMPING,
     DEFAULT_LM_MAX_ITERATIONS,
@@ -41,7 +40,7 @@ from ..api.constants import (
     DEFAULT_TUKEY_C,
     POLARITY_PENALTY_RESIDUAL,
 )
-from ..api.results import LMRefineResult, _summary_text
+from ..api.results import ImageDerivativesConfig, LMRefineResult, _summary_text
 from . import hypotheses as _hypotheses
 from . import status as _status
 from .hypotheses import Ambiguity, Hypothesis

@@ -39,7 +39,7 @@ from ..api.constants import (
 from .products import ImageProducts
 
 if TYPE_CHECKING:
-    from ..api._args import LMArgs
+    from ..api.checks import LMArgs
     from .fit import PolylineFit
 
 FloatArray = check.FloatArray
@@ -54,7 +54,7 @@ def _deps() -> SimpleNamespace:
     from .._kernels.checks import OK, polyline_status, polylines_status
     from .._kernels.pipeline import fit_polylines
     from .._kernels.polarity_search import polarity_search
-    from ..api._args import check_lm_inputs
+    from ..api.checks import check_lm_inputs
     from ..api.image import _use_libm_hypot
     from ..api.lm import _NO_GRADIENT, _RIDGE_HALF, _fit, _raise_for
     from ..api.results import LMRefineResult

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..api._image_args import ImageDerivativesConfig, check_image, check_noise_sigma, resolve_config
+from ..api.checks import check_image, check_noise_sigma, resolve_config
+from ..api.results import ImageDerivativesConfig
 
 __all__ = [
     "ImageProducts",

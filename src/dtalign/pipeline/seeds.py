@@ -18,7 +18,7 @@ from .._kernels import coarse as _coarse
 from .._kernels import polarity_search as _ps
 from .._kernels import seeds as _k
 from ..api import checks as check
-from ..api._args import check_polarity_search_inputs, min_support_fraction_value
+from ..api.checks import check_polarity_search_inputs, min_support_fraction_value
 from ..api.constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
 from ..api.results import CoarseSearchResult
 

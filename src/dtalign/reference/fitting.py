@@ -17,7 +17,8 @@ import numpy as np
 import scipy.linalg
 
 from ..api import checks as check
-from ..api._args import (
+from ..api.checks import (
+    FloatArray,
     check_basin_inputs,
     check_coarse_inputs,
     check_covariance_inputs,
@@ -27,7 +28,6 @@ from ..api._args import (
     no_information_covariance,
     tukey_c_value,
 )
-from ..api.checks import FloatArray
 from ..api.constants import (
     DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
     DEFAULT_LM_DAMPING,

@@ -12,8 +12,14 @@ from typing import Any
 import numpy as np
 import scipy.ndimage
 
-from ..api._image_args import check_image, check_noise_sigma, check_sigma_px, resolve_config
-from ..api.checks import FloatArray, smoothing_sigma
+from ..api.checks import (
+    FloatArray,
+    check_image,
+    check_noise_sigma,
+    check_sigma_px,
+    resolve_config,
+    smoothing_sigma,
+)
 from ..api.constants import DEFAULT_IMAGE_GRADIENT_SIGMA_PX, NOISE_SIGMA_FLOOR
 
 #: Sector test of the Canny thinning: tan(67.5 deg) = 1 + sqrt(2).

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import scipy.ndimage
 
-from ..api._image_args import check_image
+from ..api.checks import check_image
 
 #: 1.4826 * MAD is the standard deviation of a Gaussian.
 MAD_TO_SIGMA = 1.4826
