@@ -68,7 +68,7 @@ _NullCache = _numba_class("NullCache")
 
 #: Format tag stored in each index beside Numba's version: an index without
 #: it (plain Numba, older dtalign) is another format, read as stale.
-_FORMAT = "dtalign-sha256-1"
+CACHE_FORMAT = "dtalign-sha256-1"
 
 #: Length of the SHA-256 digest that prefixes each checked payload.
 _DIGEST_SIZE = hashlib.sha256().digest_size
@@ -180,7 +180,7 @@ class _CheckedCacheFile(_IndexDataCacheFile):  # type: ignore[misc, valid-type]
 
     def __init__(self, cache_path: str, filename_base: str, source_stamp: Any) -> None:
         super().__init__(cache_path, filename_base, source_stamp)
-        self._version = (numba.__version__, _FORMAT)
+        self._version = (numba.__version__, CACHE_FORMAT)
 
     def load(self, key: Any) -> Any:
         """The entry for ``key``, or None (a miss) if it cannot be loaded."""

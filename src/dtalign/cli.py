@@ -211,10 +211,10 @@ def _cache_tag() -> object:
     try:
         import numba
 
-        from ._numba_cache import _FORMAT
+        from ._numba_cache import CACHE_FORMAT
     except (ImportError, AttributeError):
         return None
-    return (numba.__version__, _FORMAT)
+    return (numba.__version__, CACHE_FORMAT)
 
 
 def _kernel_cache_cold(kernels: Path | None = None) -> bool:

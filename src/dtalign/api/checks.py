@@ -46,7 +46,7 @@ def readonly(arr: np.ndarray) -> np.ndarray:
     return view
 
 
-def _as_float_array(value: Any, name: str) -> FloatArray:
+def as_float_array(value: Any, name: str) -> FloatArray:
     """Convert to a C-contiguous, native float64, read-only array (same ndim).
 
     The common case (already such an array) is four attribute checks and a
@@ -79,8 +79,8 @@ def require_finite(arr: FloatArray, name: str) -> None:
         raise ValueError(f"{name} must be finite (found NaN or inf)")
 
 
-def _vertex_shape(value: Any, name: str, allow_empty: bool) -> FloatArray:
-    arr = _as_float_array(value, name)
+def vertex_shape(value: Any, name: str, allow_empty: bool) -> FloatArray:
+    arr = as_float_array(value, name)
     if arr.ndim != 2 or arr.shape[1] != 2 or (not allow_empty and arr.shape[0] == 0):
         what = "(N, 2) with N > 0" if not allow_empty else "(N, 2)"
         raise ValueError(f"{name} must have shape {what}; got {arr.shape}")
@@ -89,14 +89,14 @@ def _vertex_shape(value: Any, name: str, allow_empty: bool) -> FloatArray:
 
 def vertices(value: Any, name: str = "vertices_vu", *, allow_empty: bool = True) -> FloatArray:
     """``(N, 2)`` finite float64 vertices; ``N == 0`` only if ``allow_empty``."""
-    arr = _vertex_shape(value, name, allow_empty)
+    arr = vertex_shape(value, name, allow_empty)
     require_finite(arr, name)
     return arr
 
 
 def normals(value: Any, n_vertices: int) -> FloatArray:
     """Finite normals of the same ``(N, 2)`` shape as the vertices."""
-    arr = _normals_shape(value, n_vertices)
+    arr = normals_shape(value, n_vertices)
     require_finite(arr, "normals_vu")
     return arr
 
@@ -125,7 +125,7 @@ def image2d(value: Any, name: str) -> FloatArray:
 
     Finiteness: see :data:`FULL_SCAN_MAX_SIZE`.
     """
-    arr = _as_float_array(value, name)
+    arr = as_float_array(value, name)
     if arr.ndim != 2:
         raise ValueError(f"{name} must be 2-D; got ndim={arr.ndim}")
     if arr.size == 0:
@@ -136,7 +136,7 @@ def image2d(value: Any, name: str) -> FloatArray:
 
 def gradient(value: Any, name: str = "image_gradient_vu") -> FloatArray:
     """An ``(H, W, 2)`` gradient-vector image (finiteness as :func:`image2d`)."""
-    arr = _as_float_array(value, name)
+    arr = as_float_array(value, name)
     if arr.ndim != 3 or arr.shape[2] != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
         raise ValueError(f"{name} must have shape (H, W, 2); got {arr.shape}")
     require_finite_if_small(arr, name)
@@ -290,15 +290,15 @@ def weight_mask(value: Any, n_vertices: int) -> FloatArray:
     return np.ascontiguousarray(arr != 0, dtype=np.float64)
 
 
-def _normals_shape(value: Any, n_vertices: int) -> FloatArray:
-    arr = _as_float_array(value, "normals_vu")
+def normals_shape(value: Any, n_vertices: int) -> FloatArray:
+    arr = as_float_array(value, "normals_vu")
     if arr.shape != (n_vertices, 2):
         raise ValueError(f"normals_vu must match vertices_vu shape; got {arr.shape}")
     return arr
 
 
-def _sigmas_shape(value: Any, n_vertices: int, name: str = "sigma_normal_per_vertex_px") -> FloatArray:
-    arr = _as_float_array(value, name)
+def sigmas_shape(value: Any, n_vertices: int, name: str = "sigma_normal_per_vertex_px") -> FloatArray:
+    arr = as_float_array(value, name)
     if arr.ndim != 1 or arr.shape[0] != n_vertices:
         raise ValueError(f"{name} must be a 1-D vector matching vertices_vu; got {arr.shape}")
     return arr
@@ -310,7 +310,7 @@ def sigmas(value: Any, n_vertices: int, name: str = "sigma_normal_per_vertex_px"
     The NumPy form of the checks :func:`polyline` runs compiled, for
     callers (the pipeline) whose argument has another name.
     """
-    arr = _sigmas_shape(value, n_vertices, name)
+    arr = sigmas_shape(value, n_vertices, name)
     with np.errstate(over="ignore", divide="ignore"):
         ok = bool(np.isfinite(arr).all() and (arr > 0.0).all()
                   and np.isfinite(1.0 / (arr * arr)).all())
@@ -335,9 +335,9 @@ def polyline(
     """
     from .._kernels.checks import BAD_CENTROID, BAD_NORMALS, BAD_VERTICES, polyline_status
 
-    verts = _vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
-    norms = _normals_shape(normals_vu, verts.shape[0])
-    sig = _sigmas_shape(sigma_normal_per_vertex_px, verts.shape[0])
+    verts = vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
+    norms = normals_shape(normals_vu, verts.shape[0])
+    sig = sigmas_shape(sigma_normal_per_vertex_px, verts.shape[0])
     status, c_v, c_u = polyline_status(verts, norms, sig)
     if status == BAD_VERTICES:
         raise ValueError("vertices_vu must be finite (found NaN or inf)")
@@ -509,10 +509,10 @@ def no_information_covariance(n_params: int) -> FloatArray:
 
 def check_covariance_inputs(jacobian: Any, weights: Any, rcond: Any) -> tuple[FloatArray, FloatArray, float]:
     """Checks of :func:`information_matrix_to_covariance`."""
-    jac = _as_float_array(jacobian, "jacobian")
+    jac = as_float_array(jacobian, "jacobian")
     if jac.ndim != 2:
         raise ValueError(f"jacobian must be 2-D; got ndim={jac.ndim}")
-    w = _as_float_array(weights, "weights")
+    w = as_float_array(weights, "weights")
     if w.ndim != 1 or w.shape[0] != jac.shape[0]:
         raise ValueError(
             "weights must be a 1-D vector matching the Jacobian rows; "
@@ -618,7 +618,7 @@ def check_polarity_search_inputs(
     e = np.asarray(edge_mask)
     if e.ndim != 2:
         raise ValueError(f"edge_mask must be 2-D; got ndim={e.ndim}")
-    grad = _as_float_array(image_gradient_vu, "image_gradient_vu")
+    grad = as_float_array(image_gradient_vu, "image_gradient_vu")
     if grad.ndim != 3 or grad.shape[2] != 2:
         raise ValueError(f"image_gradient_vu must have shape (H, W, 2); got {grad.shape}")
     if grad.shape[:2] != e.shape:

@@ -235,10 +235,10 @@ def compute_all_image_derivatives(
     image = check_image(image_ext)
     noise = check_noise_sigma(image_noise_sigma)
     cfg = resolve_config(config)
-    return _all_derivatives(image, noise, cfg)
+    return all_derivatives(image, noise, cfg)
 
 
-def _all_derivatives(
+def all_derivatives(
     image: FloatArray, noise: float, cfg: ImageDerivativesConfig
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """:func:`compute_all_image_derivatives` of arguments it has checked (the

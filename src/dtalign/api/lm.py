@@ -119,7 +119,7 @@ def lm_subpixel_refine(
         For any invalid argument; the messages are listed in :ref:`contract-errors`.
     """
     a = check_lm_inputs(locals())
-    return _fit(a)
+    return fit_checked(a)
 
 
 def _kernel_args(a: LMArgs, ridge: bool) -> tuple[Any, ...]:
@@ -141,7 +141,7 @@ def _ridge_replaced() -> bool:
     return _ridge_module.gradient_ridge_refine is not _compiled_ridge
 
 
-def _fit(a: LMArgs) -> LMRefineResult:
+def fit_checked(a: LMArgs) -> LMRefineResult:
     if a.final_gradient_ridge and _ridge_replaced():
         return _fit_with_replaced_ridge(a)
     rest, grad = _kernel_args(a, a.final_gradient_ridge)
@@ -153,11 +153,17 @@ def _result(out: tuple[Any, ...]) -> LMRefineResult:
     (error, pose, iterations, converged, r, w, _jac, cov, rms, raw_rms, inliers,
      degenerate, rejected) = out
     if error != _k.OK:
-        _raise_for(int(error))
-    return LMRefineResult._from_kernel(
-        (float(pose[0]), float(pose[1])), float(pose[2]), cov, r, w, float(rms),
-        float(raw_rms), int(iterations), bool(converged), int(inliers), bool(degenerate),
-        int(rejected),
+        raise_for_code(int(error))
+    # Locked at their base, not only through the result's views: nobody else
+    # holds these fresh kernel arrays, and a view cannot be made writable again.
+    for arr in (cov, r, w):
+        arr.flags.writeable = False
+    return LMRefineResult(
+        offset_vu=(float(pose[0]), float(pose[1])), rotation_rad=float(pose[2]),
+        covariance=cov, residuals_px=r, weights=w, rms_px=float(rms),
+        raw_rms_px=float(raw_rms), iterations=int(iterations), converged=bool(converged),
+        inlier_count=int(inliers), degenerate=bool(degenerate),
+        polarity_rejected_count=int(rejected),
     )
 
 
@@ -169,7 +175,7 @@ def _fit_with_replaced_ridge(a: LMArgs) -> LMRefineResult:
     if a.use_polarity:
         pol, bad = _lanes.polarity(a.vertices, a.normals, grad, a.offset[0], a.offset[1])
         if bad:
-            _raise_for(_k.BAD_GRADIENT)
+            raise_for_code(_k.BAD_GRADIENT)
     else:
         pol = np.ones(n)
     lm = _result(_k.fit_with_mask(a.dt, grad, a.vertices, a.normals, a.sigmas, pol, *rest))
@@ -201,7 +207,7 @@ def _fit_with_replaced_ridge(a: LMArgs) -> LMRefineResult:
     )
 
 
-def _raise_for(error: int) -> None:
+def raise_for_code(error: int) -> None:
     """Raise the ValueError of a :mod:`dtalign._kernels.fit` error code."""
     if error == _k.BAD_GRADIENT:
         raise nonfinite_read("image_gradient_vu")

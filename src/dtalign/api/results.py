@@ -65,13 +65,13 @@ def _format_value(value: object, indent: str) -> str:
     if isinstance(value, tuple) and all(isinstance(x, (int, float, np.number, enum.Enum)) for x in value):
         return "(" + ", ".join(_format_value(x, indent) for x in value) + ")"
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return _summary_text(value, indent + "    ").lstrip()
+        return summary_text(value, indent + "    ").lstrip()
     if isinstance(value, dict):
         return "{" + ", ".join(f"{k!r}: {_format_value(v, indent)}" for k, v in value.items()) + "}"
     return repr(value)
 
 
-def _summary_text(obj: object, indent: str = "", extra: tuple[str, ...] = ()) -> str:
+def summary_text(obj: object, indent: str = "", extra: tuple[str, ...] = ()) -> str:
     """``Type`` then one ``name: value`` line per field, arrays summarised.
 
     Generic over the dataclass's fields (those with ``repr=True``), so a new
@@ -159,44 +159,10 @@ class LMRefineResult:
     def summary(self) -> str:
         """A short text summary: one line per field, the per-vertex arrays
         as their shape and min / median / max (``repr`` gives the same)."""
-        return _summary_text(self)
+        return summary_text(self)
 
     def __repr__(self) -> str:
-        return _summary_text(self)
-
-    @classmethod
-    def _from_kernel(
-        cls,
-        offset_vu: tuple[float, float],
-        rotation_rad: float,
-        covariance: NDArray[np.float64],
-        residuals_px: NDArray[np.float64],
-        weights: NDArray[np.float64],
-        rms_px: float,
-        raw_rms_px: float,
-        iterations: int,
-        converged: bool,
-        inlier_count: int,
-        degenerate: bool,
-        polarity_rejected_count: int,
-    ) -> LMRefineResult:
-        """Wrap arrays a kernel just allocated (nobody else holds them).
-
-        Same fields and invariants as the constructor; the arrays are made
-        read-only in place instead of through views, and the frozen
-        ``__setattr__`` is bypassed once: this runs on every fit and the
-        generated ``__init__`` costs several microseconds.
-        """
-        for arr in (covariance, residuals_px, weights):
-            arr.flags.writeable = False
-        obj = object.__new__(cls)
-        obj.__dict__.update(
-            offset_vu=offset_vu, rotation_rad=rotation_rad, covariance=covariance,
-            residuals_px=residuals_px, weights=weights, rms_px=rms_px, raw_rms_px=raw_rms_px,
-            iterations=iterations, converged=converged, inlier_count=inlier_count,
-            degenerate=degenerate, polarity_rejected_count=polarity_rejected_count,
-        )
-        return obj
+        return summary_text(self)
 
 
 @dataclass(frozen=True)
@@ -228,10 +194,10 @@ class RidgeRefineResult:
     def summary(self) -> str:
         """A short text summary: one line per field, the per-vertex arrays
         as their shape and min / median / max (``repr`` gives the same)."""
-        return _summary_text(self)
+        return summary_text(self)
 
     def __repr__(self) -> str:
-        return _summary_text(self)
+        return summary_text(self)
 
 @dataclass(frozen=True)
 class CoarseSearchResult:

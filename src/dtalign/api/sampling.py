@@ -101,3 +101,10 @@ def _rotate_directions(directions_vu: Any, theta: float) -> Any:
     c = np.cos(theta)
     s = np.sin(theta)
     return np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]], axis=1)
+
+
+#: The two rotations under public names for the package's own layers (the
+#: pipeline's hypotheses); the underscored names are the SPEC section 8.6
+#: ones today's techniques import from ``dtalign``, and stay the definitions.
+rotate_vertices = _rotate_vertices
+rotate_directions = _rotate_directions

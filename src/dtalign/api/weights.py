@@ -67,7 +67,7 @@ def tukey_biweight_weights(residuals: ArrayLike, *, c: float = DEFAULT_TUKEY_C) 
         ``(1 - (r/c)^2)^2`` inside the cutoff, 0 outside (and for NaN).
     """
     c = tukey_c_value(c)
-    r = check._as_float_array(residuals, "residuals")
+    r = check.as_float_array(residuals, "residuals")
     if r.ndim != 1:
         raise ValueError(f"residuals must be 1-D; got ndim={r.ndim}")
     return _k.tukey_many(r, c)  # type: ignore[no-any-return]

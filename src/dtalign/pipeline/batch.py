@@ -117,7 +117,7 @@ import numpy as np
 
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _fitjobs
-from .fit import PolylineFit, fit_polyline_products
+from .fit import PolylineFit, fit_from, fit_polyline_products, wrap
 from .products import ImageProducts, prepare_image
 from .status import log_fit, log_fits, logger
 
@@ -691,7 +691,7 @@ def _fit_batch(
                              on_done=on_fit)
     if errors and stop_early:
         return [], errors
-    fits: list[Any] = _fitjobs.wrap(shared, batch, _fitjobs.readonly_views(out), 0, k)
+    fits: list[Any] = wrap(shared, batch, _fitjobs.readonly_views(out), 0, k)
     for arr in out:  # lock the outputs whose rows the fits' read-only views share
         arr.flags.writeable = False
     per_fit = sum(busy) / k
@@ -715,7 +715,7 @@ def _fit_batch(
                              (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
                              float(batch.distances[j]))
         return hypotheses.examine(fits[j], shared, item, seeds=examine,
-                                  refit=lambda seed: _fitjobs.fit_from(shared, item, seed))
+                                  refit=lambda seed: fit_from(shared, item, seed))
 
     examined, failures = _run_ordered(one, len(good), workers, stop_early=stop_early,
                                       abort=abort,

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,8 +41,9 @@ from ..api.constants import (
     DEFAULT_TUKEY_C,
     POLARITY_PENALTY_RESIDUAL,
 )
-from ..api.results import ImageDerivativesConfig, LMRefineResult, _summary_text
+from ..api.results import ImageDerivativesConfig, LMRefineResult, summary_text
 from . import hypotheses as _hypotheses
+from . import jobs
 from . import status as _status
 from .hypotheses import Ambiguity, Hypothesis
 from .observability import (
@@ -52,21 +54,10 @@ from .observability import (
     null_directions,
     observable_rank,
 )
-from .products import ImageProducts, _readonly, estimate_noise_sigma, prepare_image
+from .products import ImageProducts, _readonly, prepare_image
 from .status import FitReason, FitStatus
 
-__all__ = [
-    "ImageProducts",
-    "PolylineFit",
-    "covariance_with_unobservable_inf",
-    "estimate_noise_sigma",
-    "fit_polyline",
-    "fit_polyline_products",
-    "normal_information_covariance",
-    "null_directions",
-    "observable_rank",
-    "prepare_image",
-]
+__all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
 
 FloatArray = NDArray[np.float64]
 
@@ -503,7 +494,7 @@ class PolylineFit:
         """A short text summary: one line per field, the LM result nested,
         arrays as their shape and min / median / max, then the one-sigma,
         the observable rank and the status (``repr`` gives the same)."""
-        return _summary_text(self, extra=self._SUMMARY_EXTRA)
+        return summary_text(self, extra=self._SUMMARY_EXTRA)
 
     def __repr__(self) -> str:
         return self.summary()
@@ -603,10 +594,8 @@ def fit_polyline_products(
         On malformed vertices, normals, sigmas, window, pivot or LM
         parameters; the message names the argument.
     """
-    from . import jobs as _fitjobs
-
     seeds = _hypotheses.check_seeds(seeds)
-    shared, item = _fitjobs.plan(
+    shared, item = jobs.plan(
         products, vertices_vu, normals_vu, sigmas, search_window_vu=search_window_vu,
         fit_rotation=fit_rotation, pivot_vu=pivot_vu, pivot_distance_px=pivot_distance_px,
         lm_options={
@@ -617,11 +606,11 @@ def fit_polyline_products(
             "initial_rotation_rad": initial_rotation_rad,
         },
     )
-    fit = _fitjobs.fit_one(shared, item)
+    fit = fit_one(shared, item)
     if ambiguity or seeds > 1:
         fit = _hypotheses.examine(
             fit, shared, item, seeds=seeds,
-            refit=lambda seed: _fitjobs.fit_from(shared, item, seed),
+            refit=lambda seed: fit_from(shared, item, seed),
         )
     _status.log_fit(fit)
     return fit
@@ -730,3 +719,84 @@ def fit_polyline(
         seeds=seeds,
         ambiguity=ambiguity,
     )
+
+
+# ---------------------------------------------------------------------------
+# Building fits from the compiled work (:mod:`dtalign.pipeline.jobs`)
+# ---------------------------------------------------------------------------
+
+
+def fit_one(shared: jobs.Plan, it: jobs.Item) -> PolylineFit:
+    """Coarse search, then LM, timed separately (``coarse`` and ``lm``)."""
+    t1 = time.perf_counter()
+    dv, du = jobs.seed_of(shared, it)
+    return fit_from(shared, it, (dv, du), time.perf_counter() - t1)
+
+
+def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],
+             coarse_s: float = 0.0) -> PolylineFit:
+    """The LM from the integer seed ``coarse`` (a multi-start's other starts
+    too), as a :class:`PolylineFit`; ``coarse_s`` is the seed's search time."""
+    d = jobs._deps()
+    p = shared.products
+    t2 = time.perf_counter()
+    lm = d.fit_checked(shared.lm._replace(
+        vertices=it.vertices, normals=it.normals, sigmas=it.sigmas,
+        offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
+    ))
+    t3 = time.perf_counter()
+    return PolylineFit(
+        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, coarse_offset_vu=coarse,
+        at_window_edge=jobs.at_window_edge(coarse[0], coarse[1], shared.window),
+        lm=lm, search_window_vu=shared.window, fit_rotation=shared.lm.fit_rotation,
+        pivot_vu=it.pivot, pivot_distance_px=float(it.distance), noise_sigma=p.noise_sigma,
+        vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
+        tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": coarse_s, "lm": t3 - t2},
+    )
+
+
+def wrap(shared: jobs.Plan, batch: jobs.Batch, out: tuple[Any, ...], lo: int,
+         hi: int) -> list[PolylineFit]:
+    """:class:`PolylineFit` objects of the compiled results ``lo:hi`` in ``out``
+    (:func:`~dtalign.pipeline.jobs.readonly_views` of
+    :func:`~dtalign.pipeline.jobs.loop_inputs`' outputs; ``timings_s``
+    without ``fit``, which the caller adds)."""
+    if hi <= lo:
+        return []
+    (coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate, r_all,
+     w_all) = out
+    p = shared.products
+    a = shared.lm
+    pts, nrm = batch.pts, batch.nrm
+    # Per-fit values as Python scalars in bulk, and read-only arrays whose
+    # slices each fit keeps.
+    bounds = batch.starts[lo : hi + 1].tolist()
+    timings = p.timings_s
+    fits = []
+    for j, (pose, (dv, du), n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
+        poses[lo:hi].tolist(), coarse[lo:hi].tolist(), iterations[lo:hi].tolist(),
+        converged[lo:hi].tolist(), rms[lo:hi].tolist(), raw_rms[lo:hi].tolist(),
+        inliers[lo:hi].tolist(), degenerate[lo:hi].tolist(), batch.pivots[lo:hi].tolist(),
+        batch.distances[lo:hi].tolist(), strict=True,
+    )):
+        s_j, e_j = bounds[j], bounds[j + 1]
+        residuals = r_all[s_j:e_j]
+        lm = LMRefineResult(
+            offset_vu=(pose[0], pose[1]), rotation_rad=pose[2], covariance=covs[lo + j],
+            residuals_px=residuals, weights=w_all[s_j:e_j],
+            rms_px=rms_j, raw_rms_px=raw_j, iterations=n_iter, converged=conv,
+            inlier_count=inl, degenerate=deg,
+            # the rejected vertices carry the penalty (PolylineFit.polarity_rejected)
+            polarity_rejected_count=int(
+                np.count_nonzero(residuals == POLARITY_PENALTY_RESIDUAL)
+            ) if a.use_polarity else 0,
+        )
+        fits.append(PolylineFit(
+            offset_vu=lm.offset_vu, rotation_rad=pose[2], coarse_offset_vu=(dv, du),
+            at_window_edge=jobs.at_window_edge(dv, du, shared.window), lm=lm,
+            search_window_vu=shared.window, fit_rotation=a.fit_rotation,
+            pivot_vu=(pv[0], pv[1]), pivot_distance_px=dist, noise_sigma=p.noise_sigma,
+            vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], pinvh_rcond=a.pinvh_rcond,
+            tukey_c=a.tukey_c, timings_s=dict(timings),
+        ))
+    return fits

@@ -78,11 +78,11 @@ def robust_cost(
     loss's maximum ``c^2 / 6``, as a vertex far from any edge does. Returns
     ``(cost, inliers)``, inliers being the vertices below that maximum.
     """
-    from ..api.sampling import _rotate_directions, _rotate_vertices, sample_dt_bilinear
+    from ..api.sampling import rotate_directions, rotate_vertices, sample_dt_bilinear
     from ..api.weights import polarity_filter
 
-    pts = _rotate_vertices(vertices_vu, pivot_vu, rotation_rad)
-    nrm = _rotate_directions(normals_vu, rotation_rad)
+    pts = rotate_vertices(vertices_vu, pivot_vu, rotation_rad)
+    nrm = rotate_directions(normals_vu, rotation_rad)
     shifted = np.asarray(pts, dtype=np.float64) + np.asarray(offset_vu, dtype=np.float64)
     h, w = np.shape(edge_dt)
     inside = (
@@ -287,7 +287,7 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
     import time
 
     from ..api.basin import find_secondary_dt_minimum
-    from ..api.sampling import _rotate_vertices
+    from ..api.sampling import rotate_vertices
     from .seeds import top_k_seeds
 
     t0 = time.perf_counter()
@@ -332,7 +332,7 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
         start(f"seed {j}", peak.offset_vu, peak.score)
         wanted -= 1
     if not fit.lm.degenerate:
-        placed = _rotate_vertices(item.vertices, item.pivot, fit.rotation_rad)
+        placed = rotate_vertices(item.vertices, item.pivot, fit.rotation_rad)
         scans = [("basin", window)]
         # Along an unobservable direction (a straight edge) every shift costs
         # the same, so the best rival of the whole window lies there; the

@@ -20,7 +20,6 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-import time
 from collections.abc import Sequence
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -34,13 +33,11 @@ from ..api.constants import (
     DEFAULT_RIDGE_MAX_ITERATIONS,
     DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
     DEFAULT_RIDGE_SAMPLE_STEP_PX,
-    POLARITY_PENALTY_RESIDUAL,
 )
 from .products import ImageProducts
 
 if TYPE_CHECKING:
     from ..api.checks import LMArgs
-    from .fit import PolylineFit
 
 FloatArray = check.FloatArray
 
@@ -56,16 +53,14 @@ def _deps() -> SimpleNamespace:
     from .._kernels.polarity_search import polarity_search
     from ..api.checks import check_lm_inputs
     from ..api.image import _use_libm_hypot
-    from ..api.lm import _NO_GRADIENT, _RIDGE_HALF, _fit, _raise_for
-    from ..api.results import LMRefineResult
-    from .fit import PolylineFit
+    from ..api.lm import _NO_GRADIENT, _RIDGE_HALF, fit_checked, raise_for_code
 
     return SimpleNamespace(
         check_lm_inputs=check_lm_inputs, coarse=coarse, OK=OK, polyline_status=polyline_status,
         polylines_status=polylines_status,
-        fit_polylines=fit_polylines, LMRefineResult=LMRefineResult,
+        fit_polylines=fit_polylines,
         _use_libm_hypot=_use_libm_hypot, _NO_GRADIENT=_NO_GRADIENT, _RIDGE_HALF=_RIDGE_HALF,
-        _fit=_fit, _raise_for=_raise_for, PolylineFit=PolylineFit,
+        fit_checked=fit_checked, raise_for_code=raise_for_code,
         polarity_search=polarity_search,
     )
 
@@ -126,9 +121,9 @@ def plan(
     # The polyline's values in one compiled pass; on any fault, the NumPy
     # checks in their order, which raise the pipeline's error.
     try:
-        verts = check._vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
-        norms = check._normals_shape(normals_vu, verts.shape[0])
-        sig = check._sigmas_shape(sigmas, verts.shape[0], "sigmas")
+        verts = check.vertex_shape(vertices_vu, "vertices_vu", allow_empty=False)
+        norms = check.normals_shape(normals_vu, verts.shape[0])
+        sig = check.sigmas_shape(sigmas, verts.shape[0], "sigmas")
         status, c_v, c_u = d.polyline_status(verts, norms, sig)
     except (TypeError, ValueError):
         status = -1
@@ -260,9 +255,9 @@ def prepare(
             v, n, s = parts[k]
             if not _plain(v, n, s):
                 try:
-                    v = check._vertex_shape(v, "vertices_vu", allow_empty=False)
-                    n = check._normals_shape(n, v.shape[0])
-                    s = check._sigmas_shape(s, v.shape[0], "sigmas")
+                    v = check.vertex_shape(v, "vertices_vu", allow_empty=False)
+                    n = check.normals_shape(n, v.shape[0])
+                    s = check.sigmas_shape(s, v.shape[0], "sigmas")
                 except (TypeError, ValueError):
                     bad = k
                     break
@@ -321,16 +316,9 @@ _LM_OPTION_FIELDS = {
 }
 
 
-def _at_window_edge(dv: int, du: int, window: tuple[int, int]) -> bool:
+def at_window_edge(dv: int, du: int, window: tuple[int, int]) -> bool:
     """Whether the coarse seed lies on the boundary of a non-zero search margin."""
     return (window[0] > 0 and abs(dv) >= window[0]) or (window[1] > 0 and abs(du) >= window[1])
-
-
-def fit_one(shared: Plan, it: Item) -> PolylineFit:
-    """Coarse search, then LM, timed separately (``coarse`` and ``lm``)."""
-    t1 = time.perf_counter()
-    dv, du = seed_of(shared, it)
-    return fit_from(shared, it, (dv, du), time.perf_counter() - t1)
 
 
 def seed_of(shared: Plan, it: Item) -> tuple[int, int]:
@@ -354,28 +342,6 @@ def seed_of(shared: Plan, it: Item) -> tuple[int, int]:
             shared.edge, sv, su, shared.mv, shared.mu, floor * sv.shape[0]
         )
     return int(dv), int(du)
-
-
-def fit_from(shared: Plan, it: Item, coarse: tuple[int, int], coarse_s: float = 0.0) -> PolylineFit:
-    """The LM from the integer seed ``coarse`` (a multi-start's other starts
-    too), as a :class:`PolylineFit`; ``coarse_s`` is the seed's search time."""
-    d = _deps()
-    p = shared.products
-    t2 = time.perf_counter()
-    lm = d._fit(shared.lm._replace(
-        vertices=it.vertices, normals=it.normals, sigmas=it.sigmas,
-        offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
-    ))
-    t3 = time.perf_counter()
-    fit_rotation = shared.lm.fit_rotation
-    return d.PolylineFit(
-        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, coarse_offset_vu=coarse,
-        at_window_edge=_at_window_edge(coarse[0], coarse[1], shared.window),
-        lm=lm, search_window_vu=shared.window, fit_rotation=fit_rotation, pivot_vu=it.pivot,
-        pivot_distance_px=float(it.distance), noise_sigma=shared.products.noise_sigma,
-        vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
-        tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": coarse_s, "lm": t3 - t2},
-    )
 
 
 def loop_inputs(
@@ -419,56 +385,4 @@ def readonly_views(out: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
 
 def raise_for(error: int) -> None:
     """Raise the ValueError of a :func:`~dtalign._kernels.pipeline.fit_polylines` error code."""
-    _deps()._raise_for(error)
-
-
-def wrap(shared: Plan, batch: Batch, out: tuple[Any, ...], lo: int, hi: int) -> list[PolylineFit]:
-    """:class:`PolylineFit` objects of the compiled results ``lo:hi`` in ``out``
-    (:func:`readonly_views` of :func:`loop_inputs`' outputs; ``timings_s``
-    without ``fit``, which the caller adds)."""
-    if hi <= lo:
-        return []
-    d = _deps()
-    LMRefineResult, PolylineFit = d.LMRefineResult, d.PolylineFit
-    (coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate, r_all,
-     w_all) = out
-    p = shared.products
-    a = shared.lm
-    pts, nrm = batch.pts, batch.nrm
-    # Per-fit values as Python scalars in bulk, and read-only arrays whose
-    # slices each fit keeps: a few microseconds per fit under the GIL.
-    bounds = batch.starts[lo : hi + 1].tolist()
-    fit_rotation = a.fit_rotation
-    common = {
-        "search_window_vu": shared.window, "fit_rotation": fit_rotation,
-        "noise_sigma": p.noise_sigma, "pinvh_rcond": a.pinvh_rcond, "tukey_c": a.tukey_c,
-    }
-    timings = p.timings_s
-    fits = []
-    for j, (pose, (dv, du), n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
-        poses[lo:hi].tolist(), coarse[lo:hi].tolist(), iterations[lo:hi].tolist(),
-        converged[lo:hi].tolist(), rms[lo:hi].tolist(), raw_rms[lo:hi].tolist(),
-        inliers[lo:hi].tolist(), degenerate[lo:hi].tolist(), batch.pivots[lo:hi].tolist(),
-        batch.distances[lo:hi].tolist(), strict=True,
-    )):
-        s_j, e_j = bounds[j], bounds[j + 1]
-        lm = object.__new__(LMRefineResult)
-        lm.__dict__.update(
-            offset_vu=(pose[0], pose[1]), rotation_rad=pose[2], covariance=covs[lo + j],
-            residuals_px=r_all[s_j:e_j], weights=w_all[s_j:e_j],
-            rms_px=rms_j, raw_rms_px=raw_j, iterations=n_iter, converged=conv,
-            inlier_count=inl, degenerate=deg,
-            # the rejected vertices carry the penalty (PolylineFit.polarity_rejected)
-            polarity_rejected_count=int(
-                np.count_nonzero(r_all[s_j:e_j] == POLARITY_PENALTY_RESIDUAL)
-            ) if a.use_polarity else 0,
-        )
-        fit = object.__new__(PolylineFit)
-        fit.__dict__.update(
-            common, offset_vu=lm.offset_vu, rotation_rad=pose[2], coarse_offset_vu=(dv, du),
-            at_window_edge=_at_window_edge(dv, du, shared.window), lm=lm,
-            pivot_vu=(pv[0], pv[1]), pivot_distance_px=dist,
-            vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], timings_s=dict(timings),
-        )
-        fits.append(fit)
-    return fits
+    _deps().raise_for_code(error)

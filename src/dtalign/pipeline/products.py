@@ -49,9 +49,9 @@ def _compute_all_image_derivatives(
     Imported at call time: importing this module must not import the
     compiled kernels.
     """
-    from ..api.image import _all_derivatives
+    from ..api.image import all_derivatives
 
-    return _all_derivatives(image, noise_sigma, config)
+    return all_derivatives(image, noise_sigma, config)
 
 
 def _readonly(arr: np.ndarray) -> np.ndarray:

@@ -360,7 +360,7 @@ def _polarity(pts: FloatArray, nrm: FloatArray, grad: FloatArray, dv: float, du:
 def tukey_biweight_weights(residuals: Any, *, c: float = DEFAULT_TUKEY_C) -> FloatArray:
     """Holland-Welsch biweight of (already scaled) residuals."""
     c = tukey_c_value(c)
-    r = check._as_float_array(residuals, "residuals")
+    r = check.as_float_array(residuals, "residuals")
     if r.ndim != 1:
         raise ValueError(f"residuals must be 1-D; got ndim={r.ndim}")
     return _tukey(r, c)

@@ -1,0 +1,249 @@
+"""The package layout's rules, read from the source with :mod:`ast`.
+
+* no import cycle in the graph of modules, counting the imports inside
+  functions (lazy imports form cycles too);
+* no module inside the package imports the package root (``import
+  dtalign``, ``from dtalign import x``, ``from .. import x`` reaching the
+  root): it imports the submodule by its path;
+* no private (underscore) name crosses a subpackage boundary, neither
+  imported (``from ..api.lm import _fit``) nor read off an imported module
+  (``lm._fit``), except the SPEC section 8 names the root re-exports;
+* the benchmark runner (``dtalign.benchmarking``) uses only public
+  modules and names outside itself;
+* dependencies point down: ``_kernels`` imports no layer above it, ``api``
+  neither ``pipeline`` nor ``io``, and ``io.files`` not ``io.cassini``.
+
+A "unit" is the first name under ``dtalign`` (``api``, ``pipeline``,
+``_kernels``, ``cli``, ...): a boundary is crossed when two modules' units differ.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+PACKAGE = SRC / "dtalign"
+
+#: SPEC section 8: private names importable from the package root.
+SPEC_PRIVATE = {"_rotate_vertices", "_rotate_directions", "_INFINITY_DT_PENALTY_PX"}
+
+
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _modules() -> dict[str, tuple[Path, bool]]:
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = list(path.relative_to(SRC).with_suffix("").parts)
+        is_package = parts[-1] == "__init__"
+        if is_package:
+            parts = parts[:-1]
+        out[".".join(parts)] = (path, is_package)
+    return out
+
+
+MODULES = _modules()
+
+
+def _unit(module: str) -> str:
+    parts = module.split(".")
+    return ".".join(parts[:2])
+
+
+def _resolve(module: str, is_package: bool, node: ast.ImportFrom) -> str:
+    if node.level == 0:
+        return node.module or ""
+    base = module.split(".")
+    if not is_package:
+        base = base[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+class _Import:
+    """One imported name: the module it comes from and what it binds."""
+
+    def __init__(self, target: str, name: str | None, bound: str, line: int,
+                 from_root: bool = False) -> None:
+        self.target = target  # the module imported (a submodule for ``from pkg import mod``)
+        self.name = name  # the attribute imported from ``target``, or None for a module
+        self.bound = bound  # the local name
+        self.line = line
+        self.from_root = from_root  # written ``from dtalign import ...`` / ``from .. import ...``
+
+
+def _imports(module: str) -> list[_Import]:
+    path, is_package = MODULES[module]
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "dtalign":
+                    bound = alias.asname or alias.name.split(".")[0]
+                    out.append(_Import(alias.name, None, bound, node.lineno))
+        elif isinstance(node, ast.ImportFrom):
+            target = _resolve(module, is_package, node)
+            if target.split(".")[0] != "dtalign":
+                continue
+            for alias in node.names:
+                sub = f"{target}.{alias.name}"
+                bound = alias.asname or alias.name
+                if sub in MODULES:  # ``from pkg import submodule``: an edge to the submodule
+                    out.append(_Import(sub, None, bound, node.lineno, target == "dtalign"))
+                else:
+                    out.append(_Import(target, alias.name, bound, node.lineno))
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {}
+    for module in MODULES:
+        edges = set()
+        for imp in _imports(module):
+            if imp.target in MODULES and imp.target != module:
+                edges.add(imp.target)
+        graph[module] = edges
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+    counter = [0]
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_graph_sees_lazy_imports():
+    # pipeline.fit imports pipeline.jobs inside a function: an edge all the same
+    assert "dtalign.pipeline.jobs" in _graph()["dtalign.pipeline.fit"]
+
+
+def test_no_import_cycles():
+    assert _cycles(_graph()) == []
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_no_module_imports_the_package_root():
+    offenders = [
+        f"{module}:{imp.line}"
+        for module in MODULES
+        if module != "dtalign"
+        for imp in _imports(module)
+        if imp.target == "dtalign" or imp.from_root
+    ]
+    assert offenders == []
+
+
+def _module_aliases(module: str) -> dict[str, str]:
+    """Local names bound to a module of the package, and which module."""
+    return {imp.bound: imp.target for imp in _imports(module)
+            if imp.name is None and imp.target in MODULES}
+
+
+def _private_crossings(module: str) -> list[str]:
+    found = []
+    unit = _unit(module)
+    for imp in _imports(module):
+        if imp.name is not None and _is_private(imp.name) and _unit(imp.target) != unit:
+            if module == "dtalign" and imp.name in SPEC_PRIVATE:
+                continue
+            found.append(f"{module}:{imp.line} imports {imp.target}.{imp.name}")
+    aliases = {bound: target for bound, target in _module_aliases(module).items()
+               if _unit(target) != unit}
+    tree = ast.parse(MODULES[module][0].read_text(encoding="utf-8"))
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                and node.value.id in aliases and _is_private(node.attr)):
+            found.append(f"{module}:{node.lineno} reads {aliases[node.value.id]}.{node.attr}")
+    return found
+
+
+def test_no_private_name_crosses_a_subpackage_boundary():
+    assert [c for module in MODULES for c in _private_crossings(module)] == []
+
+
+def test_the_spec_private_names_stay_importable_from_the_root():
+    import dtalign
+
+    for name in SPEC_PRIVATE:
+        assert getattr(dtalign, name) is not None
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if _unit(m) == "dtalign.benchmarking"))
+def test_the_benchmark_runner_uses_only_public_api(module):
+    outside = []
+    for imp in _imports(module):
+        if _unit(imp.target) == "dtalign.benchmarking":
+            continue
+        parts = imp.target.split(".")[1:] + ([imp.name] if imp.name else [])
+        if any(_is_private(p) for p in parts):
+            outside.append(f"{module}:{imp.line} {imp.target} {imp.name or ''}")
+    tree = ast.parse(MODULES[module][0].read_text(encoding="utf-8"))
+    aliases = {bound: target for bound, target in _module_aliases(module).items()
+               if _unit(target) != "dtalign.benchmarking"}
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                and node.value.id in aliases and _is_private(node.attr)):
+            outside.append(f"{module}:{node.lineno} {aliases[node.value.id]}.{node.attr}")
+    assert outside == []
+
+
+#: unit -> units it must not import (dependencies point down).
+FORBIDDEN = {
+    "dtalign._kernels": {"dtalign.api", "dtalign.pipeline", "dtalign.io", "dtalign.reference",
+                         "dtalign.archive", "dtalign.cli", "dtalign.benchmarking"},
+    "dtalign.api": {"dtalign.pipeline", "dtalign.io", "dtalign.reference", "dtalign.archive",
+                    "dtalign.cli", "dtalign.benchmarking", "dtalign.plotting"},
+    "dtalign.pipeline": {"dtalign.archive", "dtalign.cli", "dtalign.benchmarking",
+                         "dtalign.plotting"},
+    "dtalign.io": {"dtalign.pipeline", "dtalign.archive", "dtalign.cli", "dtalign.benchmarking"},
+    "dtalign.reference": {"dtalign.pipeline", "dtalign.io", "dtalign.archive", "dtalign.cli"},
+}
+
+
+def test_dependencies_point_down():
+    bad = []
+    for module, edges in _graph().items():
+        for target in edges:
+            if _unit(target) in FORBIDDEN.get(_unit(module), ()):
+                bad.append(f"{module} -> {target}")
+    assert "dtalign.io.cassini" not in _graph()["dtalign.io.files"]
+    assert sorted(bad) == []
