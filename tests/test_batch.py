@@ -505,7 +505,7 @@ def test_bulk_shape_check_agrees_with_the_per_polyline_one(kind, position):
 def test_lm_checks_given_the_checked_polyline_equal_the_full_ones(products, polylines):
     """``plan`` hands the LM checks the polyline it already checked; the
     result must be what the LM's own polyline check gives."""
-    from dtalign import _validation
+    from dtalign.api import checks as _validation
     from dtalign.api.checks import check_lm_inputs
 
     p = polylines[1]

@@ -34,7 +34,8 @@ SCRIPT = textwrap.dedent(
     """
     import faulthandler, json, os, signal, statistics, sys, threading, time
 
-    from dtalign import _fitjobs, scenes
+    from dtalign import scenes
+    from dtalign.pipeline import jobs as _fitjobs
     from dtalign.pipeline.batch import fit_images, fit_many, map_ordered, results_equal
     from dtalign.pipeline import fit_polyline_products, prepare_image
 

@@ -75,7 +75,7 @@ def test_ridge_profile_too_long_is_refused(module, kw):
 
 
 def test_documented_limits_are_the_checked_ones():
-    from dtalign import _validation
+    from dtalign.api import checks as _validation
 
     assert _validation.MAX_ITERATIONS == MAX_ITERATIONS
     assert _validation.MAX_RIDGE_PROFILE_SAMPLES == MAX_RIDGE_PROFILE_SAMPLES

@@ -29,7 +29,7 @@ from dtalign._kernels import fit as kfit
 from dtalign._kernels import lanes
 from dtalign._kernels.lanes import plain, vector
 from dtalign.api.checks import check_lm_inputs
-from dtalign.api.lm import _kernel_args
+from dtalign.api.options import fit_arguments
 
 pytestmark = pytest.mark.skipif(
     numba.config.DISABLE_JIT, reason="the vector intrinsics are LLVM IR: with the JIT disabled only the plain twin runs"
@@ -99,8 +99,7 @@ def _kernel_inputs(case: ParityCase, derivatives: Any) -> tuple[Any, ...]:
     bound = inspect.signature(dtalign.lm_subpixel_refine).bind(**kw)
     bound.apply_defaults()
     a = check_lm_inputs(dict(bound.arguments))
-    rest, grad = _kernel_args(a, a.final_gradient_ridge)
-    return (a.dt, grad, a.vertices, a.normals, a.sigmas, a.use_polarity, *rest)
+    return fit_arguments(a)
 
 
 def test_every_parity_case_fits_to_the_same_bits_on_both_paths(twin_fit: Any, derivatives: Any) -> None:

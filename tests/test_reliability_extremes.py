@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import dtalign
-from dtalign import _validation
+from dtalign.api import checks as _validation
 from test_reliability_inputs import COV, INF, LM, NAN, RIDGE, _scene, assert_lm_sane
 
 # --------------------------------------------------------------------------

@@ -73,13 +73,12 @@ def _summary(r, w):
 
 
 @kernel
-def fit(
-    dt, grad, pts, nrm, sig, use_polarity, pose0, pivot, fit_rotation, pivot_distance,
-    max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
-    ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
-    ridge_max_displacement, use_libm,
-):
+def fit(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts):
     """SPEC section 3, steps 1-5.
+
+    ``opts`` is the one record of LM / ridge options
+    (:class:`dtalign.api.options.LMKernelOptions`, a named tuple: Numba
+    compiles one specialisation for its field types and caches it).
 
     Returns ``(error, pose, iterations, converged, r, w, jac, covariance,
     rms, raw_rms, inlier_count, degenerate, polarity_rejected_count)``
@@ -87,34 +86,30 @@ def fit(
     other values are placeholders.
     """
     n = pts.shape[0]
-    n_params = 3 if fit_rotation else 2
-    if use_polarity:
+    n_params = 3 if opts.fit_rotation else 2
+    if opts.use_polarity:
         pol, bad = polarity(pts, nrm, grad, pose0[0], pose0[1])
         if bad:
             return _failed(BAD_GRADIENT, pose0, n, n_params)
     else:
         pol = np.ones(n)
-    return fit_with_mask(
-        dt, grad, pts, nrm, sig, pol, pose0, pivot, fit_rotation, pivot_distance,
-        max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
-        ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
-        ridge_max_displacement, use_libm,
-    )
+    return fit_with_mask(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts, pol)
 
 
 @kernel
-def fit_with_mask(
-    dt, grad, pts, nrm, sig, pol, pose0, pivot, fit_rotation, pivot_distance,
-    max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
-    ridge, ridge_half, ridge_sample_step, ridge_max_iterations, ridge_step_tolerance,
-    ridge_max_displacement, use_libm,
-):
-    """:func:`fit` from a given seed polarity mask ``pol`` (1.0 accepted, 0.0 not).
+def fit_with_mask(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts, pol):
+    """:func:`fit` from a given seed polarity mask ``pol`` (1.0 accepted, 0.0
+    not; ``opts.use_polarity`` is not read).
 
-    With ``max_iterations == 0`` and no ridge it is SPEC section 3 step 3 and
-    5 alone: the state and summary at ``pose0``, what ``lm_subpixel_refine``
-    needs after a replaced ridge stage moved the pose (SPEC 8.1).
+    With ``opts.max_iterations == 0`` and no ridge it is SPEC section 3 step
+    3 and 5 alone: the state and summary at ``pose0``, what
+    ``lm_subpixel_refine`` needs after a replaced ridge stage moved the pose
+    (SPEC 8.1).
     """
+    fit_rotation = opts.fit_rotation
+    tukey_c = opts.tukey_c
+    ridge_half = opts.ridge_half
+    ridge_sample_step = opts.ridge_sample_step
     n = pts.shape[0]
     n_params = 3 if fit_rotation else 2
     rejected = 0
@@ -122,21 +117,23 @@ def fit_with_mask(
         if not pol[i] > 0.0:
             rejected += 1
     pose, iterations, converged, r, w, jac, info, status = lm_loop(
-        dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
-        damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
+        dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, opts.max_iterations,
+        opts.damping, opts.step_tolerance, tukey_c, opts.rcond, opts.trust_region,
+        opts.tikhonov_alpha,
     )
     if status == LOOP_BAD_DT:
         return _failed(BAD_DT, pose0, n, n_params)
     if status == LOOP_DIVERGED:
         return _failed(DIVERGED, pose0, n, n_params)
     inlier_count, total_weight, weighted = _summary(r, w)
-    if ridge and inlier_count > 0:
+    if opts.ridge and inlier_count > 0:
         patch, tiles, r0, c0 = magnitude_patch(
             grad, pts, pose[0], pose[1], ridge_half * ridge_sample_step + PATCH_MARGIN
         )
         new_pose, ridge_iterations, ridge_converged, ridge_status = ridge_loop(
-            _NO_MAGNITUDE, patch, tiles, grad, r0, c0, use_libm, pts, nrm, sig, pol, pose, pivot, fit_rotation, pivot_distance,
-            ridge_max_iterations, ridge_step_tolerance, tukey_c, ridge_half, ridge_sample_step,
+            _NO_MAGNITUDE, patch, tiles, grad, r0, c0, opts.use_libm, pts, nrm, sig, pol, pose,
+            pivot, fit_rotation, pivot_distance, opts.ridge_max_iterations,
+            opts.ridge_step_tolerance, tukey_c, ridge_half, ridge_sample_step,
         )
         if ridge_status == RIDGE_BAD_FIELD:
             return _failed(BAD_GRADIENT, pose0, n, n_params)
@@ -146,7 +143,7 @@ def fit_with_mask(
         if not (math.isfinite(new_pose[0]) and math.isfinite(new_pose[1])
                 and math.isfinite(new_pose[2])):
             return _failed(DIVERGED, pose0, n, n_params)
-        if ridge_iterations > 0 and not moved > ridge_max_displacement:
+        if ridge_iterations > 0 and not moved > opts.ridge_max_displacement:
             pose = new_pose
             converged = converged or ridge_converged  # SPEC 8.1
             inv_var = np.empty(n)
@@ -169,7 +166,7 @@ def fit_with_mask(
         rms = math.sqrt(weighted / total_weight)
         # info: the final state's J^T W J as evaluate_state summed it (the
         # products of normal_equations(jac.T, w, r), summed lane-wise)
-        cov, ok = symmetric_pinvh(info, rcond)
+        cov, ok = symmetric_pinvh(info, opts.rcond)
         if not ok:
             return _failed(DIVERGED, pose0, n, n_params)
     return (OK, pose, iterations, converged, r, w, jac, cov, rms, raw_rms, inlier_count,

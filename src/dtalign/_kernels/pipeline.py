@@ -17,7 +17,6 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import kernel
-from ..api.constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION as SEED_SUPPORT
 from .coarse import (
     best_scored,
     dense_ok,
@@ -34,15 +33,16 @@ from .polarity_search import polarity_search
 
 @kernel
 def fit_polylines(
-    edge, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances,
-    rotation0, use_polarity, fit_rotation, max_iterations, damping, step_tolerance, tukey_c,
-    rcond, trust_region, tikhonov_alpha, ridge, ridge_half, ridge_sample_step,
-    ridge_max_iterations, ridge_step_tolerance, ridge_max_displacement, use_libm, lo, hi,
-    errors, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers, degenerate,
-    r_all, w_all,
+    edge, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances, rotation0, seed_support,
+    opts, lo, hi, errors, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
+    degenerate, r_all, w_all,
 ):
     """Fit polylines ``j`` in ``lo:hi`` (rows ``starts[j]:starts[j+1]`` of the
     concatenated ``pts, nrm, sig``), writing row ``j`` of the outputs.
+
+    ``opts`` is the LM's options record (:func:`dtalign._kernels.fit.fit`'s);
+    ``seed_support`` the seed's support fraction (the pipeline passes
+    ``DEFAULT_COARSE_MIN_SUPPORT_FRACTION``).
 
     The seed is the pipeline's (:func:`dtalign._fitjobs.seed_of`): the
     polarity-weighted search with polarity, else the scored overlap search,
@@ -60,11 +60,11 @@ def fit_polylines(
         a = starts[j]
         b = starts[j + 1]
         p = pts[a:b]
-        if use_polarity:  # today's limb and terminator seed (issue 17)
-            dv, du, _ = polarity_search(edge, grad, p, nrm[a:b], mv, mu, SEED_SUPPORT * (b - a))
+        if opts.use_polarity:  # today's limb and terminator seed (issue 17)
+            dv, du, _ = polarity_search(edge, grad, p, nrm[a:b], mv, mu, seed_support * (b - a))
         else:
             sv, su = support_of_vertices(p, h, w)
-            floor = SEED_SUPPORT * sv.shape[0]
+            floor = seed_support * sv.shape[0]
             if sv.shape[0] > 0 and dense_ok(sv.shape[0], mu):
                 overlap = overlap_dense(sv, su, edge_flat, h, w, mv, mu)
                 counts = in_image_counts(sv, su, h, w, mv, mu)
@@ -83,10 +83,7 @@ def fit_polylines(
         pivot[0] = pivots[j, 0]
         pivot[1] = pivots[j, 1]
         (error, pose, n_iter, conv, r, wt, _jac, cov, rms_j, raw_j, inl, deg, _rej) = fit(
-            dt, grad, p, nrm[a:b], sig[a:b], use_polarity, pose0, pivot, fit_rotation,
-            distances[j], max_iterations, damping, step_tolerance, tukey_c, rcond, trust_region,
-            tikhonov_alpha, ridge, ridge_half, ridge_sample_step, ridge_max_iterations,
-            ridge_step_tolerance, ridge_max_displacement, use_libm,
+            dt, grad, p, nrm[a:b], sig[a:b], pose0, pivot, distances[j], opts,
         )
         errors[j] = error
         if error != OK:

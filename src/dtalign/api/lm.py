@@ -23,19 +23,11 @@ from .constants import (
     DEFAULT_LM_MAX_ITERATIONS,
     DEFAULT_LM_STEP_TOLERANCE,
     DEFAULT_PINVH_RCOND,
-    DEFAULT_RIDGE_HALF_WIDTH_PX,
-    DEFAULT_RIDGE_MAX_ITERATIONS,
-    DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
-    DEFAULT_RIDGE_SAMPLE_STEP_PX,
     DEFAULT_TUKEY_C,
 )
-from .image import _use_libm_hypot
+from .options import fit_arguments
 from .results import LMRefineResult
 
-#: The ridge polish inside LM runs with its defaults (SPEC section 3 step 4).
-_RIDGE_HALF = round(DEFAULT_RIDGE_HALF_WIDTH_PX / DEFAULT_RIDGE_SAMPLE_STEP_PX)
-#: Stand-in gradient when none is given (never read: polarity and ridge are off).
-_NO_GRADIENT = np.zeros((1, 1, 2))
 #: The ridge stage as shipped; SPEC 8.1 lets a caller replace the module
 #: attribute, and only then does the LM call out to Python for it.
 _compiled_ridge = _ridge_module.gradient_ridge_refine
@@ -122,20 +114,6 @@ def lm_subpixel_refine(
     return fit_checked(a)
 
 
-def _kernel_args(a: LMArgs, ridge: bool) -> tuple[Any, ...]:
-    """The arguments of the compiled fit after its polarity inputs
-    (:func:`dtalign._kernels.fit.fit_with_mask`)."""
-    grad = a.gradient if a.gradient is not None else _NO_GRADIENT
-    return (
-        np.array([a.offset[0], a.offset[1], a.rotation]), np.array(a.pivot),
-        a.fit_rotation, a.pivot_distance, a.max_iterations, a.damping, a.step_tolerance,
-        a.tukey_c, a.pinvh_rcond, -1.0 if a.trust_region_px is None else a.trust_region_px,
-        a.tikhonov_alpha, ridge, _RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
-        DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
-        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, _use_libm_hypot(),
-    ), grad
-
-
 def _ridge_replaced() -> bool:
     """Whether a caller replaced ``dtalign.ridge.gradient_ridge_refine`` (SPEC 8.1)."""
     return _ridge_module.gradient_ridge_refine is not _compiled_ridge
@@ -144,8 +122,7 @@ def _ridge_replaced() -> bool:
 def fit_checked(a: LMArgs) -> LMRefineResult:
     if a.final_gradient_ridge and _ridge_replaced():
         return _fit_with_replaced_ridge(a)
-    rest, grad = _kernel_args(a, a.final_gradient_ridge)
-    out = _k.fit(a.dt, grad, a.vertices, a.normals, a.sigmas, a.use_polarity, *rest)
+    out = _k.fit(*fit_arguments(a))
     return _result(out)
 
 
@@ -170,7 +147,8 @@ def _result(out: tuple[Any, ...]) -> LMRefineResult:
 def _fit_with_replaced_ridge(a: LMArgs) -> LMRefineResult:
     """SPEC 8.1: the LM compiled, then the caller's ridge stage, called with
     exactly the keywords the spec lists, then the state at its pose."""
-    rest, grad = _kernel_args(a, False)
+    args = fit_arguments(a, ridge=False)
+    grad = args[1]
     n = a.vertices.shape[0]
     if a.use_polarity:
         pol, bad = _lanes.polarity(a.vertices, a.normals, grad, a.offset[0], a.offset[1])
@@ -178,7 +156,7 @@ def _fit_with_replaced_ridge(a: LMArgs) -> LMRefineResult:
             raise_for_code(_k.BAD_GRADIENT)
     else:
         pol = np.ones(n)
-    lm = _result(_k.fit_with_mask(a.dt, grad, a.vertices, a.normals, a.sigmas, pol, *rest))
+    lm = _result(_k.fit_with_mask(*args, pol))
     if lm.inlier_count == 0:
         return lm
     ridge = _ridge_module.gradient_ridge_refine(
@@ -200,8 +178,7 @@ def _fit_with_replaced_ridge(a: LMArgs) -> LMRefineResult:
         offset=(float(ridge.offset_vu[0]), float(ridge.offset_vu[1])),
         rotation=float(ridge.rotation_rad), max_iterations=0,
     )
-    rest, _ = _kernel_args(moved, False)
-    at_ridge = _result(_k.fit_with_mask(a.dt, grad, a.vertices, a.normals, a.sigmas, pol, *rest))
+    at_ridge = _result(_k.fit_with_mask(*fit_arguments(moved, ridge=False), pol))
     return dataclasses.replace(
         at_ridge, iterations=lm.iterations, converged=bool(lm.converged or ridge.converged)
     )

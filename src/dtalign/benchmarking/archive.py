@@ -92,7 +92,6 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
     except ImportError as exc:
         return _skipped(f"needs dtalign[dask] ({exc.name} is missing)")
     from ..archive import Store, fit_item, make_example, read_manifest, run
-    from ..archive._plugin import WarmNumba
 
     tmp = Path(tempfile.mkdtemp(prefix="dtalign-bench-archive-"))
     try:
@@ -105,10 +104,10 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
             n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
             scheduler_kwargs={"dashboard_address": ":0"},
         ) as cluster, distributed.Client(cluster) as client:
-            client.register_plugin(WarmNumba())
             # One untimed campaign, as the serial loop had one: the workers' first
-            # frames pay for first-touch allocations of image-sized arrays.
-            run(items, tmp / "store-warm", client, progress=False, warm=False)
+            # frames pay for first-touch allocations of image-sized arrays (and
+            # the run registers the plugin that warms each worker's kernels).
+            run(items, tmp / "store-warm", client, progress=False, warm=True)
             client.gather(client.map(_control_task, range(4), pure=False))
             _control_task(0)
             t_serial: list[float] = []

@@ -16,33 +16,16 @@ single chain does not (docs/benchmarks.rst, "What was tried").
 
 from __future__ import annotations
 
-import numpy as np
+from ..pipeline.jobs import FP_LANES as LANES
+from ..pipeline.jobs import fp_throughput
 
-from .._jit import kernel
-
-#: Independent multiply-add chains: eight AVX2 registers' worth, more than
-#: the floating-point pipes retire per cycle, so the loop is bound by their
-#: throughput, not by the latency of one chain.
-LANES = 32
+__all__ = ["LANES", "ROUNDS", "fp_throughput", "unit"]
 
 #: Rounds per work unit: ~0.11 ms on the development machine, about one fit
 #: of the batch row.
 ROUNDS = 18_000
 
 
-@kernel
-def fp_throughput(rounds):
-    """``LANES`` independent chains of ``x * (1 + 1e-7) + 1e-9``, ``rounds`` times.
-
-    Returns their sum (so the work cannot be optimised away).
-    """
-    acc = np.ones(LANES)
-    for _ in range(rounds):
-        for k in range(LANES):
-            acc[k] = acc[k] * 1.0000001 + 1e-9
-    return acc.sum()
-
-
 def unit() -> float:
     """One work unit of the control (GIL released while it runs)."""
-    return float(fp_throughput(ROUNDS))
+    return fp_throughput(ROUNDS)

@@ -6,14 +6,15 @@ from functools import partial
 from typing import Any
 
 from .timing import _mib, peak_bytes
-from .workloads import DERIVATIVE_TEMPORARIES_TARGET, lm_keywords
+from .workloads import DERIVATIVE_TEMPORARIES_TARGET, compiled_api, lm_keywords
 
 
 def measure_memory() -> dict[str, Any]:
     """Image-sized temporaries of the derivatives; LM peak on a 512 and a 2048 DT."""
-    import dtalign
+    import dtalign.reference as reference
+    import dtalign.scenes as scenes
 
-    from .. import reference, scenes
+    dtalign = compiled_api()
 
     out: dict[str, Any] = {}
     scene = scenes.disc_scene()

@@ -97,7 +97,8 @@ def _count_files(root: Path, suffixes: tuple[str, ...] = (".nbi", ".nbc")) -> in
 
 def measure_startup(full: bool) -> dict[str, Any]:
     """Fresh-process start-up: import, first fit with a warm cache; optionally cold/read-only."""
-    from .. import reference, scenes
+    import dtalign.reference as reference
+    import dtalign.scenes as scenes
 
     pkg_dir = Path(__file__).resolve().parents[1]
     env = dict(os.environ)

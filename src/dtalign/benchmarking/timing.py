@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import gc
 import hashlib
+import inspect
 import math
 import os
 import platform
@@ -31,6 +32,7 @@ from .workloads import (
     TARGETS,
     Inputs,
     _same,
+    compiled_api,
     fit_polyline_keywords,
     workload_call,
 )
@@ -130,9 +132,9 @@ def measure_workloads(
     names: Sequence[str], inputs: Inputs, repeats: int, min_sample_s: float
 ) -> list[dict[str, Any]]:
     """Time, check and memory-profile each workload; one row dict per workload."""
-    import dtalign
+    import dtalign.reference as reference
 
-    from .. import reference
+    dtalign = compiled_api()
 
     rows = []
     for name in names:
@@ -217,11 +219,15 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     a call per polyline, result objects)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from ..pipeline.batch import _FIT_DEFAULTS, _polyline_parts
-    from ..pipeline.jobs import _deps, loop_inputs, plan, prepare
+    from ..pipeline.fit import fit_polyline_products
+    from ..pipeline.jobs import loop_inputs, plan, prepare, run_loop
 
-    parts = [_polyline_parts(p, i) for i, p in enumerate(polylines)]
-    lm = {**_FIT_DEFAULTS, "trust_region_px": 1.0}
+    parts = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines]
+    # fit_many's defaults: fit_polyline_products' keyword options but the window
+    lm = {name: p.default
+          for name, p in inspect.signature(fit_polyline_products).parameters.items()
+          if p.kind is inspect.Parameter.KEYWORD_ONLY and name != "search_window_vu"}
+    lm["trust_region_px"] = 1.0
     del lm["seeds"], lm["ambiguity"]  # the examination after the loop: not the loop
     shared, first = plan(products, *parts[0], search_window_vu=(30, 30),
                          fit_rotation=lm.pop("fit_rotation"), pivot_vu=lm.pop("pivot_vu"),
@@ -230,12 +236,11 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     if error is not None:
         raise error
     args, codes, out = loop_inputs(shared, batch)
-    fit_polylines = _deps().fit_polylines
     bounds = [batch.n * w // workers for w in range(workers + 1)]
 
     def call() -> None:
         with ThreadPoolExecutor(workers) as pool:
-            list(pool.map(lambda w: fit_polylines(*args, bounds[w], bounds[w + 1], codes, *out),
+            list(pool.map(lambda w: run_loop(args, bounds[w], bounds[w + 1], codes, out),
                           range(workers)))
 
     return call
@@ -262,7 +267,8 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     so a batch ratio below target with a low FP control is the machine's
     (docs/benchmarks.rst, "What was tried").
     """
-    from .. import scenes
+    import dtalign.scenes as scenes
+
     from ..pipeline.batch import fit_images, fit_many, map_ordered, results_equal
     from ..pipeline.products import prepare_image
     from . import fpload

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -110,8 +111,8 @@ def build_inputs() -> Inputs:
     so one set of derivatives serves every coarse and LM workload. Each LM
     starts from the coarse seed of its own polyline, as in production.
     """
-    from .. import reference as ref
-    from .. import scenes
+    import dtalign.reference as ref
+    import dtalign.scenes as scenes
 
     base = scenes.disc_scene()
     _, dt, grad = ref.compute_all_image_derivatives(base.image, base.noise_sigma)
@@ -180,7 +181,7 @@ def reference_fit_polyline(image: Any, vertices_vu: Any, normals_vu: Any, sigmas
     Noise estimate, derivatives, polyline mask, coarse search, LM; returns
     the :class:`~dtalign.LMRefineResult`.
     """
-    from .. import reference as ref
+    import dtalign.reference as ref
 
     noise = ref.estimate_noise_sigma(image) if noise_sigma is None else noise_sigma
     _, dt, grad = ref.compute_all_image_derivatives(image, noise)
@@ -190,6 +191,32 @@ def reference_fit_polyline(image: Any, vertices_vu: Any, normals_vu: Any, sigmas
         vertices_vu=vertices_vu, normals_vu=normals_vu, sigma_normal_per_vertex_px=sigmas,
         image_edge_dt=dt, image_gradient_vu=grad,
         initial_offset_vu=(float(seed[0]), float(seed[1])), trust_region_px=trust_region_px,
+    )
+
+
+def compiled_api() -> SimpleNamespace:
+    """dtalign's functions the workloads call, by the names :mod:`dtalign.reference`
+    gives them too (the package root re-exports these same objects)."""
+    from ..api.basin import find_secondary_dt_minimum
+    from ..api.coarse import (
+        build_polyline_mask,
+        coarse_ncc_search,
+        coarse_ncc_search_scored,
+        coarse_polarity_search_scored,
+    )
+    from ..api.image import compute_all_image_derivatives
+    from ..api.lm import lm_subpixel_refine
+    from ..pipeline.fit import fit_polyline
+    from ..pipeline.products import estimate_noise_sigma
+
+    return SimpleNamespace(
+        __name__="dtalign", build_polyline_mask=build_polyline_mask,
+        coarse_ncc_search=coarse_ncc_search, coarse_ncc_search_scored=coarse_ncc_search_scored,
+        coarse_polarity_search_scored=coarse_polarity_search_scored,
+        compute_all_image_derivatives=compute_all_image_derivatives,
+        estimate_noise_sigma=estimate_noise_sigma,
+        find_secondary_dt_minimum=find_secondary_dt_minimum, fit_polyline=fit_polyline,
+        lm_subpixel_refine=lm_subpixel_refine,
     )
 
 

@@ -29,10 +29,6 @@ import numpy as np
 from ..api import checks as check
 from ..api.constants import (
     DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
-    DEFAULT_LM_STEP_TOLERANCE,
-    DEFAULT_RIDGE_MAX_ITERATIONS,
-    DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
-    DEFAULT_RIDGE_SAMPLE_STEP_PX,
 )
 from .products import ImageProducts
 
@@ -52,14 +48,14 @@ def _deps() -> SimpleNamespace:
     from .._kernels.pipeline import fit_polylines
     from .._kernels.polarity_search import polarity_search
     from ..api.checks import check_lm_inputs
-    from ..api.image import _use_libm_hypot
-    from ..api.lm import _NO_GRADIENT, _RIDGE_HALF, fit_checked, raise_for_code
+    from ..api.lm import fit_checked, raise_for_code
+    from ..api.options import gradient_of, lm_kernel_options
 
     return SimpleNamespace(
         check_lm_inputs=check_lm_inputs, coarse=coarse, OK=OK, polyline_status=polyline_status,
         polylines_status=polylines_status,
         fit_polylines=fit_polylines,
-        _use_libm_hypot=_use_libm_hypot, _NO_GRADIENT=_NO_GRADIENT, _RIDGE_HALF=_RIDGE_HALF,
+        gradient_of=gradient_of, lm_kernel_options=lm_kernel_options,
         fit_checked=fit_checked, raise_for_code=raise_for_code,
         polarity_search=polarity_search,
     )
@@ -361,16 +357,20 @@ def loop_inputs(
            np.zeros(k), np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.bool_),
            np.zeros(n_pts), np.zeros(n_pts))
     args = (
-        shared.edge, shared.mv, shared.mu, a.dt,
-        a.gradient if a.gradient is not None else d._NO_GRADIENT, batch.pts, batch.nrm, batch.sig,
-        batch.starts, batch.pivots, batch.distances, a.rotation, a.use_polarity, a.fit_rotation,
-        a.max_iterations, a.damping, a.step_tolerance, a.tukey_c, a.pinvh_rcond,
-        -1.0 if a.trust_region_px is None else a.trust_region_px, a.tikhonov_alpha,
-        a.final_gradient_ridge, d._RIDGE_HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX,
-        DEFAULT_RIDGE_MAX_ITERATIONS, DEFAULT_LM_STEP_TOLERANCE,
-        DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX, d._use_libm_hypot(),
+        shared.edge, shared.mv, shared.mu, a.dt, d.gradient_of(a), batch.pts, batch.nrm,
+        batch.sig, batch.starts, batch.pivots, batch.distances, a.rotation,
+        DEFAULT_COARSE_MIN_SUPPORT_FRACTION, d.lm_kernel_options(a),
     )
     return args, errors, out
+
+
+def run_loop(args: tuple[Any, ...], lo: int, hi: int, errors: np.ndarray,
+             out: tuple[np.ndarray, ...]) -> int:
+    """Polylines ``lo:hi`` of :func:`loop_inputs`' ``(args, errors, out)``
+    through the compiled loop (GIL released); returns the first that failed,
+    ``hi`` if none did. What :func:`dtalign.pipeline.batch.fit_many` runs on
+    each thread, without its Python around it (the benchmark's control)."""
+    return int(_deps().fit_polylines(*args, lo, hi, errors, *out))
 
 
 def readonly_views(out: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
@@ -386,3 +386,23 @@ def readonly_views(out: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
 def raise_for(error: int) -> None:
     """Raise the ValueError of a :func:`~dtalign._kernels.pipeline.fit_polylines` error code."""
     _deps().raise_for_code(error)
+
+
+#: Independent chains of :func:`fp_throughput` (see ``dtalign._kernels.fpload``).
+FP_LANES = 32
+
+
+def fp_throughput(rounds: int) -> float:
+    """``FP_LANES`` independent multiply-add chains run ``rounds`` times, compiled
+    with the kernels' flags (GIL released); returns their sum.
+
+    Floating-point-bound compiled work with nothing of dtalign in it: how
+    two threads of it scale beside :func:`run_loop`'s tells whether the
+    machine, not the loop, limits a batch (the batch benchmark's control,
+    :mod:`dtalign.benchmarking.fpload`).
+    """
+    from .._kernels.fpload import LANES
+    from .._kernels.fpload import fp_throughput as compiled
+
+    assert LANES == FP_LANES
+    return float(compiled(rounds))
