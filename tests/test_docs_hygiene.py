@@ -176,7 +176,7 @@ def test_license_changelog_and_one_version():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
     assert project["project"]["license"] == "BSD-3-Clause"
     assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
-    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "dtalign.__version__"}
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "dtalign._version.__version__"}
     assert re.fullmatch(r"\d+\.\d+\.\d+\S*", dtalign.__version__)
 
 

@@ -18,7 +18,7 @@ malformed command line, 130 when interrupted with Ctrl-C). Output paths
 (``--plot``, ``--output``, ``--save``, ``overlay``'s files) are checked
 before any work. A batch never stops on one bad image: it reports it, goes
 on, and exits 1 at the end if anything failed. A fit whose status is
-``failed`` (:mod:`dtalign.status`) gives exit status 3
+``failed`` (:mod:`dtalign.pipeline.status`) gives exit status 3
 (:data:`EXIT_FIT_FAILED`) when nothing else went wrong, a suspect or
 ambiguous one exit status 4 (:data:`EXIT_FIT_DOUBTFUL`); such fits are also
 reported on standard error as ``dtalign: warning: ...``.

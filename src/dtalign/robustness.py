@@ -572,7 +572,7 @@ class Row:
 
 
 def _status(result: Any) -> str:
-    # An enum status (such as dtalign.status.FitStatus) is read by its value,
+    # An enum status (such as dtalign.pipeline.status.FitStatus) is read by its value,
     # so the comparison with 'ok' does not depend on how the enum prints.
     status = getattr(result, "status", "ok")
     return str(getattr(status, "value", status))
@@ -672,7 +672,7 @@ def plain_fit(scene: HardScene) -> Any:
 
     With the scene's window, noise sigma and polarity setting, every other
     option at its default. The result's ``status`` (``ok``, ``suspect`` or
-    ``failed``, from :mod:`dtalign.status`) is what :func:`evaluate` reads.
+    ``failed``, from :mod:`dtalign.pipeline.status`) is what :func:`evaluate` reads.
     """
     from .pipeline.fit import fit_polyline
 

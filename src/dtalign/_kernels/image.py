@@ -19,7 +19,7 @@ bit-identical to :mod:`dtalign.reference.image`, not merely close:
   call per pixel) and defers to libm for the rare inputs glibc rescales.
 
 The kernels assume valid, C-contiguous float64 input and never validate:
-:mod:`dtalign.image` checks and converts once.
+:mod:`dtalign.api.image` checks and converts once.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ from .._jit import kernel
 from .lanes import PENALTY, lane_cost, lane_sums, sample_state, staging_buffers
 from .robust import solve_step, tukey
 
-#: Mirrors of the constants in dtalign._constants, as compile-time literals.
+#: Mirrors of the constants in dtalign.api.constants, as compile-time literals.
 LAMBDA_MIN = 1.0e-12
 LAMBDA_MAX = 1.0e6
 

@@ -1,4 +1,4 @@
-"""The noise estimate of :func:`dtalign.products.estimate_noise_sigma`, compiled.
+"""The noise estimate of :func:`dtalign.pipeline.products.estimate_noise_sigma`, compiled.
 
 Its specification is :func:`dtalign.reference.estimate_noise_sigma`: SciPy's
 convolution with Immerkaer's kernel, then two NumPy medians of about a

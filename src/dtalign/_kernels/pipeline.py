@@ -3,11 +3,11 @@
 A pipeline fit is ~0.1 ms of compiled work; the Python around each call
 (argument unboxing, result tuples) holds the GIL. Here a range of
 polylines runs with the GIL released, from the coarse search to the LM's
-results, so threads of :func:`dtalign.batch.fit_many` fit in parallel and
+results, so threads of :func:`dtalign.pipeline.batch.fit_many` fit in parallel and
 hold the GIL only to call this loop and wrap its results. The LM is exactly
 the kernel, with exactly the argument types, that
 :func:`dtalign.lm_subpixel_refine` calls; the coarse search scores the same
-pixel pairs as :func:`dtalign.coarse.coarse_search_vertices`, from one index
+pixel pairs as :func:`dtalign.api.coarse.coarse_search_vertices`, from one index
 of the edge mask (where the sparse search serves) instead of a scan of a box
 per polyline. Results are bit-identical to fitting the polylines one by one.
 """
@@ -44,7 +44,7 @@ def fit_polylines(
     ``seed_support`` the seed's support fraction (the pipeline passes
     ``DEFAULT_COARSE_MIN_SUPPORT_FRACTION``).
 
-    The seed is the pipeline's (:func:`dtalign._fitjobs.seed_of`): the
+    The seed is the pipeline's (:func:`dtalign.pipeline.jobs.seed_of`): the
     polarity-weighted search with polarity, else the scored overlap search,
     dense where it serves, else against an index of the edge mask built on
     first need. A failing polyline gets its error code in ``errors[j]`` (its

@@ -4,8 +4,8 @@ Each helper checks one argument, names it in the message, and returns it
 converted once to what the kernels assume: a C-contiguous, native-endian
 float64 array (or a Python scalar). Kernels never validate, so everything a
 kernel could trip on (a NaN cast to an index, a wrong trailing dimension)
-must be refused here. The message fragments quoted in SPEC section 1 are
-part of the drop-in contract.
+must be refused here. The message fragments the contract quotes
+(:ref:`contract-errors`) are part of the drop-in contract.
 
 The one module of argument checks, in three parts: the per-argument
 helpers; the whole-call checks of the fitting stages (``check_lm_inputs``
@@ -224,7 +224,7 @@ def shape2(value: Any, name: str = "shape_vu") -> tuple[int, int]:
 def search_window(value: Any) -> tuple[int, int]:
     """The coarse-search margin: a tuple/list of two non-negative ints.
 
-    Checked in SPEC section 9's order: the container, each entry's type,
+    Checked in the contract's order (:ref:`contract-errors`): the container, each entry's type,
     then the sign (so a ``(-1, 2.0)`` window is a TypeError, as upstream).
     """
     if not isinstance(value, (tuple, list)) or len(value) != 2:
@@ -259,7 +259,7 @@ def mask2d(value: Any, name: str) -> NDArray[np.bool_]:
 def mask_values(arr: np.ndarray, name: str) -> np.ndarray:
     """An edge mask whose values count: bool when they are all 0/1, else float64.
 
-    SPEC 8.2 sums the edge mask's values as float64; for 0/1 values that sum
+    The contract (:ref:`contract-coarse-scored`) sums the edge mask's values as float64; for 0/1 values that sum
     is a count, which the integer kernels compute exactly.
     """
     if arr.dtype == np.bool_:
@@ -329,7 +329,7 @@ def polyline(
 ) -> tuple[FloatArray, FloatArray, FloatArray, tuple[float, float]]:
     """Vertices (N > 0), normals and sigmas: the first checks of LM and ridge.
 
-    Shapes are checked here in SPEC order; values in one compiled pass (one
+    Shapes are checked here in the contract's order; values in one compiled pass (one
     call on every fit, where NumPy would make one per check), which also
     returns the vertex centroid, the default rotation pivot.
     """
@@ -502,8 +502,8 @@ def _nonnegative_or_inf(value: Any, name: str) -> float:
 
 def no_information_covariance(n_params: int) -> FloatArray:
     """The all-``+inf`` covariance that marks an LM fit with no information
-    (SPEC section 3 step 5; ``information_matrix_to_covariance`` itself
-    returns zeros there, SPEC section 2)."""
+    (:ref:`contract-lm`; ``information_matrix_to_covariance`` itself
+    returns zeros there)."""
     return np.full((n_params, n_params), np.inf)
 
 
@@ -526,7 +526,7 @@ def check_covariance_inputs(jacobian: Any, weights: Any, rcond: Any) -> tuple[Fl
 
 
 def min_support_fraction_value(value: Any) -> float:
-    """SPEC 8.2's support floor: a real number in ``[0, 1]`` (NaN refused)."""
+    """The coarse search's support floor (:ref:`contract-coarse-scored`): a real number in ``[0, 1]`` (NaN refused)."""
     fraction = real(value, "min_support_fraction")
     if not 0.0 <= fraction <= 1.0:
         raise ValueError(f"min_support_fraction must be in [0, 1]; got {value!r}")
@@ -551,7 +551,7 @@ def _clip_window_for(verts: FloatArray, mv: int, mu: int, shape: tuple[int, ...]
 def check_coarse_inputs(
     edge_mask: Any, polyline_mask: Any, search_window_vu: Any, min_support_fraction: Any = 0.0
 ) -> tuple[np.ndarray, NDArray[np.bool_], int, int, float]:
-    """Checks of ``coarse_ncc_search[_scored]`` in SPEC 8.2's order.
+    """Checks of ``coarse_ncc_search[_scored]`` in the contract's order (:ref:`contract-coarse-scored`).
 
     Returns the edge mask (bool when its values are 0/1, else its float64
     values, which the overlap sums), the polyline mask as bool, the window
@@ -610,7 +610,7 @@ def check_polarity_search_inputs(
     edge_mask: Any, image_gradient_vu: Any, vertices_vu: Any, normals_vu: Any,
     search_window_vu: Any, min_support_fraction: Any,
 ) -> PolaritySearchArgs:
-    """Checks of ``coarse_polarity_search_scored`` in SPEC 8.3's order.
+    """Checks of ``coarse_polarity_search_scored`` in the contract's order (:ref:`contract-polarity-search`).
 
     The gradient may hold NaN (such a vertex's weight, and its shift's
     score, is NaN, which never wins); vertices and normals must be finite.
@@ -653,7 +653,7 @@ def check_basin_inputs(
     """Checks of ``find_secondary_dt_minimum`` (the reference checks nothing:
     what it accepts gives the same result here; non-finite or mis-shaped input
     is refused naming the argument). Margins are ``int()`` of the window
-    entries, as SPEC 8.4 says; a negative one scans nothing."""
+    entries, as the contract says (:ref:`contract-basin`); a negative one scans nothing."""
     dt = image2d(image_edge_dt, "image_edge_dt")
     verts = vertices(vertices_vu, "vertices_vu")
     converged = pair(converged_offset_vu, "converged_offset_vu")
@@ -696,7 +696,7 @@ def check_lm_inputs(
     kw: Mapping[str, Any],
     checked: tuple[FloatArray, FloatArray, FloatArray, tuple[float, float]] | None = None,
 ) -> LMArgs:
-    """Check ``lm_subpixel_refine``'s keywords in SPEC section 1's order.
+    """Check ``lm_subpixel_refine``'s keywords in the contract's order (:ref:`contract-errors`).
 
     ``checked``, when given, is :func:`polyline`'s
     result for the three per-vertex keywords, which a caller has already

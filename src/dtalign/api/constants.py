@@ -1,6 +1,6 @@
 """Module-level defaults of the fitter, with the reason each has its value.
 
-Every value here is part of the drop-in contract (SPEC section 1): callers
+Every value here is part of the drop-in contract (:ref:`contract-surface`): callers
 and their tests read them by name, so they are re-exported unchanged from
 :mod:`dtalign`.
 """
@@ -56,14 +56,14 @@ DEFAULT_EDGE_THRESHOLD_K_SIGMA: float = 4.0
 DEFAULT_DT_HALF_WIDTH_PX: float = 64.0
 
 #: Smallest fraction of a polyline's support that a coarse shift must keep
-#: inside the image to be a candidate (SPEC section 8.1): a shift that
+#: inside the image to be a candidate (:ref:`contract-coarse-scored`): a shift that
 #: pushes most of the model off the frame would otherwise win on the few
 #: pixels it keeps on an edge.
 DEFAULT_COARSE_MIN_SUPPORT_FRACTION: float = 0.5
 
 #: Residual given to polarity-rejected vertices: the Tukey biweight zeroes
 #: any such vertex on the first reweighting. Today's techniques import it
-#: as ``_INFINITY_DT_PENALTY_PX`` (SPEC section 8.6).
+#: as ``_INFINITY_DT_PENALTY_PX`` (:ref:`contract-today`).
 POLARITY_PENALTY_RESIDUAL: float = 1.0e6
 _INFINITY_DT_PENALTY_PX: float = POLARITY_PENALTY_RESIDUAL
 

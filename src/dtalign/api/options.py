@@ -1,21 +1,20 @@
 """The one record of LM / ridge options the compiled fits take, built in one place.
 
-:func:`dtalign._kernels.fit.fit`, :func:`~dtalign._kernels.fit.fit_with_mask`
-and the pipeline's loop :func:`dtalign._kernels.pipeline.fit_polylines` take
-arrays plus one :class:`LMKernelOptions`. Numba passes a named tuple of
-scalars as one argument (one specialisation for its field types, cached
-like any other), so the options are not a list of positional arguments
-kept in step by hand at every call site. :func:`lm_kernel_options` builds
-the record from ``lm_subpixel_refine``'s checked arguments
-(:class:`~dtalign.api.checks.LMArgs`); :func:`fit_arguments` the whole
-argument tuple of the compiled fit. Every field is converted to one Python
-type (bool, int or float), so every caller reaches the same compiled
-specialisation, and the same bits.
+``dtalign._kernels.fit.fit``, ``fit_with_mask`` and the pipeline's loop
+``dtalign._kernels.pipeline.fit_polylines`` take arrays plus one
+``LMKernelOptions``. Numba passes a named tuple of scalars as one argument
+(one specialisation for its field types, cached like any other), so the
+options are not a list of positional arguments kept in step by hand at
+every call site. ``lm_kernel_options`` builds the record from
+``lm_subpixel_refine``'s checked arguments (``dtalign.api.checks.LMArgs``);
+``fit_arguments`` the whole argument tuple of the compiled fit. Every field
+is converted to one Python type (bool, int or float), so every caller
+reaches the same compiled specialisation, and the same bits.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -32,7 +31,7 @@ from .image import _use_libm_hypot
 __all__ = ["NO_GRADIENT", "RIDGE_HALF", "LMKernelOptions", "fit_arguments", "gradient_of",
            "lm_kernel_options"]
 
-#: The ridge polish inside LM runs with its defaults (SPEC section 3 step 4):
+#: The ridge polish inside LM runs with its defaults (:ref:`contract-lm`):
 #: this many profile samples on each side of a vertex.
 RIDGE_HALF = round(DEFAULT_RIDGE_HALF_WIDTH_PX / DEFAULT_RIDGE_SAMPLE_STEP_PX)
 #: Stand-in gradient when none is given (never read: polarity and ridge are off).
@@ -68,7 +67,7 @@ class LMKernelOptions(NamedTuple):
 
 def lm_kernel_options(a: LMArgs, ridge: bool | None = None) -> LMKernelOptions:
     """The options record of checked arguments ``a``; ``ridge`` overrides
-    ``a.final_gradient_ridge`` (the LM before a caller's ridge stage, SPEC 8.1)."""
+    ``a.final_gradient_ridge`` (the LM before a caller's ridge stage, :ref:`contract-lm`)."""
     return LMKernelOptions(
         use_polarity=bool(a.use_polarity),
         fit_rotation=bool(a.fit_rotation),
@@ -94,7 +93,13 @@ def gradient_of(a: LMArgs) -> FloatArray:
     return a.gradient if a.gradient is not None else NO_GRADIENT
 
 
-def fit_arguments(a: LMArgs, ridge: bool | None = None) -> tuple[Any, ...]:
+#: :func:`fit_arguments`' tuple: dt, gradient, vertices, normals, sigmas,
+#: initial pose, pivot, pivot distance, options.
+FitArguments = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+                     FloatArray, float, LMKernelOptions]
+
+
+def fit_arguments(a: LMArgs, ridge: bool | None = None) -> FitArguments:
     """The arguments of :func:`dtalign._kernels.fit.fit` for checked arguments
     ``a`` (``fit_with_mask`` takes the same, then the polarity mask)."""
     return (

@@ -1,4 +1,4 @@
-"""Frozen result types returned by the fitters (SPEC sections 3 and 4), and
+"""Frozen result types returned by the fitters (:ref:`contract-lm`), and
 the image side's configuration, :class:`ImageDerivativesConfig` (section 5)."""
 
 from __future__ import annotations

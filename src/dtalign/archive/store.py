@@ -73,7 +73,7 @@ RESULT_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("status", "string", "the fit's status, when the fit result has one (else null)"),
     ("reasons", "list<string>", "the reasons of that status (else null)"),
     ("ambiguity_ratio", "float64",
-     "rival basin's cost over the fit's (dtalign.hypotheses; null when not examined)"),
+     "rival basin's cost over the fit's (dtalign.pipeline.hypotheses; null when not examined)"),
     ("rival_offset_v", "float64", "that rival basin's fitted offset (null when none)"),
     ("rival_offset_u", "float64", ""),
     ("noise_sigma", "float64", "noise sigma used (given or estimated)"),

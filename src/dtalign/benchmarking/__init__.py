@@ -10,7 +10,7 @@ Wall time is :func:`time.perf_counter`; peak memory is the
 :mod:`tracemalloc` peak of one call (Numba's allocations are traced too).
 
 Besides the workloads the table has the batch throughput of
-:mod:`dtalign.batch` (2 workers against 1), start-up times measured in fresh
+:mod:`dtalign.pipeline.batch` (2 workers against 1), start-up times measured in fresh
 subprocesses (``import dtalign``; the first fit with a warm on-disk cache;
 with ``--startup full`` also the first-run compile time and a check that a
 read-only install still caches), and two memory checks (image-sized

@@ -10,7 +10,7 @@ floating-point pipes busy, as the LM's four-lane bilinear sampling does,
 scales far less. So this control runs many independent multiply-add
 chains, bound by the pipes' throughput as the fits are: it is what two
 threads of such code get from the machine at that moment, and
-:func:`~dtalign.batch.fit_many`'s compiled loop alone follows it where a
+:func:`~dtalign.pipeline.batch.fit_many`'s compiled loop alone follows it where a
 single chain does not (docs/benchmarks.rst, "What was tried").
 """
 

@@ -212,7 +212,7 @@ def measure_noise_overhead(inputs: Inputs, repeats: int, min_sample_s: float) ->
 
 
 def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]:
-    """A no-argument run of the compiled loop :func:`~dtalign.batch.fit_many`
+    """A no-argument run of the compiled loop :func:`~dtalign.pipeline.batch.fit_many`
     calls (coarse search and LM, GIL released), over ``workers`` contiguous
     chunks of the polylines on as many threads, its inputs checked and
     prepared once here: what ``fit_many`` costs without its Python (checks,
@@ -247,11 +247,11 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
 
 
 def measure_batch(repeats: int) -> list[dict[str, Any]]:
-    """Throughput of :mod:`dtalign.batch` with 2 worker threads against 1.
+    """Throughput of :mod:`dtalign.pipeline.batch` with 2 worker threads against 1.
 
-    ``batch_64_fits``: :func:`~dtalign.batch.fit_many`, 64 fits (the three
+    ``batch_64_fits``: :func:`~dtalign.pipeline.batch.fit_many`, 64 fits (the three
     navigation polylines in turn) against one image's products.
-    ``batch_images``: :func:`~dtalign.batch.fit_images`, 16 navigation
+    ``batch_images``: :func:`~dtalign.pipeline.batch.fit_images`, 16 navigation
     images of 3 polylines each. Each is alternated with a
     control, SHA-256 of 512 KiB blocks on the same pool (C code that releases
     the GIL): its ratio (``control_ratio``) is what the machine allowed at
@@ -279,7 +279,7 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     images = [scenes.navigation_scene(seed=k) for k in range(BATCH_IMAGES)]
     cases = {
         # ambiguity=False: the fits alone, not the rival-basin examination
-        # (~30x a fit), whose scaling is that of dtalign.hypotheses
+        # (~30x a fit), whose scaling is that of dtalign.pipeline.hypotheses
         "batch_64_fits": (
             f"fit_many: {BATCH_FITS} fits on one image, 1 vs 2 threads", BATCH_TARGET,
             lambda w: fit_many(products, polys, search_window_vu=(30, 30), workers=w,

@@ -2,8 +2,8 @@
 and the Cassini summary PNGs (:mod:`dtalign.io.cassini`, which builds on
 :mod:`dtalign.io.files`; nothing here imports it).
 
-The file functions are re-exported here, so ``dtalign.io.load_image`` is
-:func:`dtalign.io.files.load_image`.
+The file functions are re-exported here: ``dtalign.io.load_image`` is
+``dtalign.io.files.load_image``.
 """
 
 from .files import (

@@ -81,7 +81,7 @@ widget of ``tqdm.auto``, other options) pass its update as the callback::
 Examples
 --------
 >>> from dtalign import scenes
->>> from dtalign.batch import fit_many
+>>> from dtalign.pipeline.batch import fit_many
 >>> from dtalign.pipeline import prepare_image
 >>> scene = scenes.navigation_scene()
 >>> products = prepare_image(scene.image, scene.noise_sigma)
@@ -564,7 +564,7 @@ def fit_many(
 
 def _log(results: list[Any], label: str) -> None:
     """Report on dtalign's logger each failed or suspect fit
-    (:func:`dtalign.status.log_fits`) and, collected, each error at WARNING."""
+    (:func:`dtalign.pipeline.status.log_fits`) and, collected, each error at WARNING."""
     if not any(isinstance(r, Exception) for r in results):
         log_fits(results, label)
         return
@@ -584,9 +584,9 @@ def _fit_parts(
     ``tick(k)``: ``k`` more polylines are complete (fitted, or failed and collected).
 
     Raising: the first polyline is checked with everything the polylines
-    share (:func:`dtalign._fitjobs.plan`), which fixes which error a bad
+    share (:func:`dtalign.pipeline.jobs.plan`), which fixes which error a bad
     call raises; then the others in bulk, up to the first bad one
-    (:func:`~dtalign._fitjobs.prepare`); the polylines before it are fitted.
+    (:func:`~dtalign.pipeline.jobs.prepare`); the polylines before it are fitted.
     An error of the first polyline that the probe polyline of
     :func:`_probe_plan` gets too is the call's (a shared argument's): it is
     raised as it is, not as the polyline's. Collecting: the shared
@@ -669,7 +669,7 @@ def _fit_batch(
     fits divided evenly among them. With ``examine`` (the number of starts)
     each fit is then examined against rival basins as
     :func:`~dtalign.pipeline.fit_polyline_products` does
-    (:func:`dtalign.hypotheses.examine`), on the same threads. ``tick(k)``
+    (:func:`dtalign.pipeline.hypotheses.examine`), on the same threads. ``tick(k)``
     counts the polylines done: fitted (examined, with ``examine``) or failed.
     """
     k = batch.n

@@ -5,20 +5,25 @@ image derivatives, a polyline mask, the coarse integer search, the rotation
 pivot, the robust LM refinement, then an "is the seed on the window edge?"
 test. This module does those steps once, in one place:
 
-* :func:`~dtalign.products.prepare_image` computes an image's products
+* :func:`~dtalign.pipeline.products.prepare_image` computes an image's products
   (gradient, truncated edge DT, edge mask, noise sigma) once;
-* :func:`fit_polyline_products` fits one polyline against those products,
-  so several polylines (a limb, a terminator, a ring edge) share them;
-* :func:`fit_polyline` is the two together for the single-polyline case.
+* :func:`~dtalign.pipeline.fit_polyline_products` fits one polyline against
+  those products, so several polylines (a limb, a terminator, a ring edge)
+  share them;
+* :func:`~dtalign.pipeline.fit_polyline` is the two together for the
+  single-polyline case.
 
-The result, :class:`PolylineFit`, carries the coarse seed, the full
+The result, :class:`~dtalign.pipeline.PolylineFit`, carries the coarse seed, the full
 :class:`~dtalign.LMRefineResult`, the pose, one-sigma uncertainties read
 from the covariance and the window-edge flag. What a rank-deficient fit
-does not constrain is read with the helpers of :mod:`dtalign.observability`,
-re-exported here; :func:`~dtalign.products.prepare_image`,
-:class:`~dtalign.products.ImageProducts` and
-:func:`~dtalign.products.estimate_noise_sigma` live in
-:mod:`dtalign.products` and are re-exported here too.
+does not constrain is read with the helpers of
+:mod:`dtalign.pipeline.observability`;
+:func:`~dtalign.pipeline.products.prepare_image`,
+:class:`~dtalign.pipeline.products.ImageProducts` and
+:func:`~dtalign.pipeline.products.estimate_noise_sigma` live in
+:mod:`dtalign.pipeline.products`. The package :mod:`dtalign.pipeline`
+re-exports them all with this module's names. The fits are built here from
+the checks and compiled work of :mod:`dtalign.pipeline.jobs`.
 """
 
 from __future__ import annotations
@@ -105,10 +110,10 @@ class PolylineFit:
     timings_s : dict
         Wall time of each stage in seconds (``noise``, ``derivatives`` when
         the products were computed here, ``coarse``, ``lm``). Fits of
-        :func:`dtalign.batch.fit_many` have ``fit`` instead of ``coarse`` and
+        :func:`dtalign.pipeline.batch.fit_many` have ``fit`` instead of ``coarse`` and
         ``lm``: the threads' compiled time divided by the call's fits.
     hypotheses : tuple of Hypothesis
-        Every pose considered (:mod:`dtalign.hypotheses`): the fit from the
+        Every pose considered (:mod:`dtalign.pipeline.hypotheses`): the fit from the
         coarse seed first, then the other starts; empty when not examined.
     ambiguity : Ambiguity or None
         How clearly this basin beats the best rival basin (its ``ratio``,
@@ -116,7 +121,7 @@ class PolylineFit:
         direction); None when not examined.
 
     Whether to trust the fit is read from these fields by :attr:`status`,
-    :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.status`);
+    :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.pipeline.status`);
     the uncertainties by :attr:`sigma_vu` and :attr:`sigma_rotation_rad`
     (from the prior sigmas) and :attr:`sigma_vu_scaled` (scaled by the
     residuals, :attr:`variance_factor`).
@@ -150,7 +155,7 @@ class PolylineFit:
     def normal_covariance(self) -> FloatArray:
         """Pose covariance when each vertex measures only its shift along its normal.
 
-        Formed by :func:`~dtalign.observability.normal_information_covariance`
+        Formed by :func:`~dtalign.pipeline.observability.normal_information_covariance`
         from the polyline and the LM's final weights, on first access (it is
         not needed by most callers, and batch fits should not pay for it).
         It decides :attr:`observable_rank`.
@@ -228,7 +233,7 @@ class PolylineFit:
         The LM covariance restricted to the directions the geometry
         constrains, ``+inf`` along :attr:`unobservable_directions` and along
         the covariance's own null directions; see
-        :func:`~dtalign.observability.covariance_with_unobservable_inf`.
+        :func:`~dtalign.pipeline.observability.covariance_with_unobservable_inf`.
         """
         return covariance_with_unobservable_inf(
             self.lm.covariance, self.pinvh_rcond, null_directions=self.unobservable_directions
@@ -337,15 +342,15 @@ class PolylineFit:
     def reasons(self) -> tuple[FitReason, ...]:
         """Every condition that makes the fit failed, suspect or rank-deficient.
 
-        A tuple of :class:`~dtalign.status.FitReason` (str values such as
+        A tuple of :class:`~dtalign.pipeline.status.FitReason` (str values such as
         ``"degenerate"``, ``"not_converged"``); empty for a clean fit. See
-        :mod:`dtalign.status` for what each means.
+        :mod:`dtalign.pipeline.status` for what each means.
         """
         return _status.fit_reasons(self)
 
     @property
     def status(self) -> FitStatus:
-        """``"ok"``, ``"suspect"`` or ``"failed"`` (:class:`~dtalign.status.FitStatus`).
+        """``"ok"``, ``"suspect"`` or ``"failed"`` (:class:`~dtalign.pipeline.status.FitStatus`).
 
         The worst severity among :attr:`reasons`: ``failed`` when the pose is
         not a measurement (degenerate, every vertex polarity-rejected, seed
@@ -487,7 +492,7 @@ class PolylineFit:
             "timings_s": dict(self.timings_s),
         }
 
-    # Printing: field-generic (see dtalign._results), arrays summarised.
+    # Printing: field-generic (see dtalign.api.results), arrays summarised.
     _SUMMARY_EXTRA = ("sigma_vu", "sigma_rotation_rad", "observable_rank", "status", "reasons")
 
     def summary(self) -> str:
@@ -531,7 +536,7 @@ def fit_polyline_products(
     """Fit one polyline against precomputed image products.
 
     Steps: find the integer seed of the rasterised polyline against
-    ``products.edge_mask`` (:func:`dtalign.coarse.coarse_search_vertices`:
+    ``products.edge_mask`` (:func:`dtalign.api.coarse.coarse_search_vertices`:
     :func:`dtalign.coarse_ncc_search` of :func:`dtalign.build_polyline_mask`,
     without building the mask), then refine from the seed with
     :func:`dtalign.lm_subpixel_refine`.
@@ -539,7 +544,7 @@ def fit_polyline_products(
     Parameters
     ----------
     products : ImageProducts
-        From :func:`~dtalign.products.prepare_image`.
+        From :func:`~dtalign.pipeline.products.prepare_image`.
     vertices_vu : array_like, shape (N, 2)
         Model vertices ``(v, u)`` in pixels, N > 0.
     normals_vu : array_like, shape (N, 2)
@@ -570,7 +575,7 @@ def fit_polyline_products(
     initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
         Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
     seeds : int, optional
-        Starts of a multi-start fit (:mod:`dtalign.hypotheses`): the LM runs
+        Starts of a multi-start fit (:mod:`dtalign.pipeline.hypotheses`): the LM runs
         from the ``seeds`` best distinct coarse peaks and from the competing
         basin of the DT cost, and the cheapest pose on a common footing wins.
         1 (the default) keeps the single start's pose.
@@ -588,7 +593,7 @@ def fit_polyline_products(
     Raises
     ------
     TypeError
-        If ``products`` is not an :class:`~dtalign.products.ImageProducts`,
+        If ``products`` is not an :class:`~dtalign.pipeline.products.ImageProducts`,
         or a window entry is not an int.
     ValueError
         On malformed vertices, normals, sigmas, window, pivot or LM
@@ -645,7 +650,7 @@ def fit_polyline(
 
     Equivalent to ``fit_polyline_products(prepare_image(image, noise_sigma,
     config=config), vertices_vu, normals_vu, sigmas, ...)``. To fit several
-    polylines to one image, call :func:`~dtalign.products.prepare_image`
+    polylines to one image, call :func:`~dtalign.pipeline.products.prepare_image`
     once and :func:`fit_polyline_products` per polyline instead.
 
     Parameters
@@ -658,7 +663,7 @@ def fit_polyline(
         Coarse-search margin ``(mv, mu)``.
     noise_sigma : float, optional
         Image noise sigma; estimated by
-        :func:`~dtalign.products.estimate_noise_sigma` when None.
+        :func:`~dtalign.pipeline.products.estimate_noise_sigma` when None.
     fit_rotation, pivot_vu, pivot_distance_px
         Rotation options: see :func:`fit_polyline_products` (the pivot
         defaults to the vertex centroid, the distance to the pivot-to-centre
@@ -670,7 +675,7 @@ def fit_polyline(
     initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
         Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
     seeds : int, optional
-        Starts of a multi-start fit (:mod:`dtalign.hypotheses`): the LM runs
+        Starts of a multi-start fit (:mod:`dtalign.pipeline.hypotheses`): the LM runs
         from the ``seeds`` best distinct coarse peaks and from the competing
         basin of the DT cost, and the cheapest pose on a common footing wins.
         1 (the default) keeps the single start's pose.

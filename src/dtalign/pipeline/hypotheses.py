@@ -273,7 +273,7 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
     replaced by the cheapest of several starts).
 
     The starts: the fit's own coarse seed; the next ``seeds - 1`` distinct
-    peaks of the coarse score surface (:func:`dtalign.seeds.top_k_seeds`; at
+    peaks of the coarse score surface (:func:`dtalign.pipeline.seeds.top_k_seeds`; at
     least the second, for the ambiguity figure); and the competing basin of
     the DT cost (:func:`dtalign.find_secondary_dt_minimum` outside
     :data:`BASIN_RADIUS_PX`). Each is fitted by the same LM (``refit(seed)``
@@ -314,7 +314,7 @@ def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
         except (ValueError, FloatingPointError, OverflowError):
             pass
 
-    # the surface the pipeline's seed came from (dtalign._fitjobs.seed_of)
+    # the surface the pipeline's seed came from (dtalign.pipeline.jobs.seed_of)
     clipped = (shared.mv, shared.mu)
     polarity = {"normals_vu": item.normals, "image_gradient_vu": grad} if lm.use_polarity else {}
     # Along an unobservable direction (a straight edge) the peaks of one edge

@@ -1,15 +1,15 @@
 """The pipeline's fits: checks once per call, compiled work, light result wrapping.
 
 :func:`dtalign.pipeline.fit_polyline_products` and
-:func:`dtalign.batch.fit_many` share this. The first polyline of a call
+:func:`dtalign.pipeline.batch.fit_many` share this. The first polyline of a call
 is checked exactly as the step-by-step pipeline checks it (its own
 arrays, the window, the pivot, then every LM option and the products'
 arrays, in that order): that fixes which error a bad call raises. What it
 validated holds for every further polyline of the call, which then only
 needs its own arrays checked (one compiled pass) and, when rotating, its
 pivot spread. The polylines then run in one compiled loop with the GIL
-released (:mod:`dtalign._kernels.pipeline`), which :mod:`dtalign.batch`
-runs on its threads; :func:`wrap` makes their results.
+released (:mod:`dtalign._kernels.pipeline`), which :mod:`dtalign.pipeline.batch`
+runs on its threads; ``dtalign.pipeline.fit.wrap`` makes their results.
 
 The kernels are imported on first use: importing :mod:`dtalign.pipeline`
 must not import Numba.

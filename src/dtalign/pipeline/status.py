@@ -113,9 +113,9 @@ class FitReason(str, enum.Enum):
     ``AMBIGUOUS`` (ambiguous)
         A rival basin -- a pose fitted from another coarse peak or from the
         competing basin of the DT cost, farther than
-        :data:`~dtalign.hypotheses.BASIN_RADIUS_PX` away -- costs less than
-        :data:`~dtalign.hypotheses.AMBIGUITY_THRESHOLD` times this one on the
-        common footing of :func:`~dtalign.hypotheses.robust_cost`: two
+        :data:`~dtalign.pipeline.hypotheses.BASIN_RADIUS_PX` away -- costs less than
+        :data:`~dtalign.pipeline.hypotheses.AMBIGUITY_THRESHOLD` times this one on the
+        common footing of :func:`~dtalign.pipeline.hypotheses.robust_cost`: two
         parallel edges of the same polarity, a decoy edge. See
         :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.
     ``AMBIGUOUS_ALONG_EDGE`` (note: the status stays ``OK``)

@@ -33,7 +33,7 @@ def immerkaer_interior(image: Any) -> np.ndarray:
 def estimate_noise_sigma(image: Any) -> float:
     """Robust Gaussian noise sigma: ``1.4826 * MAD / 6`` of Immerkaer's response.
 
-    See :func:`dtalign.products.estimate_noise_sigma` for the contract;
+    See :func:`dtalign.pipeline.products.estimate_noise_sigma` for the contract;
     this is its definition: SciPy's convolution, then NumPy medians.
     """
     arr = check_image(image)

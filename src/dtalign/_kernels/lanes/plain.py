@@ -24,7 +24,7 @@ __all__ = [
     "staging_buffers", "summary_lanes",
 ]
 
-#: Mirrors of the constants in dtalign._constants, as compile-time literals.
+#: Mirrors of the constants in dtalign.api.constants, as compile-time literals.
 PENALTY = 1.0e6
 EPS_T = 0.25
 EPS_R = 1.0e-3
