@@ -247,3 +247,22 @@ def test_dependencies_point_down():
                 bad.append(f"{module} -> {target}")
     assert "dtalign.io.cassini" not in _graph()["dtalign.io.files"]
     assert sorted(bad) == []
+
+
+def test_results_are_built_through_their_constructors():
+    # no object.__new__ around the frozen results' __init__ / __post_init__
+    found = []
+    for module, (path, _) in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if (isinstance(node, ast.Attribute) and node.attr == "__new__"
+                    and isinstance(node.value, ast.Name) and node.value.id == "object"):
+                found.append(f"{module}:{node.lineno}")
+    assert found == []
+
+
+def test_dtalign_ridge_is_the_api_ridge_module():
+    import dtalign.api.ridge
+    import dtalign.ridge
+
+    assert dtalign.ridge is dtalign.api.ridge
+    assert dtalign.ridge.gradient_ridge_refine is dtalign.gradient_ridge_refine
