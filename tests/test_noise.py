@@ -75,18 +75,17 @@ def test_bad_images_are_refused_by_name():
 def test_fit_polyline_checks_the_image_once(monkeypatch):
     """prepare_image checked it, then estimate_noise_sigma and the derivatives again."""
     from dtalign import pipeline
-    from dtalign.api import checks as _image_args
-    from dtalign.api import image
+    from dtalign.api import checks, image
     from dtalign.pipeline import products
 
     calls = []
-    original = _image_args.check_image
+    original = checks.check_image
 
     def counting(arr):
         calls.append(1)
         return original(arr)
 
-    for module in (_image_args, image, products):
+    for module in (checks, image, products):
         monkeypatch.setattr(module, "check_image", counting)
     scene = scenes.disc_scene(shape=(200, 200), radius=50.0, n_vertices=60)
     p = scene.polyline
