@@ -1,4 +1,4 @@
-"""dtalign.batch progress: ``progress(done, total)`` once per completed item,
+"""dtalign.pipeline.batch progress: ``progress(done, total)`` once per completed item,
 from the calling thread, ending at ``total``; a raising callback stops the
 batch cleanly; results are the same with or without it (issue 15, paper cuts)."""
 
@@ -13,9 +13,10 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from dtalign import _fitjobs, batch, scenes
-from dtalign.batch import fit_images, fit_many, results_equal
-from dtalign.pipeline import prepare_image
+from dtalign import scenes
+from dtalign.pipeline import batch, prepare_image
+from dtalign.pipeline import jobs as _fitjobs
+from dtalign.pipeline.batch import fit_images, fit_many, results_equal
 
 WINDOW = (12, 12)
 
