@@ -116,7 +116,7 @@ from typing import Any, Literal, TypeVar, overload
 import numpy as np
 
 from ..api.results import ImageDerivativesConfig
-from . import jobs as _fitjobs
+from . import jobs as _jobs
 from .fit import PolylineFit, fit_from, fit_polyline_products, wrap
 from .products import ImageProducts, prepare_image
 from .status import log_fit, log_fits, logger
@@ -606,12 +606,12 @@ def _fit_parts(
     }
     if not collect:
         try:
-            shared, first = _fitjobs.plan(products, *parts[0], **plan_kw)
+            shared, first = _jobs.plan(products, *parts[0], **plan_kw)
         except (TypeError, ValueError) as exc:  # what a bad polyline or option raises
             if _call_error(products, plan_kw, exc):
                 raise
             raise _named(exc, "polylines[0]", 0) from exc
-        batch, error = _fitjobs.prepare(shared, parts, first)
+        batch, error = _jobs.prepare(shared, parts, first)
         fits, fit_errors = _fit_batch(shared, batch, workers, True, abort, examine, tick)
         if fit_errors:  # a kernel error, before the first bad polyline
             j = min(fit_errors)
@@ -623,7 +623,7 @@ def _fit_parts(
     out: list[Any] = []
     while len(out) < len(parts):
         s = len(out)
-        batch, error = _fitjobs.prepare(shared, parts[s:])
+        batch, error = _jobs.prepare(shared, parts[s:])
         fits, fit_errors = _fit_batch(shared, batch, workers, False, abort, examine, tick)
         for j, fit_error in fit_errors.items():
             fits[j] = _named(fit_error, f"polylines[{s + j}]", s + j)
@@ -640,7 +640,7 @@ def _probe_plan(products: ImageProducts, plan_kw: dict[str, Any]) -> Any:
     the image centre, which fails no check of its own."""
     h, w = products.shape
     probe = (np.array([[(h - 1) / 2.0, (w - 1) / 2.0]]), np.array([[1.0, 0.0]]), np.ones(1))
-    return _fitjobs.plan(products, *probe, **plan_kw)[0]
+    return _jobs.plan(products, *probe, **plan_kw)[0]
 
 
 def _call_error(products: ImageProducts, plan_kw: dict[str, Any], exc: Exception) -> bool:
@@ -675,8 +675,8 @@ def _fit_batch(
     k = batch.n
     if k == 0:
         return [], {}
-    fit_polylines = _fitjobs._deps().fit_polylines
-    args, codes, out = _fitjobs.loop_inputs(shared, batch)
+    fit_polylines = _jobs._deps().fit_polylines
+    args, codes, out = _jobs.loop_inputs(shared, batch)
     busy = [0.0] * k
 
     def fit(j: int, _: threading.Event) -> None:
@@ -684,14 +684,14 @@ def _fit_batch(
         failed = fit_polylines(*args, j, j + 1, codes, *out) == j
         busy[j] = time.perf_counter() - t0
         if failed:
-            _fitjobs.raise_for(int(codes[j]))
+            _jobs.raise_for(int(codes[j]))
 
     on_fit = None if tick is None or examine is not None else lambda: tick(1)
     _, errors = _run_ordered(fit, k, workers, stop_early=stop_early, abort=abort,
                              on_done=on_fit)
     if errors and stop_early:
         return [], errors
-    fits: list[Any] = wrap(shared, batch, _fitjobs.readonly_views(out), 0, k)
+    fits: list[Any] = wrap(shared, batch, _jobs.readonly_views(out), 0, k)
     for arr in out:  # lock the outputs whose rows the fits' read-only views share
         arr.flags.writeable = False
     per_fit = sum(busy) / k
@@ -711,7 +711,7 @@ def _fit_batch(
     def one(i: int, _: threading.Event) -> Any:
         j = good[i]
         s, e = bounds[j], bounds[j + 1]
-        item = _fitjobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
+        item = _jobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
                              (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
                              float(batch.distances[j]))
         return hypotheses.examine(fits[j], shared, item, seeds=examine,
