@@ -172,6 +172,21 @@ def test_no_module_imports_the_package_root():
     assert offenders == []
 
 
+def test_no_module_imports_the_root_by_name_either():
+    # importlib.import_module("dtalign") would dodge the import statements above
+    found = []
+    for module, (path, _) in MODULES.items():
+        if module == "dtalign":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if (isinstance(node, ast.Call) and node.args
+                    and isinstance(node.args[0], ast.Constant) and node.args[0].value == "dtalign"
+                    and getattr(node.func, "attr", getattr(node.func, "id", "")) in
+                    ("import_module", "__import__")):
+                found.append(f"{module}:{node.lineno}")
+    assert found == []
+
+
 def _module_aliases(module: str) -> dict[str, str]:
     """Local names bound to a module of the package, and which module."""
     return {imp.bound: imp.target for imp in _imports(module)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime
-import importlib
 import logging
 import math
 import os
@@ -31,8 +30,9 @@ __all__ = ["fit_item", "fit_rows", "warm_up"]
 
 
 def _version() -> str:
-    # Looked up at call time: nothing inside the package imports its root at import time.
-    return str(getattr(importlib.import_module("dtalign"), "__version__", "unknown"))
+    from .._version import __version__
+
+    return __version__
 
 
 def _worker_name() -> str:

@@ -16,7 +16,6 @@ The helpers here read such a covariance without changing that default:
 
 from __future__ import annotations
 
-import importlib
 import math
 from typing import Any
 
@@ -37,15 +36,11 @@ FloatArray = NDArray[np.float64]
 
 
 def _information_matrix_to_covariance(jac: FloatArray, w: FloatArray, rcond: float) -> FloatArray:
-    """:func:`dtalign.information_matrix_to_covariance`, looked up at call time.
+    """:func:`dtalign.information_matrix_to_covariance`, imported on first use,
+    so importing this module does not import the compiled kernels."""
+    from ..api.weights import information_matrix_to_covariance
 
-    Looked up on the top-level package, as :mod:`dtalign.pipeline` looks up
-    its fitter, so importing this module does not import the compiled
-    kernels.
-    """
-    return importlib.import_module("dtalign").information_matrix_to_covariance(
-        jac, w, rcond=rcond
-    )
+    return information_matrix_to_covariance(jac, w, rcond=rcond)
 
 
 def _null_space(cov: FloatArray, rcond: float) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
