@@ -25,6 +25,7 @@ pytest.importorskip("pyarrow")
 
 from dtalign import io, pipeline  # noqa: E402
 from dtalign.archive import Store, make_example, read_manifest, run, write_manifest  # noqa: E402
+from dtalign.archive.runner import LOCAL_CLUSTER_CONFIG, _local_cluster  # noqa: E402
 from dtalign.archive.tasks import _status  # noqa: E402
 from dtalign.cli import main  # noqa: E402
 
@@ -34,12 +35,15 @@ TIMEOUT_S = 120
 
 @pytest.fixture(scope="module")
 def cluster():
-    """Two worker processes of one thread each, as ``dtalign archive`` starts them."""
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-        scheduler_kwargs={"dashboard_address": ":0"},
-    ) as c, distributed.Client(c) as client:
+    """Two worker processes of one thread each, the LocalCluster ``dtalign archive`` starts."""
+    with _local_cluster(2) as c, distributed.Client(c) as client:
         yield c, client
+
+
+def _worker_settings():
+    import dask
+
+    return {k: dask.config.get(k) for k in LOCAL_CLUSTER_CONFIG}
 
 
 @pytest.fixture(scope="module")
@@ -247,6 +251,10 @@ def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path):
              and r["finished_at"].timestamp() > killed["at"]]
     assert after == []
     assert client.wait_for_workers(2, timeout=TIMEOUT_S) is None  # the nanny replaced it
+    # ...with the cluster's Dask settings, as the workers it started with
+    settings = client.run(_worker_settings)
+    assert killed["address"] not in settings and len(settings) == 2
+    assert all(v == LOCAL_CLUSTER_CONFIG for v in settings.values()), settings
 
 
 def test_ctrl_c_stops_cleanly_and_the_rerun_completes(cluster, frames, tmp_path):
