@@ -158,6 +158,19 @@ def test_run_stores_every_item_once_and_records_bad_images(cluster, frames, tmp_
     assert sum(r["item_id"] == "missing" for r in rows) == 3
 
 
+def test_tasks_of_several_items_store_the_same(cluster, frames, tmp_path):
+    """items_per_task: good and bad images share tasks; each item is stored once, as serially."""
+    _, client = cluster
+    manifest = campaign(frames, tmp_path / "m.jsonl", 10, broken=True)
+    store = tmp_path / "store"
+    summary = run(manifest, store, client, progress=False, flush_items=4, items_per_task=5)
+    assert (summary.done, summary.failed, summary.rows) == (10, 2, 30)
+    assert_store_matches_serial(store, manifest)
+    assert Store(store).failed_ids() == {"missing", "corrupt"}
+    with pytest.raises(ValueError, match="items_per_task must be an int >= 1"):
+        run(manifest, tmp_path / "other", client, progress=False, items_per_task=0)
+
+
 def test_resume_runs_only_the_missing_items(cluster, frames, tmp_path):
     _, client = cluster
     manifest = campaign(frames, tmp_path / "m.jsonl", 10)
@@ -205,7 +218,8 @@ def test_cli_on_an_existing_scheduler(cluster, frames, tmp_path, capsys):
 # --------------------------------------------------------------------------- faults
 
 
-def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path):
+@pytest.mark.parametrize("per_task", [1, 3])
+def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path, per_task):
     """Kill one worker process while it holds tasks: they are retried, nothing else is lost."""
     _, client = cluster
     manifest = campaign(frames, tmp_path / "m.jsonl", 80, noise=False)
@@ -237,15 +251,17 @@ def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path):
 
     thread = threading.Thread(target=killer, daemon=True)
     thread.start()
-    summary = run(manifest, store, client, progress=False, flush_items=1)
+    summary = run(manifest, store, client, progress=False, flush_items=1,
+                  items_per_task=per_task)
     thread.join(TIMEOUT_S)
     assert killed, "the run ended before a worker could be killed"
     assert (summary.done, summary.failed) == (80, 0)
     assert_store_matches_serial(store, manifest)
     rows = Store(store).results().to_pylist()
     finisher = {r["item_id"]: r["worker"] for r in rows}
-    # keys are dtalign-fit-<run>-<index>: the items the dead worker held
-    held = {f"i{int(str(k).rsplit('-', 1)[1]):03d}" for k in killed["keys"]}
+    # keys are dtalign-fit-<run>-<index of the task's first item>: the items the dead worker held
+    first = [int(str(k).rsplit("-", 1)[1]) for k in killed["keys"]]
+    held = {f"i{i:03d}" for f in first for i in range(f, min(f + per_task, 80))}
     assert held and all(finisher[i] != killed["address"] for i in held)
     after = [r for r in rows if r["worker"] == killed["address"]
              and r["finished_at"].timestamp() > killed["at"]]
