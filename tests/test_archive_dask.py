@@ -41,9 +41,18 @@ def cluster():
 
 
 def _worker_settings():
+    """A worker's Dask settings, and its environment where they are environment variables."""
     import dask
 
-    return {k: dask.config.get(k) for k in LOCAL_CLUSTER_CONFIG}
+    prefix = "distributed.nanny.pre-spawn-environ."
+    return {k: os.environ.get(k[len(prefix):]) if k.startswith(prefix) else dask.config.get(k)
+            for k in LOCAL_CLUSTER_CONFIG}
+
+
+def _expected_settings():
+    prefix = "distributed.nanny.pre-spawn-environ."
+    return {k: os.environ.get(k[len(prefix):], str(v)) if k.startswith(prefix) else v
+            for k, v in LOCAL_CLUSTER_CONFIG.items()}
 
 
 @pytest.fixture(scope="module")
@@ -270,7 +279,7 @@ def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path, per_task)
     # ...with the cluster's Dask settings, as the workers it started with
     settings = client.run(_worker_settings)
     assert killed["address"] not in settings and len(settings) == 2
-    assert all(v == LOCAL_CLUSTER_CONFIG for v in settings.values()), settings
+    assert all(v == _expected_settings() for v in settings.values()), settings
 
 
 def test_ctrl_c_stops_cleanly_and_the_rerun_completes(cluster, frames, tmp_path):
