@@ -3,7 +3,8 @@
 ``archive_32_frames``: a campaign of 32 synthetic frames (1024 x 1024,
 three polylines each: :func:`dtalign.archive.make_example`) on the
 LocalCluster :func:`~dtalign.archive.run` starts, with 2 worker processes
-(one thread each), results into a fresh store, against the serial loop over
+(one thread each, the settings of
+:data:`dtalign.archive.runner.LOCAL_CLUSTER_CONFIG`), results into a fresh store, against the serial loop over
 the same items in this process (:func:`dtalign.archive.fit_item`: read,
 prepare, fit, the ambiguity examination included; no store), the two
 alternated. Timed region: the cluster side times one whole
@@ -26,7 +27,10 @@ The campaign row's control is SHA-256 tasks (GIL-free C code, each about
 a frame's time) run the same two ways, serially here and through the same
 cluster, alternated with the campaign: its ratio is what the machine,
 shared with other processes, and Dask's cost per task allowed two
-processes at that moment. ``other_load_cores`` is the CPU of processes
+processes at that moment. ``fp_control_ratio`` is the same for compiled
+work bound by floating-point throughput (:mod:`~dtalign.benchmarking.fpload`),
+which two virtual CPUs sharing one physical core's FP pipes scale far less
+on than on SHA-256. ``other_load_cores`` is the CPU of processes
 other than this one and its two workers. ``cpu_ceiling_ratio`` is the
 ratio two otherwise idle cores would allow at best: twice the serial
 loop's CPU time over the campaign's (this process's, the scheduler and
@@ -86,6 +90,20 @@ _CONTROL_MIB = 40
 _CONTROL_TASKS = 32
 
 
+#: The second control: compiled work bound by floating-point throughput
+#: (:mod:`~dtalign.benchmarking.fpload`), 270 units of ~0.11 ms, about a
+#: frame's time, the same two ways. Two virtual CPUs that share a physical
+#: core's FP pipes scale far less on it than on SHA-256; the fits keep
+#: those pipes busy as it does.
+_FP_UNITS = 270
+
+
+def _fp_control_task(k: int) -> float:
+    from . import fpload
+
+    return sum(fpload.unit() for _ in range(_FP_UNITS))
+
+
 @functools.lru_cache(maxsize=1)
 def _control_buffer() -> bytes:
     return bytes(range(256)) * (_CONTROL_MIB * 4096)
@@ -137,7 +155,11 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
             # frames pay for first-touch allocations of image-sized arrays.
             run(items, tmp / "store-warm", client, progress=False, warm=False)
             client.gather(client.map(_control_task, range(4), pure=False))
+            client.gather(client.map(_fp_control_task, range(4), pure=False))
             _control_task(0)
+            _fp_control_task(0)
+            f_serial: list[float] = []
+            f_cluster: list[float] = []
             t_serial: list[float] = []
             t_cluster: list[float] = []
             t_grouped: list[float] = []
@@ -182,6 +204,14 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
                     t0 = time.perf_counter()
                     client.gather(client.map(_control_task, range(_CONTROL_TASKS), pure=False))
                     c_cluster.append(time.perf_counter() - t0)
+                    t0 = time.perf_counter()
+                    for j in range(_CONTROL_TASKS):
+                        _fp_control_task(j)
+                    f_serial.append(time.perf_counter() - t0)
+                    t0 = time.perf_counter()
+                    client.gather(client.map(_fp_control_task, range(_CONTROL_TASKS),
+                                             pure=False))
+                    f_cluster.append(time.perf_counter() - t0)
                     stored = Store(store).results().to_pylist()
                     agree = agree and summary.done == len(items) and (
                         _comparable(stored) == _comparable(serial_rows))
@@ -214,6 +244,8 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
          "passed": agree and ratio >= ARCHIVE_TARGET, "results_agree": agree,
          "control_ratio": statistics.median(c_serial) / statistics.median(c_cluster),
          "control_times_s": [c_serial, c_cluster],
+         "fp_control_ratio": statistics.median(f_serial) / statistics.median(f_cluster),
+         "fp_control_times_s": [f_serial, f_cluster],
          "reference_times_s": t_serial, "dtalign_times_s": t_cluster,
          "pair_ratios": [a / b for a, b in zip(t_serial, t_cluster, strict=True)],
          # What two otherwise idle cores would allow: the CPU both sides used
@@ -236,7 +268,8 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
          "item_s": per_item, "store_fraction": fraction, "store_times_s": store_s},
     ]
     _progress(f"archive_32_frames: {ratio:.2f}x ({rows[0]['grouped_ratio']:.2f}x in tasks of "
-              f"{ARCHIVE_ITEMS_PER_TASK}; control {rows[0]['control_ratio']:.2f}x, with "
+              f"{ARCHIVE_ITEMS_PER_TASK}; control {rows[0]['control_ratio']:.2f}x, FP "
+              f"{rows[0]['fp_control_ratio']:.2f}x, with "
               f"start-up {serial / t_cold:.2f}x, CPU ceiling {rows[0]['cpu_ceiling_ratio']:.2f}x); "
               f"store {fraction * 100:.2f} % of an item")
     return rows
