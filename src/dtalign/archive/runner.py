@@ -49,25 +49,24 @@ DEFAULT_FLUSH_SECONDS = 10.0
 DEFAULT_MAX_PENDING = 1000
 
 #: Dask settings (documented ``distributed`` configuration) of the LocalCluster
-#: :func:`run` starts, given to its scheduler and workers only, never set
-#: globally. The sampling profiler walks the task's stack every 10 ms for a
-#: dashboard this cluster does not serve, and the event-loop health check
-#: wakes every process every 20 ms; off and every second, they cut Dask's
-#: own CPU by about a third (per 32 tasks of 37 ms: workers 0.25 -> 0.15 s,
-#: scheduler and client 0.23 -> 0.16 s; loaded 2-core machine). Worker processes already run
-#: BLAS/OpenMP single-threaded (Dask's ``distributed.nanny.pre-spawn-environ``
-#: sets OMP/MKL/OPENBLAS_NUM_THREADS=1), and no kernel starts Numba threads.
-#: The workers also keep the memory a task frees for the next one (glibc's
-#: allocator settings, through that same pre-spawn environment; an
-#: environment variable of the same name set by the user wins): Dask's
-#: MALLOC_TRIM_THRESHOLD_=65536 returns it to the system at once and turns
-#: off glibc's adaptive mmap threshold, so every image-sized array of every
-#: frame was new memory the kernel had to zero, about a fifth of a 1024^2
-#: frame's CPU (serial loop over 32 frames: 1.22-1.28 s with Dask's setting,
-#: 1.11-1.17 s with glibc's defaults, 0.93-0.96 s with these, minor page
-#: faults 85-100k / 71k / 2.4k). Arrays up to 32 MiB (glibc's largest mmap
-#: threshold; a 2048^2 float64 frame) are reused; a worker holds on to the
-#: memory of its largest task.
+#: :func:`run` starts, given to its scheduler, nannies and workers only, never
+#: set globally (docs/campaign.rst, "Throughput", has the measurements):
+#:
+#: * no sampling profiler: it walks the task's stack every 10 ms for a
+#:   dashboard this cluster does not serve;
+#: * the event-loop health check every second, not every 20 ms, in every
+#:   process; these two are about a third of Dask's own CPU on ~30 ms tasks;
+#: * workers keep the memory a task frees for the next one (glibc's settings,
+#:   through the pre-spawn environment; a user's variables of these names win).
+#:   Dask's MALLOC_TRIM_THRESHOLD_=65536 returns it at once and turns off
+#:   glibc's adaptive mmap threshold, so every image-sized array of every frame
+#:   is fresh memory the kernel must zero, about a fifth of a frame's CPU.
+#:   32 MiB is glibc's largest mmap threshold (a 2048^2 float64 frame); a
+#:   worker holds on to the memory of its largest task.
+#:
+#: BLAS and OpenMP already run single-threaded in Dask's workers (the same
+#: pre-spawn environment sets OMP/MKL/OPENBLAS_NUM_THREADS=1), and no kernel
+#: starts Numba threads.
 LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
