@@ -25,6 +25,7 @@ pytest.importorskip("pyarrow")
 
 from dtalign import io, pipeline  # noqa: E402
 from dtalign.archive import Store, make_example, read_manifest, run, write_manifest  # noqa: E402
+from dtalign.archive.runner import LOCAL_CLUSTER_CONFIG, local_cluster  # noqa: E402
 from dtalign.archive.tasks import _status  # noqa: E402
 from dtalign.cli import main  # noqa: E402
 
@@ -34,12 +35,24 @@ TIMEOUT_S = 120
 
 @pytest.fixture(scope="module")
 def cluster():
-    """Two worker processes of one thread each, as ``dtalign archive`` starts them."""
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-        scheduler_kwargs={"dashboard_address": ":0"},
-    ) as c, distributed.Client(c) as client:
+    """Two worker processes of one thread each, the LocalCluster ``dtalign archive`` starts."""
+    with local_cluster(2) as c, distributed.Client(c) as client:
         yield c, client
+
+
+def _worker_settings():
+    """A worker's Dask settings, and its environment where they are environment variables."""
+    import dask
+
+    prefix = "distributed.nanny.pre-spawn-environ."
+    return {k: os.environ.get(k[len(prefix):]) if k.startswith(prefix) else dask.config.get(k)
+            for k in LOCAL_CLUSTER_CONFIG}
+
+
+def _expected_settings():
+    prefix = "distributed.nanny.pre-spawn-environ."
+    return {k: os.environ.get(k[len(prefix):], str(v)) if k.startswith(prefix) else v
+            for k, v in LOCAL_CLUSTER_CONFIG.items()}
 
 
 @pytest.fixture(scope="module")
@@ -154,6 +167,19 @@ def test_run_stores_every_item_once_and_records_bad_images(cluster, frames, tmp_
     assert sum(r["item_id"] == "missing" for r in rows) == 3
 
 
+def test_tasks_of_several_items_store_the_same(cluster, frames, tmp_path):
+    """items_per_task: good and bad images share tasks; each item is stored once, as serially."""
+    _, client = cluster
+    manifest = campaign(frames, tmp_path / "m.jsonl", 10, broken=True)
+    store = tmp_path / "store"
+    summary = run(manifest, store, client, progress=False, flush_items=4, items_per_task=5)
+    assert (summary.done, summary.failed, summary.rows) == (10, 2, 30)
+    assert_store_matches_serial(store, manifest)
+    assert Store(store).failed_ids() == {"missing", "corrupt"}
+    with pytest.raises(ValueError, match="items_per_task must be an int >= 1"):
+        run(manifest, tmp_path / "other", client, progress=False, items_per_task=0)
+
+
 def test_resume_runs_only_the_missing_items(cluster, frames, tmp_path):
     _, client = cluster
     manifest = campaign(frames, tmp_path / "m.jsonl", 10)
@@ -201,7 +227,8 @@ def test_cli_on_an_existing_scheduler(cluster, frames, tmp_path, capsys):
 # --------------------------------------------------------------------------- faults
 
 
-def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path):
+@pytest.mark.parametrize("per_task", [1, 3])
+def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path, per_task):
     """Kill one worker process while it holds tasks: they are retried, nothing else is lost."""
     _, client = cluster
     manifest = campaign(frames, tmp_path / "m.jsonl", 80, noise=False)
@@ -233,20 +260,26 @@ def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path):
 
     thread = threading.Thread(target=killer, daemon=True)
     thread.start()
-    summary = run(manifest, store, client, progress=False, flush_items=1)
+    summary = run(manifest, store, client, progress=False, flush_items=1,
+                  items_per_task=per_task)
     thread.join(TIMEOUT_S)
     assert killed, "the run ended before a worker could be killed"
     assert (summary.done, summary.failed) == (80, 0)
     assert_store_matches_serial(store, manifest)
     rows = Store(store).results().to_pylist()
     finisher = {r["item_id"]: r["worker"] for r in rows}
-    # keys are dtalign-fit-<run>-<index>: the items the dead worker held
-    held = {f"i{int(str(k).rsplit('-', 1)[1]):03d}" for k in killed["keys"]}
+    # keys are dtalign-fit-<run>-<index of the task's first item>: the items the dead worker held
+    first = [int(str(k).rsplit("-", 1)[1]) for k in killed["keys"]]
+    held = {f"i{i:03d}" for f in first for i in range(f, min(f + per_task, 80))}
     assert held and all(finisher[i] != killed["address"] for i in held)
     after = [r for r in rows if r["worker"] == killed["address"]
              and r["finished_at"].timestamp() > killed["at"]]
     assert after == []
     assert client.wait_for_workers(2, timeout=TIMEOUT_S) is None  # the nanny replaced it
+    # ...with the cluster's Dask settings, as the workers it started with
+    settings = client.run(_worker_settings)
+    assert killed["address"] not in settings and len(settings) == 2
+    assert all(v == _expected_settings() for v in settings.values()), settings
 
 
 def test_ctrl_c_stops_cleanly_and_the_rerun_completes(cluster, frames, tmp_path):

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from .example import make_example
 from .manifest import Item, read_manifest, write_manifest
-from .runner import RunSummary, run
+from .runner import RunSummary, local_cluster, run
 from .store import Store, StoreBusyError
 from .tasks import fit_item
 
@@ -35,6 +35,7 @@ __all__ = [
     "Store",
     "StoreBusyError",
     "fit_item",
+    "local_cluster",
     "make_example",
     "read_manifest",
     "run",

@@ -47,6 +47,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="default search margin for items without one: 30, or 30,20")
     p.add_argument("--flush-every", type=int, default=None, metavar="ITEMS",
                    help="write a store part every ITEMS items (default 32)")
+    p.add_argument("--items-per-task", type=int, default=None, metavar="N",
+                   help="items one task fits (default 1; a few for small frames: Dask "
+                        "costs milliseconds per task)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--make-example", metavar="DIR",
                    help="write a synthetic campaign (frames, polylines, DIR/manifest.jsonl) "
@@ -88,6 +91,8 @@ def command(args: argparse.Namespace) -> int:
     extra: dict[str, Any] = {}
     if args.flush_every is not None:
         extra["flush_items"] = args.flush_every
+    if args.items_per_task is not None:
+        extra["items_per_task"] = args.items_per_task
     try:
         summary = run(
             args.manifest, args.out, scheduler=args.scheduler, workers=args.workers,

@@ -30,7 +30,7 @@ from typing import Any
 
 from .manifest import Item, read_manifest
 from .store import Store
-from .tasks import failure_row, fit_item
+from .tasks import failure_row, fit_item, fit_items
 
 __all__ = ["RunSummary", "run"]
 
@@ -47,6 +47,32 @@ DEFAULT_FLUSH_SECONDS = 10.0
 #: Tasks submitted ahead of the results: enough to keep any cluster busy,
 #: few enough that the client and scheduler hold no campaign-sized state.
 DEFAULT_MAX_PENDING = 1000
+
+#: Dask settings (documented ``distributed`` configuration) of the LocalCluster
+#: :func:`run` starts, given to its scheduler, nannies and workers only, never
+#: set globally (docs/campaign.rst, "Throughput", has the measurements):
+#:
+#: * no sampling profiler: it walks the task's stack every 10 ms for a
+#:   dashboard this cluster does not serve;
+#: * the event-loop health check every second, not every 20 ms, in every
+#:   process; these two are about a third of Dask's own CPU on ~30 ms tasks;
+#: * workers keep the memory a task frees for the next one (glibc's settings,
+#:   through the pre-spawn environment; a user's variables of these names win).
+#:   Dask's MALLOC_TRIM_THRESHOLD_=65536 returns it at once and turns off
+#:   glibc's adaptive mmap threshold, so every image-sized array of every frame
+#:   is fresh memory the kernel must zero, about a fifth of a frame's CPU.
+#:   32 MiB is glibc's largest mmap threshold (a 2048^2 float64 frame); a
+#:   worker holds on to the memory of its largest task.
+#:
+#: BLAS and OpenMP already run single-threaded in Dask's workers (the same
+#: pre-spawn environment sets OMP/MKL/OPENBLAS_NUM_THREADS=1), and no kernel
+#: starts Numba threads.
+LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.nanny.pre-spawn-environ.MALLOC_MMAP_THRESHOLD_": 32 * 2**20,
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": 2**30,
+}
 
 
 @dataclass
@@ -144,20 +170,39 @@ def _client(client: Any, scheduler: str | None, workers: int | None) -> Iterator
     n = (os.cpu_count() or 1) if workers is None else workers
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(f"workers must be an int >= 1, got {workers!r}")
-    # Processes, one thread each: a worker per core, no GIL shared between fits.
-    # A terminal's Ctrl-C reaches the workers too; this process handles it (stores
-    # what has arrived, closes the cluster), so the workers ignore it: the ones
-    # started now inherit SIG_IGN, a replacement started later sets it in the
-    # preload (dtalign.archive._plugin.dask_setup).
-    # No dashboard; the scheduler's HTTP routes on a free port, not on 8787.
-    with _sigint_ignored():
-        cluster = distributed.LocalCluster(
-            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-            scheduler_kwargs={"dashboard_address": ":0"}, preload=["dtalign.archive._plugin"],
-        )
-    with cluster, distributed.Client(cluster) as c:
+    with local_cluster(n) as cluster, distributed.Client(cluster) as c:
         c._dtalign_owned = True  # _execute: closing it stops the tasks
         yield c
+
+
+def local_cluster(n: int) -> Any:
+    """The LocalCluster :func:`run` starts: ``n`` worker processes, one thread each.
+
+    Public so that a caller who wants its own :class:`distributed.Client`
+    (several campaigns on one cluster, the benchmark) gets the same cluster,
+    settings included; pass ``run(..., client=Client(local_cluster(n)))``.
+
+    Processes, one thread each: a worker per core, no GIL shared between
+    fits. A terminal's Ctrl-C reaches the workers too; the client's process
+    handles it (stores what has arrived, closes the cluster), so the workers
+    ignore it: the ones started now inherit SIG_IGN, a replacement started
+    later sets it in the preload (:func:`dtalign.archive._plugin.dask_setup`).
+    No dashboard; the scheduler's HTTP routes on a free port, not on 8787.
+    :data:`LOCAL_CLUSTER_CONFIG` applies to the scheduler and the nannies
+    (set while they start) and to every worker process, a replacement for a
+    killed one included: it is the nannies' ``config``, which they give each
+    process they start (a nanny's copy of the global configuration is
+    shallow, so what is set only while it starts is gone by the restart).
+    """
+    import dask
+
+    distributed = _dask()
+    with _sigint_ignored(), dask.config.set(LOCAL_CLUSTER_CONFIG):
+        return distributed.LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"}, preload=["dtalign.archive._plugin"],
+            config=dict(LOCAL_CLUSTER_CONFIG),
+        )
 
 
 def _quiet_logs() -> None:
@@ -305,6 +350,7 @@ def run(
     flush_items: int = DEFAULT_FLUSH_ITEMS,
     flush_seconds: float = DEFAULT_FLUSH_SECONDS,
     max_pending: int = DEFAULT_MAX_PENDING,
+    items_per_task: int = 1,
 ) -> RunSummary:
     """Fit every missing item of a campaign on Dask and store the results.
 
@@ -340,6 +386,12 @@ def run(
         comes first (32 items, 10 s); at the end, on an error and on Ctrl-C.
     max_pending : int, optional
         Tasks in flight at once (1000).
+    items_per_task : int, optional
+        Items one task reads and fits, one after the other (1). Dask costs a
+        few milliseconds of CPU per task, split between the worker and the
+        scheduler: frames that take tens of milliseconds each run faster in
+        tasks of a few. A worker that dies costs the items of the tasks it
+        held; a Ctrl-C, those of the tasks still running.
 
     Returns
     -------
@@ -367,7 +419,8 @@ def run(
             raise TypeError("manifest must be a path or a sequence of dtalign.archive.Item")
         if len({i.id for i in items}) != len(items):
             raise ValueError("manifest items must have unique ids")
-    for name, value in (("flush_items", flush_items), ("max_pending", max_pending)):
+    for name, value in (("flush_items", flush_items), ("max_pending", max_pending),
+                        ("items_per_task", items_per_task)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be an int >= 1, got {value!r}")
     st = store if isinstance(store, Store) else Store(store)
@@ -379,31 +432,35 @@ def run(
             with _client(client, scheduler, workers) as c:
                 _execute(c, todo, st, summary, progress=progress, warm=warm,
                          flush_items=flush_items, flush_seconds=float(flush_seconds),
-                         max_pending=max_pending)
+                         max_pending=max_pending, items_per_task=items_per_task)
     summary.elapsed_s = time.perf_counter() - t_start
     return summary
 
 
 def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *,
              progress: bool, warm: bool, flush_items: int, flush_seconds: float,
-             max_pending: int) -> None:
+             max_pending: int, items_per_task: int) -> None:
     distributed = _dask()
     summary.workers = len(client.nthreads())
     writer = _Writer(store, summary, flush_items, flush_seconds)
     bar = _progress(len(todo), progress)
-    queue = iter(enumerate(todo))
-    futures: dict[Any, Item] = {}
-    completed = distributed.as_completed()
+    # A task's key names the index of its first item.
+    queue = iter([(k, todo[k:k + items_per_task]) for k in range(0, len(todo), items_per_task)])
+    futures: dict[Any, list[Item]] = {}
+    # Results gathered on the client's event loop as tasks finish, not by a
+    # blocking fut.result() round trip per task from this thread.
+    completed = distributed.as_completed(with_results=True, raise_errors=False)
 
     def submit(n: int) -> None:
         for _ in range(n):
             nxt = next(queue, None)
             if nxt is None:
                 return
-            index, item = nxt
-            fut = client.submit(fit_item, item, summary.run_id,
-                                key=f"dtalign-fit-{summary.run_id}-{index}")
-            futures[fut] = item
+            index, chunk = nxt
+            key = f"dtalign-fit-{summary.run_id}-{index}"
+            fut = (client.submit(fit_item, chunk[0], summary.run_id, key=key) if len(chunk) == 1
+                   else client.submit(fit_items, chunk, summary.run_id, key=key))
+            futures[fut] = chunk
             completed.add(fut)
 
     try:
@@ -414,16 +471,18 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
             client.register_plugin(WarmNumba())
             summary.warm_s = time.perf_counter() - t0
         submit(max_pending)
-        for fut in completed:
-            item = futures.pop(fut)
+        for fut, payload in completed:
+            chunk = futures.pop(fut)
             if fut.status == "finished":
-                payload = fut.result()
-                writer.add(item.id, payload["results"], payload["failure"])
+                for item, p in zip(chunk, [payload] if len(chunk) == 1 else payload, strict=True):
+                    writer.add(item.id, p["results"], p["failure"])
             elif fut.status == "error":  # the task never returned: KilledWorker and the like
-                writer.add(item.id, [], failure_row(item, fut.exception(), summary.run_id))
-            # "cancelled": nothing is stored; the item runs again next time
+                exc = fut.exception()
+                for item in chunk:
+                    writer.add(item.id, [], failure_row(item, exc, summary.run_id))
+            # "cancelled": nothing is stored; the items run again next time
             fut.release()
-            bar.update(1)
+            bar.update(len(chunk))
             if summary.failed or writer.failures:
                 bar.set_postfix_str(f"{summary.failed + len(writer.failures)} failed")
             submit(1)

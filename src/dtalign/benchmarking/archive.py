@@ -1,23 +1,43 @@
 """The campaign rows: :func:`dtalign.archive.run` on a LocalCluster against the serial loop.
 
 ``archive_32_frames``: a campaign of 32 synthetic frames (1024 x 1024,
-three polylines each: :func:`dtalign.archive.make_example`) on a
-LocalCluster of 2 worker processes (one thread each), results into a fresh
-store, against the serial loop over the same items in this process
-(:func:`dtalign.archive.fit_item`: read, prepare, fit; no store), the two
-alternated. The cluster is started and its workers warmed before any
-timing, and both sides have run the campaign once untimed: the row
-measures a campaign's throughput, not Dask's start-up.
-The stored rows must equal the serial loop's, bit for bit.
+three polylines each: :func:`dtalign.archive.make_example`) on the
+LocalCluster :func:`~dtalign.archive.run` starts, with 2 worker processes
+(one thread each, the settings of
+:data:`dtalign.archive.runner.LOCAL_CLUSTER_CONFIG`), results into a fresh store, against the serial loop over
+the same items in this process (:func:`dtalign.archive.fit_item`: read,
+prepare, fit, the ambiguity examination included; no store), the two
+alternated. Timed region: the cluster side times one whole
+``run(items, store, client)``, from planning against the (empty) store to
+its last part written; the cluster is started and its workers warmed before
+any timing, and both sides have run the campaign once untimed, so the ratio
+measures a campaign's throughput, not Dask's start-up. ``grouped_s`` and ``grouped_ratio`` are the same
+campaign in tasks of 4 frames (``items_per_task=4``), timed alike in each
+pair. ``cold_s`` and
+``cold_ratio`` are the start-up included: one ``run(items, store,
+workers=2)`` that starts, warms and closes its own cluster, timed once.
+The stored rows must equal the serial loop's, bit for bit (the cold run's
+too).
 
 ``archive_store_per_item``: the client's time writing the store (building
 the Arrow tables, writing and syncing the part files) per item, against
 the serial time of one item.
 
-The campaign row's control is SHA-256 tasks (GIL-free C code) run the
-same two ways, serially here and through the same cluster, alternated with
-the campaign: its ratio is what the machine, shared with other processes,
-allowed two processes at that moment.
+The campaign row's control is SHA-256 tasks (GIL-free C code, each about
+a frame's time) run the same two ways, serially here and through the same
+cluster, alternated with the campaign: its ratio is what the machine,
+shared with other processes, and Dask's cost per task allowed two
+processes at that moment. ``fp_control_ratio`` is the same for compiled
+work bound by floating-point throughput (:mod:`~dtalign.benchmarking.fpload`),
+which two virtual CPUs sharing one physical core's FP pipes scale far less
+on than on SHA-256. ``other_load_cores`` is the CPU of processes
+other than this one and its two workers. ``cpu_ceiling_ratio`` is the
+ratio two otherwise idle cores would allow at best: twice the serial
+loop's CPU time over the campaign's (this process's, the scheduler and
+client in it, plus both workers'), medians; on a machine whose cores other
+sessions share, the kernel gives a session's processes together about one
+session's share, so the wall-clock ratio can stay near 1x whatever the
+code does, while CPU time changes much less.
 
 Optional: the rows are skipped (an ``info`` row says so) when Dask or
 pyarrow is missing, and the section runs only in a full run or when asked
@@ -28,6 +48,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import os
 import shutil
 import statistics
 import tempfile
@@ -44,6 +65,9 @@ ARCHIVE_FRAMES = 32
 ARCHIVE_SIZE = 1024
 #: Two worker processes on a 2-core machine, less the client's and the scheduler's share.
 ARCHIVE_TARGET = 1.7
+#: The row's second cluster figure: tasks of 4 frames (``run(..., items_per_task=4)``),
+#: 8 tasks for 2 workers, Dask's cost per task paid a quarter as often.
+ARCHIVE_ITEMS_PER_TASK = 4
 #: The store may cost at most this fraction of one item's serial time.
 STORE_OVERHEAD_TARGET = 0.05
 
@@ -57,11 +81,27 @@ def _skipped(reason: str) -> list[dict[str, Any]]:
              "description": f"skipped: {reason}"}]
 
 
-#: The control task: SHA-256 over 16 MiB, ~30 ms of GIL-free C code (about a
-#: frame's time). Its 2-process scaling through the same cluster is what the
-#: machine allowed at that moment (other sessions share the cores).
-_CONTROL_MIB = 16
+#: The control task: SHA-256 over 40 MiB, ~30 ms of GIL-free C code with the
+#: CPU's SHA instructions (about a frame's time: a shorter task would measure
+#: Dask's cost per task more than the machine). Its 2-process scaling through
+#: the same cluster is what the machine allowed at that moment (other
+#: sessions share the cores).
+_CONTROL_MIB = 40
 _CONTROL_TASKS = 32
+
+
+#: The second control: compiled work bound by floating-point throughput
+#: (:mod:`~dtalign.benchmarking.fpload`), 270 units of ~0.11 ms, about a
+#: frame's time, the same two ways. Two virtual CPUs that share a physical
+#: core's FP pipes scale far less on it than on SHA-256; the fits keep
+#: those pipes busy as it does.
+_FP_UNITS = 270
+
+
+def _fp_control_task(k: int) -> float:
+    from . import fpload
+
+    return sum(fpload.unit() for _ in range(_FP_UNITS))
 
 
 @functools.lru_cache(maxsize=1)
@@ -71,6 +111,12 @@ def _control_buffer() -> bytes:
 
 def _control_task(k: int) -> bytes:
     return hashlib.sha256(_control_buffer()).digest()
+
+
+def _cpu_s() -> float:
+    """CPU seconds of the calling process (a worker's, through ``client.run``)."""
+    t = os.times()
+    return t.user + t.system
 
 
 def _comparable(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -91,7 +137,7 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
         import pyarrow  # noqa: F401
     except ImportError as exc:
         return _skipped(f"needs dtalign[dask] ({exc.name} is missing)")
-    from ..archive import Store, fit_item, make_example, read_manifest, run
+    from ..archive import Store, fit_item, local_cluster, make_example, read_manifest, run
 
     tmp = Path(tempfile.mkdtemp(prefix="dtalign-bench-archive-"))
     try:
@@ -100,32 +146,54 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
                                            size=ARCHIVE_SIZE))
         serial_rows = [r for i in items for r in fit_item(i)["results"]]  # warm, and the truth
         _progress("archive: starting a LocalCluster of 2 worker processes ...")
-        with distributed.LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-            scheduler_kwargs={"dashboard_address": ":0"},
-        ) as cluster, distributed.Client(cluster) as client:
+        load_average = os.getloadavg()[0]
+        with local_cluster(2) as cluster, distributed.Client(cluster) as client:
             # One untimed campaign, as the serial loop had one: the workers' first
             # frames pay for first-touch allocations of image-sized arrays (and
             # the run registers the plugin that warms each worker's kernels).
             run(items, tmp / "store-warm", client, progress=False, warm=True)
             client.gather(client.map(_control_task, range(4), pure=False))
+            client.gather(client.map(_fp_control_task, range(4), pure=False))
             _control_task(0)
+            _fp_control_task(0)
+            f_serial: list[float] = []
+            f_cluster: list[float] = []
             t_serial: list[float] = []
             t_cluster: list[float] = []
+            t_grouped: list[float] = []
+            cpu_grouped: list[float] = []
             c_serial: list[float] = []
             c_cluster: list[float] = []
             store_s: list[float] = []
+            cpu_serial: list[float] = []  # this process (the idle scheduler's thread included)
+            cpu_cluster: list[float] = []  # this process (scheduler, client, store) + workers
             agree = True
+            cpu0 = client.run(_cpu_s)
             with _Load() as load:
+                t_load = time.monotonic()
                 for k in range(repeats):
-                    t0 = time.perf_counter()
+                    c0, t0 = _cpu_s(), time.perf_counter()
                     for item in items:
                         fit_item(item)
                     t_serial.append(time.perf_counter() - t0)
+                    cpu_serial.append(_cpu_s() - c0)
                     store = tmp / f"store-{k}"
-                    t0 = time.perf_counter()
+                    w0 = client.run(_cpu_s)
+                    c0, t0 = _cpu_s(), time.perf_counter()
                     summary = run(items, store, client, progress=False, warm=False)
                     t_cluster.append(time.perf_counter() - t0)
+                    c1, w1 = _cpu_s(), client.run(_cpu_s)
+                    cpu_cluster.append(c1 - c0 + sum(w1.values()) - sum(w0.values()))
+                    w0 = client.run(_cpu_s)
+                    c0, t0 = _cpu_s(), time.perf_counter()
+                    grouped = run(items, tmp / f"store-{k}-grouped", client, progress=False,
+                                  warm=False, items_per_task=ARCHIVE_ITEMS_PER_TASK)
+                    t_grouped.append(time.perf_counter() - t0)
+                    c1, w1 = _cpu_s(), client.run(_cpu_s)
+                    cpu_grouped.append(c1 - c0 + sum(w1.values()) - sum(w0.values()))
+                    agree = agree and grouped.done == len(items) and (
+                        _comparable(Store(tmp / f"store-{k}-grouped").results().to_pylist())
+                        == _comparable(serial_rows))
                     store_s.append(summary.store_s)
                     t0 = time.perf_counter()
                     for j in range(_CONTROL_TASKS):
@@ -134,9 +202,26 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
                     t0 = time.perf_counter()
                     client.gather(client.map(_control_task, range(_CONTROL_TASKS), pure=False))
                     c_cluster.append(time.perf_counter() - t0)
+                    t0 = time.perf_counter()
+                    for j in range(_CONTROL_TASKS):
+                        _fp_control_task(j)
+                    f_serial.append(time.perf_counter() - t0)
+                    t0 = time.perf_counter()
+                    client.gather(client.map(_fp_control_task, range(_CONTROL_TASKS),
+                                             pure=False))
+                    f_cluster.append(time.perf_counter() - t0)
                     stored = Store(store).results().to_pylist()
                     agree = agree and summary.done == len(items) and (
                         _comparable(stored) == _comparable(serial_rows))
+                workers_cpu = sum(client.run(_cpu_s).values()) - sum(cpu0.values())
+                t_load = time.monotonic() - t_load
+        # The start-up included: a run that starts, warms and closes its own cluster.
+        t0 = time.perf_counter()
+        cold = run(items, tmp / "store-cold", workers=2, progress=False)
+        t_cold = time.perf_counter() - t0
+        agree = agree and cold.done == len(items) and (
+            _comparable(Store(tmp / "store-cold").results().to_pylist())
+            == _comparable(serial_rows))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     serial, cluster_t = statistics.median(t_serial), statistics.median(t_cluster)
@@ -144,18 +229,34 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
     per_item = serial / len(items)
     store_item = statistics.median(store_s) / len(items)
     fraction = store_item / per_item
+    other = None if load.cores is None else max(0.0, load.cores - workers_cpu / t_load)
     rows = [
         {"name": "archive_32_frames", "kind": "batch",
          "description": f"dtalign.archive.run: {ARCHIVE_FRAMES} frames {ARCHIVE_SIZE}^2 x 3 "
-                        "polylines, serial loop vs LocalCluster of 2 processes",
+                        "polylines, serial loop vs LocalCluster of 2 processes, a frame per "
+                        f"task (cluster started and warmed beforehand; with start-up "
+                        f"{serial / t_cold:.2f}x; {ARCHIVE_ITEMS_PER_TASK} frames per task "
+                        f"{serial / statistics.median(t_grouped):.2f}x)",
          "reference_s": serial, "dtalign_s": cluster_t, "ratio": ratio,
          "ratio_of_minima": min(t_serial) / min(t_cluster), "target": ARCHIVE_TARGET,
          "passed": agree and ratio >= ARCHIVE_TARGET, "results_agree": agree,
          "control_ratio": statistics.median(c_serial) / statistics.median(c_cluster),
          "control_times_s": [c_serial, c_cluster],
+         "fp_control_ratio": statistics.median(f_serial) / statistics.median(f_cluster),
+         "fp_control_times_s": [f_serial, f_cluster],
          "reference_times_s": t_serial, "dtalign_times_s": t_cluster,
          "pair_ratios": [a / b for a, b in zip(t_serial, t_cluster, strict=True)],
-         "other_load_cores": load.cores},
+         # What two otherwise idle cores would allow: the CPU both sides used
+         # (the sharing of the cores between sessions does not change it much).
+         "cpu_ceiling_ratio": 2 * statistics.median(cpu_serial) / statistics.median(cpu_cluster),
+         "cpu_serial_s": cpu_serial, "cpu_cluster_s": cpu_cluster,
+         "grouped_items_per_task": ARCHIVE_ITEMS_PER_TASK,
+         "grouped_s": statistics.median(t_grouped),
+         "grouped_ratio": serial / statistics.median(t_grouped), "grouped_times_s": t_grouped,
+         "grouped_cpu_ceiling_ratio": 2 * statistics.median(cpu_serial)
+         / statistics.median(cpu_grouped), "cpu_grouped_s": cpu_grouped,
+         "cold_s": t_cold, "cold_ratio": serial / t_cold, "cold_warm_s": cold.warm_s,
+         "load_average": load_average, "other_load_cores": other},
         {"name": "archive_store_per_item", "kind": "archive",
          "description": "client time writing the store per item, vs one item's serial time",
          "reference": f"item {per_item * 1e3:.2f} ms", "dtalign":
@@ -164,5 +265,9 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
          "passed": fraction <= STORE_OVERHEAD_TARGET, "store_s_per_item": store_item,
          "item_s": per_item, "store_fraction": fraction, "store_times_s": store_s},
     ]
-    _progress(f"archive_32_frames: {ratio:.2f}x; store {fraction * 100:.2f} % of an item")
+    _progress(f"archive_32_frames: {ratio:.2f}x ({rows[0]['grouped_ratio']:.2f}x in tasks of "
+              f"{ARCHIVE_ITEMS_PER_TASK}; control {rows[0]['control_ratio']:.2f}x, FP "
+              f"{rows[0]['fp_control_ratio']:.2f}x, with "
+              f"start-up {serial / t_cold:.2f}x, CPU ceiling {rows[0]['cpu_ceiling_ratio']:.2f}x); "
+              f"store {fraction * 100:.2f} % of an item")
     return rows
