@@ -295,9 +295,17 @@ def _shielded(body: Callable[[threading.Event], _R], report: _Progress | None = 
         return body(abort)
 
     def run() -> _R:
-        if abort.is_set():  # the start was interrupted: nothing to do
-            raise CancelledError("the batch was stopped")
-        return body(abort)
+        try:
+            if abort.is_set():  # the start was interrupted: nothing to do
+                raise CancelledError("the batch was stopped")
+            return body(abort)
+        finally:
+            # In this thread, which signal handlers never interrupt. (A done
+            # callback added from the calling thread runs there when the
+            # future is already done, and concurrent.futures logs and drops
+            # an Exception raised in it: a handler's exception would be lost.)
+            if report is not None:
+                report.close()
 
     pool = ThreadPoolExecutor(1, thread_name_prefix="dtalign-batch")
     try:
@@ -310,7 +318,6 @@ def _shielded(body: Callable[[threading.Event], _R], report: _Progress | None = 
                 raise
             raise exc.__context__ from None
         if report is not None:
-            future.add_done_callback(lambda _: report.close())
             report.report()
         return future.result()
     except BaseException:
