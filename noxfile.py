@@ -75,9 +75,10 @@ def coverage(session: nox.Session) -> None:
     """Line coverage with the JIT disabled, so kernel bodies are measured as Python
     (the plain twin of the four-lane kernels among them).
 
-    The four-lane vector code is LLVM IR built by Python at compile time, so
-    a second, appended run compiles it afresh with the JIT on (a new cache
-    directory: a cache hit would skip the IR builders).
+    The four-lane vector code is LLVM IR built by Python at compile time, and
+    the checked Numba cache (``dtalign._numba_cache``) only runs when there
+    is compiled code to cache, so a second, appended run compiles afresh with
+    the JIT on (a new cache directory: a cache hit would skip the IR builders).
     """
     session.install("-e", ".[test]", "coverage[toml]")
     session.run(
@@ -88,6 +89,7 @@ def coverage(session: nox.Session) -> None:
     session.run(
         "python", "-m", "coverage", "run", "--append", "--source=dtalign", "-m", "pytest", "-q",
         "tests/test_lanes.py", "tests/test_lanes_twin.py", "tests/test_mask_scan.py",
+        "tests/test_faults_cache.py",
         env={"NUMBA_CACHE_DIR": tempfile.mkdtemp(prefix="dtalign-numba-")},
     )
     session.run("python", "-m", "coverage", "report", "--show-missing")
