@@ -584,7 +584,7 @@ def fit_polyline_products(
         peak and the competing basin, each fitted): the result's
         :attr:`~PolylineFit.ambiguity` and :attr:`~PolylineFit.hypotheses`,
         and the status ``ambiguous`` when a rival across the edge costs
-        nearly as little. About 1 ms per fit; False skips it.
+        nearly as little. It costs a few LM fits (a few ms); False skips it.
 
     Returns
     -------
@@ -674,17 +674,9 @@ def fit_polyline(
         LM options: see :func:`fit_polyline_products`.
     initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
         Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
-    seeds : int, optional
-        Starts of a multi-start fit (:mod:`dtalign.pipeline.hypotheses`): the LM runs
-        from the ``seeds`` best distinct coarse peaks and from the competing
-        basin of the DT cost, and the cheapest pose on a common footing wins.
-        1 (the default) keeps the single start's pose.
-    ambiguity : bool, optional
-        Examine the fit against its best rival basin (the second coarse
-        peak and the competing basin, each fitted): the result's
-        :attr:`~PolylineFit.ambiguity` and :attr:`~PolylineFit.hypotheses`,
-        and the status ``ambiguous`` when a rival across the edge costs
-        nearly as little. About 1 ms per fit; False skips it.
+    seeds, ambiguity
+        Multi-start and the rival-basin examination: see
+        :func:`fit_polyline_products`.
 
     Returns
     -------
