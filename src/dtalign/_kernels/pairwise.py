@@ -78,6 +78,12 @@ def pairwise_sum(a, start, n):
     """
     if n <= BLOCK:
         return block_sum(a, start, n)
+    half = n // 2
+    half -= half % UNROLL
+    if n - half <= BLOCK:
+        # one split into two blocks (n up to 2 * BLOCK): the tree's root, without
+        # the stack's four allocations, which cost more than the sum itself
+        return block_sum(a, start, half) + block_sum(a, start + half, n - half)
     run_start = np.empty(MAX_DEPTH, dtype=np.int64)
     run_len = np.empty(MAX_DEPTH, dtype=np.int64)
     left = np.empty(MAX_DEPTH)  # a node's finished left half, while its right one runs
