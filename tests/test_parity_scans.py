@@ -230,8 +230,8 @@ def test_polarity_sparse_path_equals_the_dense_one(seed):
 
 @pytest.mark.parametrize("seed", range(24))
 def test_secondary_basin_pruning_parity(seed):
-    """Wide windows over a real DT, where the early drop and its row carry
-    decide most shifts: the result is still the reference's. Some DTs are
+    """Wide windows over a real DT, where the early drop and the neighbours'
+    bounds decide most shifts: the result is still the reference's. Some DTs are
     scaled (neighbour steps above 1) or shifted negative (no drop at all)."""
     rng = np.random.default_rng(1000 + seed)
     img, geometry = _disc_image(rng, (160, 160))
@@ -247,6 +247,129 @@ def test_secondary_basin_pruning_parity(seed):
     got = dtalign.find_secondary_dt_minimum(dt, verts, **kw)
     want = ref.find_secondary_dt_minimum(dt, verts, **kw)
     assert got == want
+
+
+def _edt(edge, sampling=(1.0, 1.0)):
+    from scipy import ndimage
+
+    return ndimage.distance_transform_edt(~edge, sampling=sampling)
+
+
+@pytest.mark.parametrize("seed", range(48))
+def test_secondary_basin_bounds_parity(seed):
+    """The situations the scan's bounds treat apart, over wide windows: a
+    vertical or horizontal step above 1 (each axis its own largest step), a
+    steep cliff inside the read pixels, integer and constant DTs (exact ties
+    broken in scan order whatever the visiting order), a limb partly off the
+    frame (shifts that lose vertices take no neighbour's bound), and NaN or
+    negative values only where no vertex can read (nothing refused, drops
+    still on), and a converged offset off the window (no shift next to it)."""
+    rng = np.random.default_rng(5000 + seed)
+    family = seed % 8
+    # (a NaN is refused up front in a DT of up to 2**16 pixels)
+    shape = (260, 270) if family == 6 else (150, 170)
+    img, geometry = _disc_image(rng, shape)
+    edge = ref.compute_all_image_derivatives(img, 1.0)[1] <= 0.5
+    sampling = {0: (2.0, 1.0), 1: (1.0, 3.0), 2: (1.0, 0.5)}.get(family, (1.0, 1.0))
+    dt = _edt(edge, sampling)
+    window = (int(rng.integers(8, 16)), int(rng.integers(8, 16)))
+    verts, _ = _limb(rng, geometry, int(rng.integers(20, 120)), rng.uniform(0.0, 3.0))
+    if family == 2:
+        dt = np.round(dt)
+    if family == 3:
+        dt = np.full(shape, float(rng.integers(0, 3)))
+    if family == 4:  # a cliff: one block of pixels raised well above its neighbours
+        v, u = np.rint(verts[int(rng.integers(len(verts)))]).astype(int)
+        dt[max(v - 3, 0):v + 3, max(u - 3, 0):u + 3] += 25.0
+    if family == 5:  # limb pushed against the frame
+        verts = verts + np.array([rng.choice([-1, 1]) * geometry[2] * 0.9, 0.0])
+    if family == 6:  # values no shifted vertex reads: far from the limb, at the disc centre
+        cv, cu, r = geometry
+        window = (min(window[0], int(r / 3)), min(window[1], int(r / 3)))
+        verts = np.stack([cv + r * np.sin(t := np.linspace(0, 2 * np.pi, 80, endpoint=False)),
+                          cu + r * np.cos(t)], axis=1)
+        centre = (int(cv), int(cu))
+        dt[centre] = np.nan if seed % 2 else -5.0
+    converged = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
+    if family == 7:
+        converged = tuple(float(rng.choice([-1, 1]) * rng.uniform(1.2, 3.0) * m) for m in window)
+    kw = dict(
+        converged_offset_vu=converged,
+        search_window_vu=window, exclude_radius_px=float(rng.uniform(0.0, 4.0)),
+        min_support_fraction=float(rng.choice([0.0, 0.5, 0.9])),
+    )
+    got = dtalign.find_secondary_dt_minimum(dt, verts, **kw)
+    want = ref.find_secondary_dt_minimum(dt, verts, **kw)
+    assert got == want
+    if family == 6:
+        assert want is not None and math.isfinite(want.cost_px)
+
+
+@pytest.mark.parametrize("converged", [(3.0, 0.0), (2.6, 0.7), (3.3, 0.0), (6.8, 0.7), (-2.4, 0.0)])
+@pytest.mark.parametrize("radius", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("window", [(8, 4), (9, 3), (3, 3)])
+def test_secondary_basin_partial_shift_takes_no_neighbour_bound(converged, radius, window):
+    """The winner is a shift that pushes the two costly vertices off the
+    frame (cost 0 over the ten left); its neighbours that keep all twelve
+    sum high, but bound only shifts that keep all twelve too. The lattice
+    visits a cost-0 shift first, so the drop bound is 0 when the winner's
+    neighbours are summed."""
+    vv = np.mgrid[0:40, 0:40][0].astype(float)
+    dt = np.maximum(0.0, 10.0 - vv)  # steps of 1, 0 from row 10 down
+    verts = np.array([[20.0, 10.0 + i] for i in range(10)] + [[1.0, 20.0], [1.3, 22.0]])
+    kw = dict(converged_offset_vu=converged, search_window_vu=window, exclude_radius_px=radius,
+              min_support_fraction=0.5)
+    got = dtalign.find_secondary_dt_minimum(dt, verts, **kw)
+    assert got == ref.find_secondary_dt_minimum(dt, verts, **kw)
+    assert got is not None and got.cost_px == 0.0
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_secondary_basin_tight_bounds_parity(seed):
+    """DTs along which the samples change by the full largest step per shift
+    (L1 cones with their own vertical and horizontal slopes, their minimum,
+    monotone ramps), so the neighbours' bounds are as tight as they may be:
+    any bound too high by a little drops the true winner."""
+    rng = np.random.default_rng(9000 + seed)
+    vv, uu = np.mgrid[0:50, 0:50].astype(float)
+    kind = seed % 3
+    if kind == 0:
+        sv, su = rng.choice([0.5, 1.0, 2.0], 2)
+        dt = sv * np.abs(vv - rng.uniform(15, 35)) + su * np.abs(uu - rng.uniform(15, 35))
+    elif kind == 1:
+        dt = np.minimum.reduce([
+            rng.uniform(0.5, 2) * np.abs(vv - rng.uniform(15, 35))
+            + rng.uniform(0.5, 2) * np.abs(uu - rng.uniform(15, 35)) + rng.uniform(0, 3)
+            for _ in range(3)
+        ])
+    else:
+        dt = rng.uniform(0, 1, (50, 50)).cumsum(0) / 5 + rng.uniform(0, 1, (50, 50)).cumsum(1) / 5
+    if seed % 2:
+        dt = np.round(dt)  # ties
+    verts = rng.uniform(18, 32, (int(rng.integers(1, 30)), 2))
+    kw = dict(
+        converged_offset_vu=(float(rng.uniform(-4, 4)), float(rng.uniform(-4, 4))),
+        search_window_vu=(int(rng.integers(3, 10)), int(rng.integers(3, 10))),
+        exclude_radius_px=float(rng.uniform(0, 3)),
+    )
+    assert dtalign.find_secondary_dt_minimum(dt, verts, **kw) == ref.find_secondary_dt_minimum(
+        dt, verts, **kw
+    )
+
+
+def test_secondary_basin_refuses_a_nan_it_reads():
+    """A NaN in a pixel that a shifted vertex samples is refused, naming the
+    DT (too large for the up-front scan, so the kernel finds it)."""
+    scene = scenes.disc_scene(shape=(300, 300), radius=80.0, n_vertices=100)
+    dt = _edt(ref.compute_all_image_derivatives(scene.image, scene.noise_sigma)[1] <= 0.5)
+    verts = scene.polyline.vertices_vu
+    kw = dict(converged_offset_vu=(0.0, 0.0), search_window_vu=(6, 6), exclude_radius_px=2.0)
+    for corner in (4, 7):  # read under the shift (4, 4); the far corner under (6, 6)
+        bad = dt.copy()
+        v, u = np.floor(verts[17] + 6.0).astype(int) + corner - 6
+        bad[v, u] = np.nan
+        with pytest.raises(ValueError, match="image_edge_dt"):
+            dtalign.find_secondary_dt_minimum(bad, verts, **kw)
 
 
 def test_huge_windows_over_far_flung_vertices_are_refused_not_run():
