@@ -357,6 +357,21 @@ def test_secondary_basin_tight_bounds_parity(seed):
     )
 
 
+def test_secondary_basin_step_on_a_tile_seam():
+    """The DT's one step above 1 (a cliff of 5 between rows 19 and 20) falls
+    between two rows of the scan's 8 x 8 pixel tiles (its readable pixels
+    start at row 12); missed, the vertical step would count as 1 and the
+    cost-2.5 shift at dv = 1 would wrongly rule out the cost-0 winner at
+    dv = 0 (the lattice visits a cost-0 shift first)."""
+    dt = np.zeros((40, 40))
+    dt[20:] = 5.0
+    verts = np.array([[18.5, 10.0 + i] for i in range(8)])
+    kw = dict(converged_offset_vu=(5.3, 0.0), search_window_vu=(6, 2), exclude_radius_px=0.5)
+    got = dtalign.find_secondary_dt_minimum(dt, verts, **kw)
+    assert got == ref.find_secondary_dt_minimum(dt, verts, **kw)
+    assert got.offset_vu == (0, 0) and got.cost_px == 0.0
+
+
 def test_secondary_basin_refuses_a_nan_it_reads():
     """A NaN in a pixel that a shifted vertex samples is refused, naming the
     DT (too large for the up-front scan, so the kernel finds it)."""

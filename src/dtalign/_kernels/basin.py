@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from .._jit import inline_kernel, kernel
+from .._jit import kernel
 from .pairwise import numpy_sum
 from .sampling import blend
 
@@ -219,130 +219,121 @@ def _touched_tiles(v_low, v_first, v_last, u_low, u_first, u_last, h, w):
 
 
 @kernel
-def _run_end(row_mask, s):
-    """The last tile of the run of marked tiles that starts at ``s``."""
-    while s + 1 < row_mask.shape[0] and row_mask[s + 1]:
-        s += 1
-    return s
-
-
-@inline_kernel
-def _segment(x, up, exact):
-    """``(bad, negative, steep, step_v, step_h)`` of the row segment ``x``, with
-    ``up`` the same columns of the row above (empty: no vertical pairs).
-
-    Counted (loops LLVM vectorises, unlike float max/min reductions without
-    fast math): the pixels that are not finite, the negative ones, and those
-    differing by more than 1 from their left or upper neighbour. With
-    ``exact``, instead the largest vertical and horizontal difference. The
-    loops index slices from 0, so no index can be negative and Numba's
-    wraparound test (which would turn the loads into gathers) folds away.
-    """
-    bad = 0
-    negative = 0
-    steep = 0
-    step_v = 0.0
-    step_h = 0.0
-    cur = x[1:]
-    left = x[:-1]
-    vertical = up.shape[0] > 0
-    if exact:
-        for j in range(cur.shape[0]):
-            d = abs(cur[j] - left[j])
-            if d > step_h:
-                step_h = d
-        if vertical:
-            for j in range(x.shape[0]):
-                d = abs(x[j] - up[j])
-                if d > step_v:
-                    step_v = d
-        return bad, negative, steep, step_v, step_h
-    x0 = x[0]
-    bad += not (x0 - x0 == 0.0)  # NaN or inf
-    negative += x0 < 0.0
-    if vertical:
-        steep += abs(x0 - up[0]) > 1.0
-        above = up[1:]
-        for j in range(cur.shape[0]):
-            c = cur[j]
-            bad += not (c - c == 0.0)
-            negative += c < 0.0
-            steep += (abs(c - left[j]) > 1.0) | (abs(c - above[j]) > 1.0)
-    else:
-        for j in range(cur.shape[0]):
-            c = cur[j]
-            bad += not (c - c == 0.0)
-            negative += c < 0.0
-            steep += abs(c - left[j]) > 1.0
-    return bad, negative, steep, step_v, step_h
-
-
-@kernel
-def _region_scan(dt, mask, r0, c0, r1, c1, exact):
-    """:func:`_segment` summed (or maximised, with ``exact``) over the marked
-    pixels, each pair of neighbours counted where both are marked."""
-    bad = 0
-    negative = 0
-    steep = 0
-    step_v = 0.0
-    step_h = 0.0
+def _runs(mask):
+    """The runs of marked tiles of each tile row: rows ``(t, s, e)``, tiles
+    ``s..e`` of tile row ``t``."""
     ntr, ntc = mask.shape
-    none = dt[0, :0]
+    out = np.empty((ntr * ((ntc + 1) // 2), 3), dtype=np.int64)
+    k = 0
     for t in range(ntr):
-        top = r0 + t * TILE
-        bottom = min(top + TILE - 1, r1)
         s = 0
         while s < ntc:
             if not mask[t, s]:
                 s += 1
                 continue
-            e = _run_end(mask[t], s)
-            lo = c0 + s * TILE
-            hi = min(c0 + e * TILE + TILE - 1, c1) + 1
-            for r in range(top, bottom + 1):
-                up = dt[r - 1, lo:hi] if r > top else none
-                b, g, st, sv, sh = _segment(dt[r, lo:hi], up, exact)
-                bad += b
-                negative += g
-                steep += st
-                step_v = max(step_v, sv)
-                step_h = max(step_h, sh)
-            s = e + 1
-        if t == 0:
-            continue
-        # vertical pairs across the boundary with the tile row above, where both are marked
-        s = 0
-        while s < ntc:
-            if not (mask[t, s] and mask[t - 1, s]):
-                s += 1
-                continue
             e = s
-            while e + 1 < ntc and mask[t, e + 1] and mask[t - 1, e + 1]:
+            while e + 1 < ntc and mask[t, e + 1]:
                 e += 1
-            lo = c0 + s * TILE
-            hi = min(c0 + e * TILE + TILE - 1, c1) + 1
-            row = dt[top, lo:hi]
-            up = dt[top - 1, lo:hi]
-            for j in range(row.shape[0]):
-                d = abs(row[j] - up[j])
-                if exact:
-                    step_v = max(step_v, d)
-                else:
-                    steep += d > 1.0
+            out[k, 0] = t
+            out[k, 1] = s
+            out[k, 2] = e
+            k += 1
             s = e + 1
-    return bad, negative, steep, step_v, step_h
+    return out[:k]
+
+
+@kernel
+def _region_counts(dt, runs, seams, r0, c0, r1, c1):
+    """``(bad, negative, steep)`` over the marked pixels: how many are not
+    finite, how many are negative, and how many differ by more than 1 from
+    their left or upper neighbour, where both are marked (``seams``: the
+    runs marked in both a tile row and the one above, whose first row pairs
+    with the row above).
+
+    Counting vectorises (float max/min reductions without fast math do not).
+    The columns are unsigned: Numba's wraparound test of a possibly negative
+    index would turn the loads into gathers.
+    """
+    bad = 0
+    negative = 0
+    steep = 0
+    one = np.uint64(1)
+    for q in range(runs.shape[0]):
+        top = r0 + runs[q, 0] * TILE
+        lo = c0 + runs[q, 1] * TILE
+        hi = min(c0 + runs[q, 2] * TILE + TILE - 1, c1) + 1
+        for r in range(top, min(top + TILE - 1, r1) + 1):
+            row = dt[r]
+            x = row[lo]
+            bad += not (x - x == 0.0)  # NaN or inf
+            negative += x < 0.0
+            if r > top:
+                up = dt[r - 1]
+                steep += abs(x - up[lo]) > 1.0
+                for c in range(lo + 1, hi):
+                    j = np.uint64(c)
+                    x = row[j]
+                    bad += not (x - x == 0.0)
+                    negative += x < 0.0
+                    steep += (abs(x - row[j - one]) > 1.0) | (abs(x - up[j]) > 1.0)
+            else:
+                for c in range(lo + 1, hi):
+                    j = np.uint64(c)
+                    x = row[j]
+                    bad += not (x - x == 0.0)
+                    negative += x < 0.0
+                    steep += abs(x - row[j - one]) > 1.0
+    for q in range(seams.shape[0]):
+        top = r0 + (seams[q, 0] + 1) * TILE
+        lo = c0 + seams[q, 1] * TILE
+        hi = min(c0 + seams[q, 2] * TILE + TILE - 1, c1) + 1
+        row = dt[top]
+        up = dt[top - 1]
+        for c in range(lo, hi):
+            j = np.uint64(c)
+            steep += abs(row[j] - up[j]) > 1.0
+    return bad, negative, steep
+
+
+@kernel
+def _region_steps(dt, runs, seams, r0, c0, r1, c1):
+    """The largest vertical and horizontal difference between marked
+    neighbours, ``(step_v, step_h)``, over the pixels of
+    :func:`_region_counts`."""
+    step_v = 0.0
+    step_h = 0.0
+    for q in range(runs.shape[0]):
+        top = r0 + runs[q, 0] * TILE
+        lo = c0 + runs[q, 1] * TILE
+        hi = min(c0 + runs[q, 2] * TILE + TILE - 1, c1) + 1
+        for r in range(top, min(top + TILE - 1, r1) + 1):
+            for c in range(lo, hi):
+                if c > lo:
+                    step_h = max(step_h, abs(dt[r, c] - dt[r, c - 1]))
+                if r > top:
+                    step_v = max(step_v, abs(dt[r, c] - dt[r - 1, c]))
+    for q in range(seams.shape[0]):
+        top = r0 + (seams[q, 0] + 1) * TILE
+        lo = c0 + seams[q, 1] * TILE
+        hi = min(c0 + seams[q, 2] * TILE + TILE - 1, c1) + 1
+        for c in range(lo, hi):
+            step_v = max(step_v, abs(dt[top, c] - dt[top - 1, c]))
+    return step_v, step_h
 
 
 @kernel
 def _region_ok(dt, mask, r0, c0, r1, c1):
     """``(finite, non_negative, step_v, step_h)`` of the DT pixels the scan can
     read; ``step_v`` and ``step_h`` bound the differences between vertical
-    and horizontal neighbours there."""
-    bad, negative, steep, _, _ = _region_scan(dt, mask, r0, c0, r1, c1, False)
+    and horizontal neighbours there. A distance transform's steps are at
+    most 1, so only a DT with a larger one pays for the exact steps."""
+    runs = _runs(mask)
+    seams = _runs(mask[1:] & mask[:-1])
+    bad, negative, steep = _region_counts(dt, runs, seams, r0, c0, r1, c1)
     step_v = 1.0
     step_h = 1.0
     if steep > 0 and bad == 0:
-        _, _, _, step_v, step_h = _region_scan(dt, mask, r0, c0, r1, c1, True)
+        step_v, step_h = _region_steps(dt, runs, seams, r0, c0, r1, c1)
     return bad == 0, negative == 0, step_v, step_h
 
 

@@ -544,6 +544,8 @@ def _clip_window_for(verts: FloatArray, mv: int, mu: int, shape: tuple[int, ...]
     a shift larger than ``max |coordinate| + size`` changes no result."""
     if verts.shape[0] == 0:
         return min(mv, 0), min(mu, 0)
+    if mv <= shape[0] + 1 and mu <= shape[1] + 1:
+        return mv, mu  # within the bound whatever the vertices: no need to read them
     reach = np.abs(verts).max(axis=0)
     return (min(mv, int(reach[0]) + shape[0] + 1), min(mu, int(reach[1]) + shape[1] + 1))
 
