@@ -78,7 +78,8 @@ def coverage(session: nox.Session) -> None:
     The four-lane vector code is LLVM IR built by Python at compile time, and
     the checked Numba cache (``dtalign._numba_cache``) only runs when there
     is compiled code to cache, so a second, appended run compiles afresh with
-    the JIT on (a new cache directory: a cache hit would skip the IR builders).
+    the JIT on (a new cache directory: a cache hit would skip the IR builders),
+    and a third runs the quick benchmark.
     """
     session.install("-e", ".[test]", "coverage[toml]")
     session.run(
@@ -91,5 +92,13 @@ def coverage(session: nox.Session) -> None:
         "tests/test_lanes.py", "tests/test_lanes_twin.py", "tests/test_mask_scan.py",
         "tests/test_faults_cache.py",
         env={"NUMBA_CACHE_DIR": tempfile.mkdtemp(prefix="dtalign-numba-")},
+    )
+    # The benchmark runner is package code that the tests only touch at its
+    # edges (report formatting): its measurements run as CI runs them
+    # (.ci/bench_check.py's quick run), compiled, since with the JIT off a
+    # run would time Python, not the package.
+    session.run(
+        "python", "-m", "coverage", "run", "--append", "--source=dtalign",
+        "-m", "dtalign.benchmarking", "--quick",
     )
     session.run("python", "-m", "coverage", "report", "--show-missing")
