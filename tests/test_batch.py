@@ -10,24 +10,15 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
+import _batch_scene
 import dtalign
+from _batch_scene import WINDOW
 from dtalign import scenes
 from dtalign.pipeline import fit_polyline_products, prepare_image
 from dtalign.pipeline.batch import fit_images, fit_many, map_ordered, results_equal
 
-WINDOW = (12, 12)
-
-
-@pytest.fixture(scope="module")
-def nav():
-    """A small navigation scene: limb, terminator and straight ring edge."""
-    return scenes.navigation_scene(shape=(256, 256), radius=60.0, n_vertices=80,
-                                   offset_vu=(3.4, -2.2), search_window=12)
-
-
-@pytest.fixture(scope="module")
-def products(nav):
-    return prepare_image(nav.image, nav.noise_sigma)
+nav = _batch_scene.nav  # the shared scene (a module-scoped fixture)
+products = _batch_scene.products
 
 
 @pytest.fixture(scope="module")
