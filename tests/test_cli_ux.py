@@ -19,6 +19,7 @@ import threading
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
@@ -213,6 +214,9 @@ def test_ctrl_c_exits_130(files, tmp_path):
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+@pytest.mark.skipif(
+    numba.config.DISABLE_JIT, reason="NUMBA_DISABLE_JIT: nothing compiles, so no notice"
+)
 def test_compile_notice_before_a_cold_first_run(files, tmp_path):
     """A copy of the package has no compiled kernels: the notice comes first."""
     copy = tmp_path / "src"
@@ -272,3 +276,24 @@ def test_bad_zoom_is_a_one_line_error(files):
     assert proc.stderr.strip().splitlines() == [
         "dtalign: error: --zoom takes two numbers separated by a comma (e.g. 120,340), got '50'"
     ]
+
+
+def test_no_compile_notice_when_the_jit_is_disabled(monkeypatch):
+    """With Numba's JIT disabled the kernels run as Python: nothing compiles,
+    so even a cold cache gets no notice (the CLI's error lines stay one line)."""
+    from dtalign import cli
+
+    said = []
+
+    class Messages:
+        def say(self, text):
+            said.append(text)
+
+    assert cli._jit_disabled() is bool(numba.config.DISABLE_JIT)
+    monkeypatch.setattr(cli, "_kernel_cache_cold", lambda: True)
+    monkeypatch.setattr(cli, "_jit_disabled", lambda: True)
+    cli._compile_notice(Messages())
+    assert said == []
+    monkeypatch.setattr(cli, "_jit_disabled", lambda: False)
+    cli._compile_notice(Messages())
+    assert said == [COMPILE_NOTICE]

@@ -257,8 +257,18 @@ def _kernel_cache_cold(kernels: Path | None = None) -> bool:
     return False
 
 
+def _jit_disabled() -> bool:
+    """Numba's own ``NUMBA_DISABLE_JIT`` setting: the kernels then run as Python."""
+    try:
+        from numba.core import config
+    except ImportError:
+        return False
+    return bool(config.DISABLE_JIT)
+
+
 def _compile_notice(messages: _Messages) -> None:
-    if _kernel_cache_cold():
+    # With the JIT disabled nothing compiles, whatever the cache holds.
+    if not _jit_disabled() and _kernel_cache_cold():
         messages.say(COMPILE_NOTICE)
 
 
