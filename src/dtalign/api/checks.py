@@ -485,13 +485,6 @@ def tukey_c_value(c: Any, name: str = "c") -> float:
     return value
 
 
-def _rcond(value: Any, name: str) -> float:
-    out = real(value, name)
-    if not (math.isfinite(out) and out >= 0.0):
-        raise ValueError(f"{name} must be finite and >= 0, got {out!r}")
-    return out
-
-
 def _nonnegative_or_inf(value: Any, name: str) -> float:
     """A bound that may be +inf (no bound) but not NaN or negative."""
     out = real(value, name)
@@ -522,7 +515,7 @@ def check_covariance_inputs(jacobian: Any, weights: Any, rcond: Any) -> tuple[Fl
     require_finite(w, "weights")
     if (w < 0.0).any():
         raise ValueError("weights must be non-negative")
-    return jac, w, _rcond(rcond, "rcond")
+    return jac, w, nonnegative_real(rcond, "rcond")
 
 
 def min_support_fraction_value(value: Any) -> float:
@@ -744,7 +737,7 @@ def check_lm_inputs(
         damping=nonnegative_real(kw["damping"], "damping"),
         step_tolerance=nonnegative_real(kw["step_tolerance_px"], "step_tolerance_px"),
         tukey_c=tukey_c_value(kw["tukey_c"], "tukey_c"),
-        pinvh_rcond=_rcond(kw["pinvh_rcond"], "pinvh_rcond"),
+        pinvh_rcond=nonnegative_real(kw["pinvh_rcond"], "pinvh_rcond"),
         trust_region_px=None if trust is None else _nonnegative_or_inf(trust, "trust_region_px"),
         tikhonov_alpha=nonnegative_real(kw["tikhonov_alpha"], "tikhonov_alpha"),
         final_gradient_ridge=bool(kw["final_gradient_ridge"]),
