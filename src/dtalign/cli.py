@@ -263,7 +263,7 @@ def _jit_disabled() -> bool:
         from numba.core import config
     except ImportError:
         return False
-    return bool(config.DISABLE_JIT)
+    return bool(getattr(config, "DISABLE_JIT", False))
 
 
 def _compile_notice(messages: _Messages) -> None:
