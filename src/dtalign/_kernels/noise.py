@@ -3,13 +3,16 @@
 Its specification is :func:`dtalign.reference.estimate_noise_sigma`: SciPy's
 convolution with Immerkaer's kernel, then two NumPy medians of about a
 million values. Here the responses are computed where they are needed
-(summed in SciPy's order, so they are bit-identical), and each median is
-an exact selection: a sorted stride sample of the values brackets the
-wanted ranks, one pass over the image counts the values below the bracket
-and gathers those inside it (~9 % of them), further passes shrink the
-gathered values in place, and a quickselect finishes. When a bracket
-misses (adversarial value orders, many ties), the quickselect runs on all
-the values instead; the result is the same.
+(summed in SciPy's order, so they are bit-identical), and both medians are
+exact selections from one pass over the image (:func:`_one_pass_medians`):
+a sorted stride sample of the responses brackets the median and the MAD,
+and the pass counts the values below the brackets and gathers those in the
+median's bracket and in two bands around ``median -+ MAD`` (a fifth of
+them). Bracketing passes over the gathered values then shrink them, and a
+quickselect finishes. When a bracket misses (adversarial value orders,
+most values tied), the two medians are selected one after the other, each
+from a pass of its own, and, should that miss too, from all the values;
+the result is the same.
 """
 
 from __future__ import annotations
@@ -24,17 +27,30 @@ DIRECT_SELECT_MAX = 16384
 #: Sample size of the bracket: a larger sample narrows the bracket (as one
 #: over its square root) for a longer sort, which at this size stays small
 #: beside the pass over the image; the bracket of ``+-BRACKET_SIGMAS``
-#: sample standard deviations then holds ~9 % of the values.
+#: sample standard deviations then holds ~6 % of the values.
 SAMPLE_SIZE = 4096
 
 #: Bracketing passes over the gathered values before the quickselect takes
-#: whatever is left (each pass keeps ~9 % of random values; ties keep more).
+#: whatever is left (each pass keeps ~6 % of random values; ties keep more).
 MAX_ROUNDS = 4
 
 #: Half-width of the bracket in binomial standard deviations of a sample
-#: rank (sqrt(s p (1 - p)) <= 32 for s = 4096): a miss costs a full
-#: quickselect, and at 6 sigma it does not happen by chance.
-BRACKET_SIGMAS = 6.0
+#: rank (sqrt(s p (1 - p)) <= 32 for s = 4096). A miss costs the next,
+#: slower selection (same result); at 4 sigma a bracket misses by chance
+#: about once in 16,000 calls, and 6 sigma gathered half as many values
+#: again, which made the estimate about 10 % slower.
+BRACKET_SIGMAS = 4.0
+
+#: How far (as a fraction of the median bracket's half-width) the exact
+#: median may lie from the sample's before the one-pass MAD bands start to
+#: narrow the MAD's bracket; wider bands gather more values.
+CENTRE_TOLERANCE = 1.0 / 3.0
+
+#: The MAD bands' ends are moved off the sampled values by this fraction of
+#: the MAD bracket's width (of its value when the bracket is one value): a
+#: quantised image's MAD is often one of those values, and a MAD equal to
+#: an end's deviation is not selected by the one pass.
+BAND_PAD = 1.0 / 16.0
 
 
 @inline_kernel
@@ -139,6 +155,16 @@ def _quickselect(a, lo, hi, k):
 @kernel
 def _ranks_of_all(a, n, k0, k1):
     """Elements of rank ``k0`` and ``k1 = k0`` or ``k0 + 1`` of ``a[:n]`` (reordered)."""
+    # a bracket of one value (a quantised image's median, often 0, is a
+    # quarter of the pixels): all equal, and a quickselect of ties swaps
+    # every one of them
+    lo = a[0]
+    hi = a[0]
+    for i in range(1, n):
+        lo = min(lo, a[i])
+        hi = max(hi, a[i])
+    if lo == hi:
+        return lo, lo
     _quickselect(a, 0, n, k0)
     lo = a[k0]
     if k1 == k0:
@@ -303,12 +329,12 @@ def _order_pair(x, k0, k1, centre, deviations, work):
 def _image_order_pair(img, k0, k1, centre, deviations, responses):
     """:func:`_order_pair` of the image's responses (or their deviations).
 
-    One bracketing pass over the image gathers ~9 % of the values; only
+    One bracketing pass over the image gathers ~6 % of the values; only
     when that misses are all the values written out and selected.
     """
     h, w = img.shape
     n = (h - 2) * (w - 2)
-    # (as long as all the values, but only the gathered ~9 % are written:
+    # (as long as all the values, but only the gathered ~6 % are written:
     # the rest of the pages are never touched)
     work = np.empty(n)
     if n > DIRECT_SELECT_MAX:
@@ -325,6 +351,191 @@ def _image_order_pair(img, k0, k1, centre, deviations, responses):
 
 
 @kernel
+def _sorted_deviations(sample, centre):
+    """``np.sort(np.abs(sample - centre))`` of a sorted ``sample``, by a merge.
+
+    Left of ``centre`` the deviations fall as the values rise, right of it
+    they rise (rounding is monotone), so the two runs merge in one pass.
+    """
+    s = sample.shape[0]
+    out = np.empty(s)
+    right = np.searchsorted(sample, centre)
+    left = right - 1
+    for k in range(s):
+        if left < 0:
+            out[k] = sample[right] - centre
+            right += 1
+        elif right >= s:
+            out[k] = centre - sample[left]
+            left -= 1
+        else:
+            dl = centre - sample[left]
+            dr = sample[right] - centre
+            if dl <= dr:
+                out[k] = dl
+                left -= 1
+            else:
+                out[k] = dr
+                right += 1
+    return out
+
+
+@kernel
+def _one_pass_bounds(responses, n, k0, k1):
+    """Value bounds of :func:`_gather_centre_and_bands` from the response sample.
+
+    Returns ``(found, c_lo, c_hi, left_lo, inner_lo, inner_hi, right_hi)``:
+    ``[c_lo, c_hi]`` brackets the median as :func:`_gather_image` does;
+    ``[left_lo, inner_lo]`` and ``[inner_hi, right_hi]`` are two bands of
+    values whose distances from the median bracket the MAD, each widened
+    on both sides by :data:`CENTRE_TOLERANCE` of the median bracket's
+    half-width (the median is not known yet when they are drawn).
+    ``found`` is False when a bracket leaves its sample or the bands would
+    reach the median's bracket. Correctness never depends on these values,
+    only on the checks after the pass (see :func:`_one_pass_medians`).
+    """
+    s = responses.shape[0]
+    sample = np.sort(responses)
+    found, c_lo, c_hi = _bracket(sample, n, k0, k1)
+    if not found:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    c_s = sample[s // 2]
+    found, d_lo, d_hi = _bracket(_sorted_deviations(sample, c_s), n, k0, k1)
+    if not found:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    # the pad keeps the bands' ends off the sampled values: on quantised
+    # data a tie of the MAD with an end's deviation would miss
+    t = CENTRE_TOLERANCE * max(c_s - c_lo, c_hi - c_s) + BAND_PAD * (
+        d_hi - d_lo if d_hi > d_lo else d_lo
+    )
+    inner_lo = c_s - d_lo + t
+    inner_hi = c_s + d_lo - t
+    # (False as well when a bound is NaN: responses that overflowed)
+    if not (inner_lo < c_lo and c_hi < inner_hi):
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return True, c_lo, c_hi, c_s - d_hi - t, inner_lo, inner_hi, c_s + d_hi + t
+
+
+@kernel
+def _gather_centre_and_bands(img, bounds, work):
+    """One pass over the image's responses for both medians.
+
+    ``bounds`` is :func:`_one_pass_bounds`' ``(c_lo, c_hi, left_lo,
+    inner_lo, inner_hi, right_hi)`` with ``[c_lo, c_hi]`` inside
+    ``(inner_lo, inner_hi)``. Returns ``(mc, mb, below, inner)``:
+    ``work[:mc]`` holds every response in ``[c_lo, c_hi]`` and
+    ``work[-mb:]`` every one in ``[left_lo, inner_lo]`` or ``[inner_hi,
+    right_hi]`` (disjoint sets, so they fit in one array as long as the
+    values); ``below`` responses are under ``c_lo`` and ``inner`` lie
+    strictly between ``inner_lo`` and ``inner_hi``.
+    """
+    c_lo, c_hi, left_lo, inner_lo, inner_hi, right_hi = bounds
+    h, w = img.shape
+    wi = w - 2
+    last = work.shape[0] - 1
+    below = 0
+    inner = 0
+    mc = 0
+    mb = 0
+    row = np.empty(wi)
+    in_centre = np.empty(wi, np.int64)
+    in_band = np.empty(wi, np.int64)
+    for i in range(1, h - 1):
+        _row_responses(img, i, row)
+        # the tests vectorise on their own; the two gathers are chains
+        # through mc and mb, so they get a loop of their own
+        b = 0
+        c = 0
+        for j in range(wi):
+            v = row[j]
+            b += v < c_lo
+            c += (v > inner_lo) & (v < inner_hi)
+            in_centre[j] = (v >= c_lo) & (v <= c_hi)
+            in_band[j] = (v >= left_lo) & (v <= right_hi) & ((v <= inner_lo) | (v >= inner_hi))
+        below += b
+        inner += c
+        for j in range(wi):
+            # both stores write v: when the free slots of the two ends meet,
+            # whichever keeps it keeps the right value
+            v = row[j]
+            work[mc] = v
+            mc += in_centre[j]
+            work[last - mb] = v
+            mb += in_band[j]
+    return mc, mb, below, inner
+
+
+@kernel
+def _one_pass_medians(img, k0, k1, bounds):
+    """``(ok, median, mad)`` from a single pass over the image.
+
+    ``bounds`` is :func:`_one_pass_bounds`' ``(c_lo, c_hi, left_lo,
+    inner_lo, inner_hi, right_hi)``; any values at all may be given: they
+    decide only whether the pass succeeds, never the result. The pass
+    (:func:`_gather_centre_and_bands`) keeps the values near the
+    median and those in two bands around ``median -+ MAD``. Once the
+    median ``c`` is selected from the first, every deviation that matters
+    is known, because rounding is monotone: with ``d(x) = |x - c|``
+    computed as NumPy computes it, a value strictly inside
+    ``(inner_lo, inner_hi)`` has ``d(x) <= max(d(inner_lo), d(inner_hi))``,
+    so below ``lo``, the next double up; a value outside both bands has
+    ``d(x) >= min(d(left_lo), d(right_hi))``, so above ``hi``, the next
+    double down. Every deviation in ``[lo, hi]`` therefore belongs to a
+    band value, and every one under ``lo`` to an inner or a band value;
+    when ranks ``k0..k1`` fall among the band values in ``[lo, hi]``, the
+    MAD is selected from those. ``ok`` is False when a bracket misses
+    (the two-pass selection then runs); the result is the same.
+    """
+    n = (img.shape[0] - 2) * (img.shape[1] - 2)
+    c_lo, c_hi, left_lo, inner_lo, inner_hi, right_hi = bounds
+    # the argument below needs the bands outside the inner interval, and
+    # the pass the median's bracket inside it (False as well when a bound
+    # is NaN)
+    if not (
+        left_lo <= inner_lo
+        and inner_lo < c_lo
+        and c_lo <= c_hi
+        and c_hi < inner_hi
+        and inner_hi <= right_hi
+    ):
+        return False, 0.0, 0.0
+    # (as long as all the values; only the gathered ones are written, the
+    # rest of the pages are never touched)
+    work = np.empty(n)
+    mc, mb, below, inner = _gather_centre_and_bands(img, bounds, work)
+    if not (below <= k0 and k1 < below + mc):
+        return False, 0.0, 0.0
+    if c_lo == c_hi:  # a bracket of one value (ties: a quantised image's 0)
+        a = b = c_lo
+    else:
+        ok, a, b = _refine(work, mc, below, k0, k1)  # (within work[:mc])
+        if not ok:
+            return False, 0.0, 0.0
+    centre = a if k0 == k1 else (a + b) / 2.0
+    # and the median between the bands' outer ends: a value beyond them
+    # is then farther from it than the end is
+    if not (left_lo <= centre and centre <= right_hi):
+        return False, 0.0, 0.0
+    lo = np.nextafter(max(abs(inner_lo - centre), abs(inner_hi - centre)), np.inf)
+    hi = np.nextafter(min(abs(left_lo - centre), abs(right_hi - centre)), -np.inf)
+    # the band values' deviations, compacted to the front (each written at
+    # or before where its value was read)
+    below = inner
+    md = 0
+    for i in range(n - mb, n):
+        d = abs(work[i] - centre)
+        below += d < lo
+        work[md] = d
+        md += (d >= lo) & (d <= hi)
+    if not (below <= k0 and k1 < below + md):
+        return False, 0.0, 0.0
+    ok, a, b = _refine(work, md, below, k0, k1)
+    if not ok:
+        return False, 0.0, 0.0
+    return True, centre, a if k0 == k1 else (a + b) / 2.0
+
+
+@kernel
 def noise_statistics(img):
     """``(median, mad, mean_abs)`` of Immerkaer's interior responses (H, W >= 3).
 
@@ -338,10 +549,20 @@ def noise_statistics(img):
     k1 = n // 2
     k0 = k1 if n % 2 else k1 - 1
     responses = _sample_responses(img) if n > DIRECT_SELECT_MAX else np.empty(0)
-    a, b = _image_order_pair(img, k0, k1, 0.0, False, responses)
-    centre = a if k0 == k1 else (a + b) / 2.0
-    a, b = _image_order_pair(img, k0, k1, centre, True, responses)
-    mad = a if k0 == k1 else (a + b) / 2.0
+    ok = False
+    centre = mad = 0.0
+    if n > DIRECT_SELECT_MAX:
+        found, c_lo, c_hi, left_lo, inner_lo, inner_hi, right_hi = _one_pass_bounds(
+            responses, n, k0, k1
+        )
+        if found:
+            bounds = (c_lo, c_hi, left_lo, inner_lo, inner_hi, right_hi)
+            ok, centre, mad = _one_pass_medians(img, k0, k1, bounds)
+    if not ok:
+        a, b = _image_order_pair(img, k0, k1, 0.0, False, responses)
+        centre = a if k0 == k1 else (a + b) / 2.0
+        a, b = _image_order_pair(img, k0, k1, centre, True, responses)
+        mad = a if k0 == k1 else (a + b) / 2.0
     mean_abs = 0.0
     if not mad > 0.0:
         # Neumaier's compensated sum: within an ulp or two of NumPy's pairwise one
