@@ -11,8 +11,10 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -196,6 +198,56 @@ def test_fit_images_reports_in_the_calling_process(scene, caplog):
     assert [[f.status for f in fits] for fits in out] == [["ok"], ["ok", "failed"]]
     (record,) = _warnings(caplog)
     assert record.getMessage().startswith("items[1].polylines[1] failed")
+
+
+@pytest.mark.parametrize("call", ["fit_many", "fit_images"])
+def test_batch_warnings_are_logged_off_the_calling_thread(scene, products, caplog, call):
+    """The calling thread only waits: logging drops an exception raised inside
+    a handler's emit, so a timeout landing there while the batch logged its
+    warnings was lost (the call returned as if no signal had come)."""
+    caplog.set_level(logging.WARNING, logger="dtalign")
+    p = scene.polyline
+    bad = (p.vertices_vu, np.zeros_like(p.normals_vu), p.sigmas)
+    good = (p.vertices_vu, p.normals_vu, p.sigmas)
+    if call == "fit_many":
+        fit_many(products, [good, bad], search_window_vu=(8, 8), workers=2)
+    else:
+        fit_images([(scene.image, scene.noise_sigma, [good, bad])], search_window_vu=(8, 8),
+                   workers=2)
+    (record,) = _warnings(caplog)
+    assert record.threadName != threading.main_thread().name
+    assert threading.current_thread() is threading.main_thread()
+
+
+@pytest.mark.skipif(not hasattr(signal, "setitimer"), reason="POSIX interval timers")
+def test_a_timeout_while_waiting_for_a_process_pool_is_not_an_images_error(scene):
+    """With ``executor="process"`` the calling thread waits on the images'
+    futures; a handler's exception raised in that wait propagates, even with
+    ``errors="collect"`` (it used to be collected as that image's error)."""
+
+    class Timeout(Exception):
+        pass
+
+    handled = []
+
+    def on_alarm(signum, frame):
+        handled.append(frame)
+        raise Timeout
+
+    p = scene.polyline
+    items = [(scene.image, scene.noise_sigma, [p])] * 40  # long enough to be waited on
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.05)
+        with pytest.raises(Timeout):
+            out = fit_images(items, search_window_vu=(8, 8), workers=2, executor="process",
+                             errors="collect")
+            # (the message says whether the alarm came during the call and was lost)
+            raise AssertionError(f"returned; handler ran: {bool(handled)}; "
+                                 f"{sum(isinstance(r, Exception) for r in out)} errors")
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
 
 
 # --------------------------------------------------------------------------- CLI

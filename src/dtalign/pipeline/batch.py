@@ -561,12 +561,16 @@ def fit_many(
     progress = _check_progress(progress)
     _check_options(options)
     parts = [_polyline_parts(item, i) for i, item in enumerate(polylines)]
+    def body(abort: threading.Event) -> list[Any]:
+        out = _fit_parts(products, parts, search_window_vu, options, n, collect, abort, tick)
+        # logged here, in the batch's thread: logging drops an exception raised
+        # inside a handler's emit, a timeout's landing in the calling thread too
+        _log(out, "polylines")
+        return out
+
     with _reporter(progress, len(parts), "polyline") as report:
         tick = None if report is None else report.tick
-        out = _shielded(lambda abort: _fit_parts(products, parts, search_window_vu, options, n,
-                                                 collect, abort, tick), report)
-    _log(out, "polylines")
-    return out
+        return _shielded(body, report)
 
 
 def _log(results: list[Any], label: str) -> None:
@@ -875,16 +879,29 @@ def fit_images(
                 results, failures = _on_executor(pool, jobs, not collect, report)
         else:
             on_done = None if report is None else report.tick
-            results, failures = _shielded(lambda abort: _run_ordered(
-                lambda i, a: _fit_image(jobs[i], a), len(jobs), n, stop_early=not collect,
-                abort=abort, on_done=on_done), report)
+
+            def body(abort: threading.Event) -> list[Any]:
+                results, failures = _run_ordered(
+                    lambda i, a: _fit_image(jobs[i], a), len(jobs), n, stop_early=not collect,
+                    abort=abort, on_done=on_done)
+                # in the batch's thread, as fit_many logs
+                return _image_results(jobs, results, failures, collect)
+
+            return _shielded(body, report)
+    return _image_results(jobs, results, failures, collect)
+
+
+def _image_results(jobs: list[Any], results: list[Any], failures: dict[int, Exception],
+                   collect: bool) -> list[Any]:
+    """:func:`fit_images`' results: failures named (raised, or collected in
+    place), the failed and suspect fits logged (in the caller's process)."""
     for i, exc in sorted(failures.items()):
         image = jobs[i][0]
         label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
         if not collect:
             raise _named(exc, label, i)
         results[i] = _named(exc, label, i)
-    for i, fits in enumerate(results):  # logged here, in the caller's process
+    for i, fits in enumerate(results):
         if isinstance(fits, Exception):
             logger.warning("%s", fits)
         else:
@@ -910,12 +927,20 @@ def _on_executor(
                     break  # the call raises: the loop below finds the first failure
                 report.step()
         for i, future in enumerate(futures):
+            # the wait, not result(): an exception a signal handler raises
+            # while this thread waits is the caller's, not the image's error
             try:
+                exc = future.exception()
+            except CancelledError as cancelled:  # (by the executor's owner)
+                exc = cancelled
+            if exc is None:
                 results[i] = future.result()
-            except Exception as exc:  # the image's error, reported in input order
+            elif isinstance(exc, Exception):  # the image's error, reported in input order
                 errors[i] = exc
                 if stop_early:
                     break
+            else:
+                raise exc
     finally:
         for future in futures:
             future.cancel()
