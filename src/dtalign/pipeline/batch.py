@@ -561,6 +561,7 @@ def fit_many(
     progress = _check_progress(progress)
     _check_options(options)
     parts = [_polyline_parts(item, i) for i, item in enumerate(polylines)]
+
     def body(abort: threading.Event) -> list[Any]:
         out = _fit_parts(products, parts, search_window_vu, options, n, collect, abort, tick)
         # logged here, in the batch's thread: logging drops an exception raised
@@ -894,7 +895,12 @@ def fit_images(
 def _image_results(jobs: list[Any], results: list[Any], failures: dict[int, Exception],
                    collect: bool) -> list[Any]:
     """:func:`fit_images`' results: failures named (raised, or collected in
-    place), the failed and suspect fits logged (in the caller's process)."""
+    place), the failed and suspect fits logged (in the caller's process).
+
+    On threads this runs in the batch's thread. On an executor the calling
+    thread runs it: an exception a signal handler raises inside a log
+    record's output there is logging's to drop (it prints "Logging error").
+    """
     for i, exc in sorted(failures.items()):
         image = jobs[i][0]
         label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
