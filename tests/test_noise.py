@@ -29,6 +29,11 @@ def _images():
     yield "sorted", np.sort(rng.normal(0.0, 1.0, 300 * 300)).reshape(300, 300)
     yield "two levels", np.where(rng.random((300, 300)) < 0.5, 0.0, 1e3)
     yield "huge", rng.normal(0.0, 1e150, (200, 200))
+    # finite pixels whose responses overflow: the median and MAD 0, the mean inf
+    spikes = np.zeros((200, 200))
+    spikes[5, 5] = spikes[50, 60] = 1.7e308
+    spikes[5, 6] = spikes[51, 60] = -1.7e308
+    yield "overflowing responses", spikes
 
 
 @pytest.mark.parametrize(("name", "image"), list(_images()), ids=[n for n, _ in _images()])

@@ -157,14 +157,16 @@ def _ranks_of_all(a, n, k0, k1):
     """Elements of rank ``k0`` and ``k1 = k0`` or ``k0 + 1`` of ``a[:n]`` (reordered)."""
     # a bracket of one value (a quantised image's median, often 0, is a
     # quarter of the pixels): all equal, and a quickselect of ties swaps
-    # every one of them
-    lo = a[0]
-    hi = a[0]
+    # every one of them (a NaN, from responses that overflowed, is never
+    # equal: NumPy's medians then hold NaN, and the quickselect decides)
+    first = a[0]
+    same = True
     for i in range(1, n):
-        lo = min(lo, a[i])
-        hi = max(hi, a[i])
-    if lo == hi:
-        return lo, lo
+        if a[i] != first:
+            same = False
+            break
+    if same:
+        return first, first
     _quickselect(a, 0, n, k0)
     lo = a[k0]
     if k1 == k0:
@@ -579,5 +581,7 @@ def noise_statistics(img):
                 else:
                     comp += (v - t) + total
                 total = t
-        mean_abs = (total + comp) / n
+        # (an infinite response, from finite pixels near the float range,
+        # makes the compensation NaN; NumPy's mean is then inf)
+        mean_abs = (total + comp) / n if np.isfinite(total) else total / n
     return centre, mad, mean_abs
