@@ -223,7 +223,12 @@ def test_batch_warnings_are_logged_off_the_calling_thread(scene, products, caplo
 def test_a_timeout_while_waiting_for_a_process_pool_is_not_an_images_error(scene):
     """With ``executor="process"`` the calling thread waits on the images'
     futures; a handler's exception raised in that wait propagates, even with
-    ``errors="collect"`` (it used to be collected as that image's error)."""
+    ``errors="collect"`` (it used to be collected as that image's error).
+
+    CPython loses a handler's exception raised inside a gc or weakref
+    callback (Hypothesis installs a gc callback in this process): such a
+    trial is reported as unraisable and tried again.
+    """
 
     class Timeout(Exception):
         pass
@@ -236,17 +241,28 @@ def test_a_timeout_while_waiting_for_a_process_pool_is_not_an_images_error(scene
 
     p = scene.polyline
     items = [(scene.image, scene.noise_sigma, [p])] * 40  # long enough to be waited on
+    lost = []
     previous = signal.signal(signal.SIGALRM, on_alarm)
+    hook, sys.unraisablehook = sys.unraisablehook, lambda u: lost.append(u.exc_type)
     try:
-        signal.setitimer(signal.ITIMER_REAL, 0.05)
-        with pytest.raises(Timeout):
-            out = fit_images(items, search_window_vu=(8, 8), workers=2, executor="process",
-                             errors="collect")
-            # (the message says whether the alarm came during the call and was lost)
-            raise AssertionError(f"returned; handler ran: {bool(handled)}; "
-                                 f"{sum(isinstance(r, Exception) for r in out)} errors")
+        for _ in range(5):
+            del handled[:], lost[:]
+            signal.setitimer(signal.ITIMER_REAL, 0.05)
+            try:
+                out = fit_images(items, search_window_vu=(8, 8), workers=2,
+                                 executor="process", errors="collect")
+            except Timeout:
+                break
+            finally:
+                signal.setitimer(signal.ITIMER_REAL, 0)
+            # returned: never with the timeout as an image's error, and only
+            # when CPython lost it in a callback
+            assert not any(isinstance(r, Timeout) for r in out)
+            assert handled and Timeout in lost, f"returned; handler ran: {bool(handled)}"
+        else:
+            pytest.fail("the timeout was lost in a callback in every trial")
     finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
+        sys.unraisablehook = hook
         signal.signal(signal.SIGALRM, previous)
 
 
