@@ -175,10 +175,18 @@ class _Reader:
         self._thread.join(timeout=30)
 
 
+def _sigint_default() -> None:
+    # A terminal's program gets SIGINT at its default; a test run started in
+    # the background of a shell has it ignored (POSIX), and the CLI would
+    # inherit that and rightly ignore the Ctrl-C this file sends.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(argv: list[str], cwd: Path, src: Path = SRC) -> tuple[subprocess.Popen[str], _Reader]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "dtalign", *argv],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=cwd, env=_env(src),
+        preexec_fn=_sigint_default if sys.platform != "win32" else None,
     )
     return proc, _Reader(proc.stderr)
 
