@@ -282,6 +282,41 @@ def test_killed_worker_costs_only_its_tasks(cluster, frames, tmp_path, per_task)
     assert all(v == _expected_settings() for v in settings.values()), settings
 
 
+def test_rows_still_on_a_killed_worker_are_computed_again(cluster, frames, tmp_path):
+    """Rows wait on their worker until their part is fetched: a worker killed while it holds
+    finished tasks' rows loses none of them (Dask computes them again elsewhere)."""
+    _, client = cluster
+    manifest = campaign(frames, tmp_path / "m.jsonl", 200, noise=False)
+    store = tmp_path / "store"
+    killed: dict = {}
+
+    def killer():
+        deadline = time.monotonic() + TIMEOUT_S
+        while time.monotonic() < deadline and not killed:
+            for address, keys in client.has_what().items():  # keys in each worker's memory
+                ours = [k for k in keys if str(k).startswith("dtalign-fit-")]
+                if len(ours) >= 2:
+                    pid = client.run(os.getpid, workers=[address])[address]
+                    os.kill(pid, signal.SIGKILL)
+                    killed.update(address=address, keys=ours)
+                    break
+            time.sleep(0.005)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    # One part at the end: every finished task's rows stay on its worker until then.
+    summary = run(manifest, store, client, progress=False, flush_items=1000,
+                  flush_seconds=1000.0, items_per_task=1)
+    thread.join(TIMEOUT_S)
+    assert killed, "the run ended before a worker held finished rows"
+    assert (summary.done, summary.failed, summary.store_parts) == (200, 0, 1)
+    assert_store_matches_serial(store, manifest)
+    finisher = {r["item_id"]: r["worker"] for r in Store(store).results().to_pylist()}
+    lost = {f"i{int(str(k).rsplit('-', 1)[1]):03d}" for k in killed["keys"]}
+    assert all(finisher[i] != killed["address"] for i in lost)
+    assert client.wait_for_workers(2, timeout=TIMEOUT_S) is None  # the nanny replaced it
+
+
 def test_ctrl_c_stops_cleanly_and_the_rerun_completes(cluster, frames, tmp_path):
     """SIGINT to the command's process group (as Ctrl-C in a terminal): exit 130, every
     finished item stored once, whole; the same command then completes the campaign."""
