@@ -322,3 +322,16 @@ def test_cli_exit_codes_agree_with_dtalign_fit():
 
     assert archive_cli.EXIT_FIT_FAILED == cli.EXIT_FIT_FAILED
     assert archive_cli.EXIT_INTERRUPTED == cli.EXIT_INTERRUPTED
+
+
+@pytest.mark.parametrize(("items", "threads", "expected"), [
+    (32, 2, 4),      # the benchmark campaign: 8 tasks of 4 for 2 workers
+    (100_000, 64, 4),  # an archive: never more than 4 a task
+    (31, 2, 3), (16, 2, 2), (15, 2, 1),  # short campaigns: 4 tasks per worker thread first
+    (5, 8, 1), (1, 1, 1),
+    (12, 0, 3),      # no workers yet (an adaptive cluster): counted as one thread
+])
+def test_auto_items_per_task(items, threads, expected):
+    from dtalign.archive.runner import auto_items_per_task
+
+    assert auto_items_per_task(items, threads) == expected

@@ -180,6 +180,17 @@ def test_tasks_of_several_items_store_the_same(cluster, frames, tmp_path):
         run(manifest, tmp_path / "other", client, progress=False, items_per_task=0)
 
 
+def test_default_tasks_hold_a_few_items(cluster, frames, tmp_path):
+    """Without items_per_task a run puts 4 items in a task (34 items on 2 workers: the last
+    task holds 2), and stores every item once, as serially."""
+    _, client = cluster
+    manifest = campaign(frames, tmp_path / "m.jsonl", 34)
+    summary = run(manifest, tmp_path / "store", client, progress=False)
+    assert (summary.items_per_task, summary.done, summary.failed) == (4, 34, 0)
+    assert "4 item(s) a task" in str(summary)
+    assert_store_matches_serial(tmp_path / "store", manifest)
+
+
 def test_resume_runs_only_the_missing_items(cluster, frames, tmp_path):
     _, client = cluster
     manifest = campaign(frames, tmp_path / "m.jsonl", 10)

@@ -48,8 +48,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--flush-every", type=int, default=None, metavar="ITEMS",
                    help="write a store part every ITEMS items (default 32)")
     p.add_argument("--items-per-task", type=int, default=None, metavar="N",
-                   help="items one task fits (default 1; a few for small frames: Dask "
-                        "costs milliseconds per task)")
+                   help="items one task fits (default 4, fewer when the campaign is short "
+                        "for its workers: Dask costs milliseconds per task; 1 for big frames)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--make-example", metavar="DIR",
                    help="write a synthetic campaign (frames, polylines, DIR/manifest.jsonl) "

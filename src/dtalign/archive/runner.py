@@ -32,7 +32,7 @@ from .manifest import Item, read_manifest
 from .store import Store
 from .tasks import failure_row, fit_item, fit_items
 
-__all__ = ["RunSummary", "run"]
+__all__ = ["RunSummary", "auto_items_per_task", "run"]
 
 PathLike = str | os.PathLike[str]
 
@@ -47,6 +47,43 @@ DEFAULT_FLUSH_SECONDS = 10.0
 #: Tasks submitted ahead of the results: enough to keep any cluster busy,
 #: few enough that the client and scheduler hold no campaign-sized state.
 DEFAULT_MAX_PENDING = 1000
+
+#: Items per task unless the caller says: Dask costs about 4.5 ms of CPU per
+#: task on the 2-core development machine (2 ms in the client's process,
+#: where a LocalCluster's scheduler runs, 2.5 ms on the worker), against
+#: ~28 ms for a 1024^2 frame with three polylines; four frames a task bring
+#: that from 16 % to 4 %, and let one scheduler (single-threaded, at ~2 ms a
+#: task) feed four times the workers (docs/campaign.rst, "Throughput").
+MAX_AUTO_ITEMS_PER_TASK = 4
+
+#: ...but never fewer than this many tasks per worker thread, so that a
+#: short campaign still spreads over every worker and ends evenly.
+MIN_TASKS_PER_THREAD = 4
+
+
+def auto_items_per_task(items: int, threads: int) -> int:
+    """Items per task when :func:`run` is given none.
+
+    ``MAX_AUTO_ITEMS_PER_TASK`` (4), or fewer when the campaign is too short
+    to give every worker thread ``MIN_TASKS_PER_THREAD`` (4) tasks of that
+    size; a cluster with no workers yet counts as one thread.
+
+    Parameters
+    ----------
+    items : int
+        Items to run.
+    threads : int
+        Worker threads of the cluster at the start.
+
+    Returns
+    -------
+    int
+
+    >>> auto_items_per_task(32, 2), auto_items_per_task(10, 2), auto_items_per_task(5, 8)
+    (4, 1, 1)
+    """
+    per_task = items // (MIN_TASKS_PER_THREAD * max(threads, 1))
+    return max(1, min(MAX_AUTO_ITEMS_PER_TASK, per_task))
 
 #: Dask settings (documented ``distributed`` configuration) of the LocalCluster
 #: :func:`run` starts, given to its scheduler, nannies and workers only, never
@@ -107,6 +144,9 @@ class RunSummary:
         Part files written.
     workers : int
         Workers at the start.
+    items_per_task : int
+        Items per task (given, or chosen by
+        :func:`~dtalign.archive.runner.auto_items_per_task`).
     run_id : str
         Recorded in every row written.
     """
@@ -126,6 +166,7 @@ class RunSummary:
     store_s: float = 0.0
     store_parts: int = 0
     workers: int = 0
+    items_per_task: int = 0
     run_id: str = field(default_factory=lambda: uuid.uuid4().hex[:12])
 
     def __str__(self) -> str:
@@ -137,7 +178,8 @@ class RunSummary:
             text += f", {self.flagged_rows} fit(s) suspect or failed (status column)"
         if self.skipped_failed:
             text += f", {self.skipped_failed} failed earlier (--retry-failed to redo)"
-        text += (f"; {self.elapsed_s:.1f} s on {self.workers} worker(s) (warm-up {self.warm_s:.1f} s); "
+        text += (f"; {self.elapsed_s:.1f} s on {self.workers} worker(s), "
+                 f"{self.items_per_task} item(s) a task (warm-up {self.warm_s:.1f} s); "
                  f"store {self.store}")
         return text + (" (interrupted)" if self.interrupted else "")
 
@@ -419,7 +461,7 @@ def run(
     flush_items: int = DEFAULT_FLUSH_ITEMS,
     flush_seconds: float = DEFAULT_FLUSH_SECONDS,
     max_pending: int = DEFAULT_MAX_PENDING,
-    items_per_task: int = 1,
+    items_per_task: int | None = None,
 ) -> RunSummary:
     """Fit every missing item of a campaign on Dask and store the results.
 
@@ -456,11 +498,13 @@ def run(
     max_pending : int, optional
         Tasks in flight at once (1000).
     items_per_task : int, optional
-        Items one task reads and fits, one after the other (1). Dask costs a
-        few milliseconds of CPU per task, split between the worker and the
-        scheduler: frames that take tens of milliseconds each run faster in
-        tasks of a few. A worker that dies costs the items of the tasks it
-        held; a Ctrl-C, those of the tasks still running.
+        Items one task reads and fits, one after the other. By default
+        (None) :func:`~dtalign.archive.runner.auto_items_per_task`: 4, fewer in a campaign too short
+        for 4 tasks per worker thread. Dask costs a few milliseconds of CPU
+        per task, split between the worker and the scheduler, so frames
+        that take tens of milliseconds run faster in tasks of a few; give
+        1 for frames of a second or more. A worker that dies costs the items
+        of the tasks it held; a Ctrl-C, those of the tasks still running.
 
     Returns
     -------
@@ -489,7 +533,7 @@ def run(
         if len({i.id for i in items}) != len(items):
             raise ValueError("manifest items must have unique ids")
     for name, value in (("flush_items", flush_items), ("max_pending", max_pending),
-                        ("items_per_task", items_per_task)):
+                        ("items_per_task", 1 if items_per_task is None else items_per_task)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be an int >= 1, got {value!r}")
     st = store if isinstance(store, Store) else Store(store)
@@ -508,9 +552,13 @@ def run(
 
 def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *,
              progress: bool, warm: bool, flush_items: int, flush_seconds: float,
-             max_pending: int, items_per_task: int) -> None:
+             max_pending: int, items_per_task: int | None) -> None:
     distributed = _dask()
-    summary.workers = len(client.nthreads())
+    threads = client.nthreads()
+    summary.workers = len(threads)
+    if items_per_task is None:
+        items_per_task = auto_items_per_task(len(todo), sum(threads.values()))
+    summary.items_per_task = items_per_task
     writer = _Writer(client, store, summary, flush_items, flush_seconds)
     bar = _progress(len(todo), progress)
     # A task's key names the index of its first item.

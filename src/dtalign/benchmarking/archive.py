@@ -9,11 +9,12 @@ the same items in this process (:func:`dtalign.archive.fit_item`: read,
 prepare, fit, the ambiguity examination included; no store), the two
 alternated. Timed region: the cluster side times one whole
 ``run(items, store, client)``, from planning against the (empty) store to
-its last part written; the cluster is started and its workers warmed before
-any timing, and both sides have run the campaign once untimed, so the ratio
-measures a campaign's throughput, not Dask's start-up. ``grouped_s`` and ``grouped_ratio`` are the same
-campaign in tasks of 4 frames (``items_per_task=4``), timed alike in each
-pair. ``cold_s`` and
+its last part written, with ``run``'s default tasks (4 frames each here,
+``items_per_task`` in the row); the cluster is started and its workers
+warmed before any timing, and both sides have run the campaign once
+untimed, so the ratio measures a campaign's throughput, not Dask's
+start-up. ``single_s`` and ``single_ratio`` are the same campaign in tasks
+of one frame (``items_per_task=1``), timed alike in each pair. ``cold_s`` and
 ``cold_ratio`` are the start-up included: one ``run(items, store,
 workers=2)`` that starts, warms and closes its own cluster, timed once.
 The stored rows must equal the serial loop's, bit for bit (the cold run's
@@ -65,9 +66,6 @@ ARCHIVE_FRAMES = 32
 ARCHIVE_SIZE = 1024
 #: Two worker processes on a 2-core machine, less the client's and the scheduler's share.
 ARCHIVE_TARGET = 1.7
-#: The row's second cluster figure: tasks of 4 frames (``run(..., items_per_task=4)``),
-#: 8 tasks for 2 workers, Dask's cost per task paid a quarter as often.
-ARCHIVE_ITEMS_PER_TASK = 4
 #: The store may cost at most this fraction of one item's serial time.
 STORE_OVERHEAD_TARGET = 0.05
 
@@ -160,8 +158,8 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
             f_cluster: list[float] = []
             t_serial: list[float] = []
             t_cluster: list[float] = []
-            t_grouped: list[float] = []
-            cpu_grouped: list[float] = []
+            t_single: list[float] = []
+            cpu_single: list[float] = []
             c_serial: list[float] = []
             c_cluster: list[float] = []
             store_s: list[float] = []
@@ -186,13 +184,13 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
                     cpu_cluster.append(c1 - c0 + sum(w1.values()) - sum(w0.values()))
                     w0 = client.run(_cpu_s)
                     c0, t0 = _cpu_s(), time.perf_counter()
-                    grouped = run(items, tmp / f"store-{k}-grouped", client, progress=False,
-                                  warm=False, items_per_task=ARCHIVE_ITEMS_PER_TASK)
-                    t_grouped.append(time.perf_counter() - t0)
+                    single = run(items, tmp / f"store-{k}-single", client, progress=False,
+                                 warm=False, items_per_task=1)
+                    t_single.append(time.perf_counter() - t0)
                     c1, w1 = _cpu_s(), client.run(_cpu_s)
-                    cpu_grouped.append(c1 - c0 + sum(w1.values()) - sum(w0.values()))
-                    agree = agree and grouped.done == len(items) and (
-                        _comparable(Store(tmp / f"store-{k}-grouped").results().to_pylist())
+                    cpu_single.append(c1 - c0 + sum(w1.values()) - sum(w0.values()))
+                    agree = agree and single.done == len(items) and (
+                        _comparable(Store(tmp / f"store-{k}-single").results().to_pylist())
                         == _comparable(serial_rows))
                     store_s.append(summary.store_s)
                     t0 = time.perf_counter()
@@ -233,10 +231,10 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
     rows = [
         {"name": "archive_32_frames", "kind": "batch",
          "description": f"dtalign.archive.run: {ARCHIVE_FRAMES} frames {ARCHIVE_SIZE}^2 x 3 "
-                        "polylines, serial loop vs LocalCluster of 2 processes, a frame per "
-                        f"task (cluster started and warmed beforehand; with start-up "
-                        f"{serial / t_cold:.2f}x; {ARCHIVE_ITEMS_PER_TASK} frames per task "
-                        f"{serial / statistics.median(t_grouped):.2f}x)",
+                        "polylines, serial loop vs LocalCluster of 2 processes, "
+                        f"{summary.items_per_task} frames per task (run's default; cluster "
+                        f"started and warmed beforehand; with start-up {serial / t_cold:.2f}x; "
+                        f"a frame per task {serial / statistics.median(t_single):.2f}x)",
          "reference_s": serial, "dtalign_s": cluster_t, "ratio": ratio,
          "ratio_of_minima": min(t_serial) / min(t_cluster), "target": ARCHIVE_TARGET,
          "passed": agree and ratio >= ARCHIVE_TARGET, "results_agree": agree,
@@ -250,11 +248,11 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
          # (the sharing of the cores between sessions does not change it much).
          "cpu_ceiling_ratio": 2 * statistics.median(cpu_serial) / statistics.median(cpu_cluster),
          "cpu_serial_s": cpu_serial, "cpu_cluster_s": cpu_cluster,
-         "grouped_items_per_task": ARCHIVE_ITEMS_PER_TASK,
-         "grouped_s": statistics.median(t_grouped),
-         "grouped_ratio": serial / statistics.median(t_grouped), "grouped_times_s": t_grouped,
-         "grouped_cpu_ceiling_ratio": 2 * statistics.median(cpu_serial)
-         / statistics.median(cpu_grouped), "cpu_grouped_s": cpu_grouped,
+         "items_per_task": summary.items_per_task,
+         "single_s": statistics.median(t_single),
+         "single_ratio": serial / statistics.median(t_single), "single_times_s": t_single,
+         "single_cpu_ceiling_ratio": 2 * statistics.median(cpu_serial)
+         / statistics.median(cpu_single), "cpu_single_s": cpu_single,
          "cold_s": t_cold, "cold_ratio": serial / t_cold, "cold_warm_s": cold.warm_s,
          "load_average": load_average, "other_load_cores": other},
         {"name": "archive_store_per_item", "kind": "archive",
@@ -265,8 +263,8 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
          "passed": fraction <= STORE_OVERHEAD_TARGET, "store_s_per_item": store_item,
          "item_s": per_item, "store_fraction": fraction, "store_times_s": store_s},
     ]
-    _progress(f"archive_32_frames: {ratio:.2f}x ({rows[0]['grouped_ratio']:.2f}x in tasks of "
-              f"{ARCHIVE_ITEMS_PER_TASK}; control {rows[0]['control_ratio']:.2f}x, FP "
+    _progress(f"archive_32_frames: {ratio:.2f}x in tasks of {summary.items_per_task} "
+              f"({rows[0]['single_ratio']:.2f}x in tasks of one frame; control {rows[0]['control_ratio']:.2f}x, FP "
               f"{rows[0]['fp_control_ratio']:.2f}x, with "
               f"start-up {serial / t_cold:.2f}x, CPU ceiling {rows[0]['cpu_ceiling_ratio']:.2f}x); "
               f"store {fraction * 100:.2f} % of an item")
