@@ -2,8 +2,9 @@
 
 Runs the quick benchmark (:func:`dtalign.benchmarking.run` with
 ``quick=True``) in this process, prints its table, and exits 1 naming every
-workload whose ratio fell below its floor (or whose dtalign result no
-longer agrees with the reference). Absolute times are never checked: only
+workload whose ratio fell below its floor twice (a workload below its floor
+is measured once more: :func:`confirm`), or whose dtalign result no longer
+agrees with the reference. Absolute times are never checked: only
 ratios measured in the same process, alternating reference and dtalign
 runs, so a slow or loaded CI machine slows both sides alike.
 
@@ -153,6 +154,39 @@ def check(rows: list[dict]) -> list[str]:
     return failures
 
 
+def _rerun_name(row: dict) -> str | None:
+    """What :func:`dtalign.benchmarking.run` takes to measure ``row`` again."""
+    if row["name"] in benchmarking.WORKLOADS:
+        return row["name"]
+    return "batch" if row["kind"] == "batch" else None
+
+
+def confirm(failures: list[str], rows: list[dict]) -> list[str]:
+    """Measure the rows below their floor once more; keep the failures that repeat.
+
+    The machine's speed drifts over minutes: right after the test suite the
+    compiled coarse scans have measured up to twice their usual time while
+    the NumPy reference moved 10 % (in two CI runs of 2026-12-01/02 and a
+    re-run, coarse_30, coarse_50 and coarse_scored_30 at 132-218x against
+    floors of 225-240x; coarse_30 372x from the same install five minutes
+    later). A regression is in the code and shows again; a moment's
+    slowness does not. Results that differ from the reference fail at once.
+    """
+    below = {r["name"]: r for r in rows if any(f.startswith(r["name"] + ": ratio") for f in failures)}
+    others = [f for f in failures if f.split(":")[0] not in below]
+    wanted = {_rerun_name(r) for r in below.values()}
+    if None in wanted or not below:
+        return failures
+    print(f"bench_check: measuring again: {', '.join(sorted(below))}")
+    again = benchmarking.run(sorted(wanted), quick=True, startup="none")["rows"]
+    print(benchmarking.format_table([r for r in again if r["name"] in below]))
+    repeated = check([r for r in again if r["name"] in below])
+    return others + [f"{f} (and again)" for f in repeated] + [
+        f"{name}: not measured again" for name in below
+        if name not in {r["name"] for r in again}
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the quick benchmark and compare; returns the exit status."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -168,6 +202,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1, default=str) + "\n")
     failures = check(report["rows"])
+    if failures:
+        failures = confirm(failures, report["rows"])
     missed = missed_targets(report["rows"])
     if missed:
         print("bench_check: below target (not a failure): " + "; ".join(missed))
