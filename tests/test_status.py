@@ -16,6 +16,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -245,9 +246,9 @@ def test_a_timeout_while_waiting_for_a_process_pool_is_not_an_images_error(scene
     lost = []
     previous = signal.signal(signal.SIGALRM, on_alarm)
     hook, sys.unraisablehook = sys.unraisablehook, lambda u: lost.append(u.exc_type)
-    # A pool of the caller's, started beforehand: an alarm inside the pool's
-    # own start-up is CPython's to mishandle (its shutdown then raises
-    # "cannot join thread before it is started"), not what this tests.
+    # A pool of the caller's, started beforehand: an alarm inside a pool's
+    # own start-up is another case (its shutdown raises "cannot join thread
+    # before it is started"), tested below for the pool fit_images starts.
     pool = concurrent.futures.ProcessPoolExecutor(2)
     try:
         pool.submit(int).result()
@@ -328,3 +329,33 @@ def test_cli_exits_0_for_a_sound_fit(files):
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["status"] == "ok"
     assert "warning" not in proc.stderr
+
+
+def test_an_interrupt_while_the_process_pool_starts_is_the_callers(scene, monkeypatch):
+    """An interrupt that lands in ``Thread.start``'s wait for the pool's manager
+    thread used to surface as the pool's shutdown error ("cannot join thread
+    before it is started"); it propagates, and the worker processes stop."""
+    import concurrent.futures.process as cfp
+    import multiprocessing
+
+    real_start = cfp._ExecutorManagerThread.start
+    timers = []
+
+    def interrupted_start(thread):
+        # the thread starts a moment later, as after an interrupted wait
+        timer = threading.Timer(0.2, real_start, (thread,))
+        timers.append(timer)
+        timer.start()
+        raise KeyboardInterrupt
+
+    before = set(multiprocessing.active_children())
+    monkeypatch.setattr(cfp._ExecutorManagerThread, "start", interrupted_start)
+    p = scene.polyline
+    items = [(scene.image, scene.noise_sigma, [p])] * 2
+    with pytest.raises(KeyboardInterrupt):
+        fit_images(items, search_window_vu=(8, 8), workers=2, executor="process")
+    assert timers and not timers[0].is_alive()  # the shutdown waited for the start
+    deadline = time.monotonic() + 30
+    while set(multiprocessing.active_children()) - before and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not set(multiprocessing.active_children()) - before, "worker processes left running"

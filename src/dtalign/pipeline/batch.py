@@ -327,6 +327,39 @@ def _shielded(body: Callable[[threading.Event], _R], report: _Progress | None = 
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+#: How long :func:`_process_pool` waits for a pool's manager thread to start
+#: when an exception landed in its start: it starts within milliseconds.
+_POOL_START_WAIT_S = 5.0
+
+
+@contextmanager
+def _process_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+    """A ``ProcessPoolExecutor`` shut down at the end, whose exceptions are the caller's.
+
+    An exception a signal handler raises (Ctrl-C, a timeout) while the pool
+    starts its manager thread, in ``Thread.start``'s wait for the new thread,
+    leaves that thread starting behind it; the pool's ``shutdown(wait=True)``
+    then raises "cannot join thread before it is started" in the place of the
+    interrupt. Here the shutdown is tried again until the thread has started
+    (it then stops the worker processes), and the interrupt propagates.
+    """
+    pool = ProcessPoolExecutor(max_workers=workers)
+    try:
+        yield pool
+    except BaseException:
+        deadline = time.monotonic() + _POOL_START_WAIT_S
+        while True:
+            try:
+                pool.shutdown(wait=True, cancel_futures=True)
+                break
+            except RuntimeError:  # the manager thread has not started yet
+                if time.monotonic() > deadline:
+                    break  # the interrupt matters more than the stray processes
+                time.sleep(0.01)
+        raise
+    pool.shutdown(wait=True)
+
+
 def _run_ordered(
     fn: Callable[[int, threading.Event], _R], n: int, workers: int, *, stop_early: bool,
     abort: threading.Event, on_done: Callable[[], Any] | None = None,
@@ -876,7 +909,7 @@ def fit_images(
         if isinstance(executor, Executor):
             results, failures = _on_executor(executor, jobs, not collect, report)
         elif executor == "process" and n > 1 and len(jobs) > 1:
-            with ProcessPoolExecutor(max_workers=min(n, len(jobs))) as pool:
+            with _process_pool(min(n, len(jobs))) as pool:
                 results, failures = _on_executor(pool, jobs, not collect, report)
         else:
             on_done = None if report is None else report.tick
