@@ -172,7 +172,8 @@ def confirm(failures: list[str], rows: list[dict]) -> list[str]:
     later). A regression is in the code and shows again; a moment's
     slowness does not. Results that differ from the reference fail at once.
     """
-    below = {r["name"]: r for r in rows if any(f.startswith(r["name"] + ": ratio") for f in failures)}
+    below = {r["name"]: r for r in rows
+             if any(f.startswith(r["name"] + ": ratio") for f in failures)}
     others = [f for f in failures if f.split(":")[0] not in below]
     wanted = {_rerun_name(r) for r in below.values()}
     if None in wanted or not below:

@@ -296,8 +296,7 @@ class _Writer:
     A finished task's rows stay on its worker until the part they belong to
     is written; the part's rows are then fetched in one ``client.gather``.
     A fetch costs about 1.5 ms of CPU in the client's process and in the
-    worker's, whatever it carries; a fetch per task as it finished cost
-    about a tenth of the campaign's throughput on 30 ms frames
+    worker's, whatever it carries, so one per part rather than per task
     (docs/campaign.rst, "Throughput"). A result whose worker dies before it
     is fetched is computed again by Dask (the client still holds its future).
     """
@@ -309,7 +308,6 @@ class _Writer:
         self.finished: list[tuple[Any, list[Item]]] = []  # finished tasks, rows on the workers
         self.results: list[dict[str, Any]] = []
         self.failures: list[dict[str, Any]] = []
-        self.items = 0  # items of self.finished and of the rows above
         self.taken = 0  # items of the rows above
         self.last = time.monotonic()
         self.written: set[str] = set()
@@ -317,20 +315,17 @@ class _Writer:
     def add_finished(self, fut: Any, chunk: list[Item]) -> None:
         """A task that returned: its rows are fetched with the part's."""
         self.finished.append((fut, chunk))
-        self.items += len(chunk)
         self._maybe_flush()
 
     def add_failed(self, chunk: list[Item], exc: BaseException) -> None:
         """A task that never returned (``KilledWorker`` and the like)."""
         for item in chunk:
-            self.items += 1
             self._take(item.id, [], failure_row(item, exc, self.summary.run_id))
         self._maybe_flush()
 
     def _take(self, item_id: str, results: list[dict[str, Any]],
               failure: dict[str, Any] | None) -> None:
         if item_id in self.written:  # a task never lands twice
-            self.items -= 1
             return
         self.written.add(item_id)
         self.results.extend(results)
@@ -339,7 +334,8 @@ class _Writer:
         self.taken += 1
 
     def _maybe_flush(self) -> None:
-        if self.items >= self.flush_items or time.monotonic() - self.last >= self.flush_seconds:
+        items = self.taken + sum(len(chunk) for _, chunk in self.finished)
+        if items >= self.flush_items or time.monotonic() - self.last >= self.flush_seconds:
             self.flush()
 
     def fetch(self) -> None:
@@ -368,13 +364,11 @@ class _Writer:
                 exc = fut.exception()
                 for item in chunk:
                     self._take(item.id, [], failure_row(item, exc, self.summary.run_id))
-            else:  # cancelled: nothing is stored; the items run again next time
-                self.items -= len(chunk)
+            # else cancelled: nothing is stored; the items run again next time
             fut.release()
 
     def abandon(self) -> None:
         """Forget the finished tasks not fetched: they run again next time."""
-        self.items -= sum(len(chunk) for _, chunk in self.finished)
         self.finished = []
 
     @property
@@ -396,7 +390,6 @@ class _Writer:
             s.failed += len(self.failures)
             s.done += self.taken - len(self.failures)
             self.results, self.failures = [], []
-            self.items -= self.taken
             self.taken = 0
             self.last = time.monotonic()
 
@@ -499,11 +492,11 @@ def run(
         Tasks in flight at once (1000).
     items_per_task : int, optional
         Items one task reads and fits, one after the other. By default
-        (None) :func:`~dtalign.archive.runner.auto_items_per_task`: 4, fewer in a campaign too short
-        for 4 tasks per worker thread. Dask costs a few milliseconds of CPU
-        per task, split between the worker and the scheduler, so frames
-        that take tens of milliseconds run faster in tasks of a few; give
-        1 for frames of a second or more. A worker that dies costs the items
+        (None) :func:`~dtalign.archive.runner.auto_items_per_task`: 4,
+        fewer in a campaign too short for 4 tasks per worker thread. Dask
+        costs a few milliseconds of CPU per task, split between the worker
+        and the scheduler, so frames that take tens of milliseconds run
+        faster in tasks of a few; give 1 for frames of a second or more. A worker that dies costs the items
         of the tasks it held; a Ctrl-C, those of the tasks still running.
 
     Returns

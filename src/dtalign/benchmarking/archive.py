@@ -264,7 +264,8 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
          "item_s": per_item, "store_fraction": fraction, "store_times_s": store_s},
     ]
     _progress(f"archive_32_frames: {ratio:.2f}x in tasks of {summary.items_per_task} "
-              f"({rows[0]['single_ratio']:.2f}x in tasks of one frame; control {rows[0]['control_ratio']:.2f}x, FP "
+              f"({rows[0]['single_ratio']:.2f}x in tasks of one frame; control "
+              f"{rows[0]['control_ratio']:.2f}x, FP "
               f"{rows[0]['fp_control_ratio']:.2f}x, with "
               f"start-up {serial / t_cold:.2f}x, CPU ceiling {rows[0]['cpu_ceiling_ratio']:.2f}x); "
               f"store {fraction * 100:.2f} % of an item")
