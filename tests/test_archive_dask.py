@@ -25,7 +25,11 @@ pytest.importorskip("pyarrow")
 
 from dtalign import io, pipeline  # noqa: E402
 from dtalign.archive import Store, make_example, read_manifest, run, write_manifest  # noqa: E402
-from dtalign.archive.runner import LOCAL_CLUSTER_CONFIG, local_cluster  # noqa: E402
+from dtalign.archive.runner import (  # noqa: E402
+    LOCAL_CLUSTER_CONFIG,
+    _nanny_environ_restored,
+    local_cluster,
+)
 from dtalign.archive.tasks import _status  # noqa: E402
 from dtalign.cli import main  # noqa: E402
 
@@ -35,8 +39,9 @@ TIMEOUT_S = 120
 
 @pytest.fixture(scope="module")
 def cluster():
-    """Two worker processes of one thread each, the LocalCluster ``dtalign archive`` starts."""
-    with local_cluster(2) as c, distributed.Client(c) as client:
+    """Two worker processes of one thread each, the LocalCluster ``dtalign archive`` starts
+    (the variables a nanny sets again to replace a killed worker are put back at the end)."""
+    with _nanny_environ_restored(), local_cluster(2) as c, distributed.Client(c) as client:
         yield c, client
 
 
@@ -47,6 +52,11 @@ def _worker_settings():
     prefix = "distributed.nanny.pre-spawn-environ."
     return {k: os.environ.get(k[len(prefix):]) if k.startswith(prefix) else dask.config.get(k)
             for k in LOCAL_CLUSTER_CONFIG}
+
+
+def _environ():
+    """The calling process's environment (a worker's, through ``client.run``)."""
+    return dict(os.environ)
 
 
 def _expected_settings():
@@ -212,6 +222,25 @@ def test_store_made_with_other_settings_is_refused(cluster, frames, tmp_path):
     run(manifest, tmp_path / "store", client, progress=False)
     with pytest.raises(ValueError, match="different manifest entry"):
         run(read_manifest(manifest, window=12), tmp_path / "store", client, progress=False)
+
+
+def test_a_cluster_of_its_own_leaves_the_environment_as_it_was(frames, tmp_path, monkeypatch):
+    """Dask's nannies set their workers' variables (OMP_NUM_THREADS=1, malloc settings,
+    PYTHONHASHSEED) in this process's environment; they are put back, a user's value
+    included, once the workers run and once run()'s own cluster closes."""
+    for name in ("MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_", "PYTHONHASHSEED",
+                 "__DASK_PARENT_PID", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")  # the user's own: the workers take it
+    before = dict(os.environ)
+    with local_cluster(1) as c, distributed.Client(c) as client:
+        assert dict(os.environ) == before
+        worker_env = client.run(_environ).popitem()[1]
+        assert (worker_env["OMP_NUM_THREADS"], worker_env["MALLOC_TRIM_THRESHOLD_"]) == (
+            "3", str(2**30))
+    manifest = campaign(frames, tmp_path / "m.jsonl", 2)
+    assert run(manifest, tmp_path / "store", workers=1, progress=False).done == 2
+    assert dict(os.environ) == before
 
 
 def test_cli_on_an_existing_scheduler(cluster, frames, tmp_path, capsys):

@@ -212,7 +212,7 @@ def _client(client: Any, scheduler: str | None, workers: int | None) -> Iterator
     n = (os.cpu_count() or 1) if workers is None else workers
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(f"workers must be an int >= 1, got {workers!r}")
-    with local_cluster(n) as cluster, distributed.Client(cluster) as c:
+    with _nanny_environ_restored(), local_cluster(n) as cluster, distributed.Client(cluster) as c:
         c._dtalign_owned = True  # _execute: closing it stops the tasks
         yield c
 
@@ -235,16 +235,57 @@ def local_cluster(n: int) -> Any:
     killed one included: it is the nannies' ``config``, which they give each
     process they start (a nanny's copy of the global configuration is
     shallow, so what is set only while it starts is gone by the restart).
+
+    The environment variables the nannies set in this process to start
+    their workers are put back once the workers run
+    (:func:`_nanny_environ_restored`). A nanny that starts a replacement
+    later sets them again, for the life of the cluster; :func:`run` puts
+    them back when the cluster it started closes.
     """
     import dask
 
     distributed = _dask()
-    with _sigint_ignored(), dask.config.set(LOCAL_CLUSTER_CONFIG):
+    with _sigint_ignored(), dask.config.set(LOCAL_CLUSTER_CONFIG), _nanny_environ_restored():
         return distributed.LocalCluster(
             n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
             scheduler_kwargs={"dashboard_address": ":0"}, preload=["dtalign.archive._plugin"],
             config=dict(LOCAL_CLUSTER_CONFIG),
         )
+
+
+#: Set by a nanny in its own process's environment, besides the pre-spawn
+#: variables: the worker reads them at start (``distributed.proctitle``).
+_NANNY_SET_VARIABLES = ("PYTHONHASHSEED", "__DASK_PARENT_PID")
+
+
+@contextlib.contextmanager
+def _nanny_environ_restored() -> Iterator[None]:
+    """Put back, on leaving, the environment variables Dask's nannies set here.
+
+    A nanny writes its workers' pre-spawn environment
+    (``distributed.nanny.pre-spawn-environ``: OMP/MKL/OPENBLAS_NUM_THREADS=1,
+    glibc's malloc settings, and PYTHONHASHSEED) into ``os.environ`` before
+    it starts a worker, and leaves it there; a LocalCluster's nannies run in
+    the caller's process. Left behind, those values would reach every
+    subprocess the caller starts later (single-threaded BLAS, a fixed hash
+    seed), and the next cluster's nannies would take them for the user's
+    own settings. Only these variables are put back, to what they were.
+    """
+    import dask
+
+    prefix = "distributed.nanny.pre-spawn-environ."
+    names = {*dask.config.get("distributed.nanny.pre-spawn-environ", default={}),
+             *(k[len(prefix):] for k in LOCAL_CLUSTER_CONFIG if k.startswith(prefix)),
+             *_NANNY_SET_VARIABLES}
+    before = {name: os.environ.get(name) for name in names}
+    try:
+        yield
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def _quiet_logs() -> None:
