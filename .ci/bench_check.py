@@ -33,6 +33,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 ROOT = Path(__file__).resolve().parent.parent
 try:  # the installed package (CI installs the checkout; its kernel cache is warm)
@@ -132,14 +133,23 @@ def missed_targets(rows: list[dict]) -> list[str]:
     ]
 
 
-def check(rows: list[dict]) -> list[str]:
-    """One message per failing row (ratio below floor, or results that differ)."""
+class Failure(NamedTuple):
+    """A failing row: ``kind`` is ``"ratio"`` (below its floor) or ``"results"``."""
+
+    name: str
+    kind: str
+    message: str
+
+
+def check(rows: list[dict]) -> list[Failure]:
+    """One failure per failing row and reason (ratio below floor, results that differ)."""
     failures = []
     for row in rows:
         if row["kind"] not in ("speed", "batch"):
             continue
         if not row.get("results_agree", True):
-            failures.append(f"{row['name']}: dtalign and reference results differ")
+            failures.append(Failure(row["name"], "results",
+                                    f"{row['name']}: dtalign and reference results differ"))
         lowest = floor(row["name"])
         control = row.get("control_ratio")
         if lowest is not None and control is not None and control < lowest:
@@ -147,10 +157,11 @@ def check(rows: list[dict]) -> list[str]:
                   f"{control:.2f}x (GIL-free control), another process held a core")
             continue
         if lowest is not None and row["ratio"] < lowest:
-            failures.append(
+            failures.append(Failure(
+                row["name"], "ratio",
                 f"{row['name']}: ratio {row['ratio']:.1f}x below floor {lowest:.1f}x "
-                f"(target {FLOORS[row['name']][0]:g}x)"
-            )
+                f"(target {FLOORS[row['name']][0]:g}x)",
+            ))
     return failures
 
 
@@ -161,7 +172,7 @@ def _rerun_name(row: dict) -> str | None:
     return "batch" if row["kind"] == "batch" else None
 
 
-def confirm(failures: list[str], rows: list[dict]) -> list[str]:
+def confirm(failures: list[Failure], rows: list[dict]) -> list[Failure]:
     """Measure the rows below their floor once more; keep the failures that repeat.
 
     The machine's speed drifts over minutes: right after the test suite the
@@ -172,19 +183,21 @@ def confirm(failures: list[str], rows: list[dict]) -> list[str]:
     later). A regression is in the code and shows again; a moment's
     slowness does not. Results that differ from the reference fail at once.
     """
-    below = {r["name"]: r for r in rows
-             if any(f.startswith(r["name"] + ": ratio") for f in failures)}
-    others = [f for f in failures if f.split(":")[0] not in below]
+    ratio_failed = {f.name for f in failures if f.kind == "ratio"}
+    below = {r["name"]: r for r in rows if r["name"] in ratio_failed}
+    others = [f for f in failures if f.kind != "ratio"]
     wanted = {_rerun_name(r) for r in below.values()}
     if None in wanted or not below:
         return failures
     print(f"bench_check: measuring again: {', '.join(sorted(below))}")
-    again = benchmarking.run(sorted(wanted), quick=True, startup="none")["rows"]
+    again = benchmarking.run(sorted(n for n in wanted if n is not None), quick=True,
+                             startup="none")["rows"]
     print(benchmarking.format_table([r for r in again if r["name"] in below]))
     repeated = check([r for r in again if r["name"] in below])
-    return others + [f"{f} (and again)" for f in repeated] + [
-        f"{name}: not measured again" for name in below
-        if name not in {r["name"] for r in again}
+    measured = {r["name"] for r in again}
+    return others + [f._replace(message=f"{f.message} (and again)") for f in repeated] + [
+        Failure(name, "ratio", f"{name}: not measured again")
+        for name in below if name not in measured
     ]
 
 
@@ -213,8 +226,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{report['other_load_cores'] or 0:.2f} core(s)")
     if failures:
         print("bench_check: FAILED " + ("(warn only)" if args.warn_only else ""))
-        for msg in failures:
-            print("  " + msg)
+        for failure in failures:
+            print("  " + failure.message)
         return 0 if args.warn_only else 1
     print("bench_check: every ratio is above its floor")
     return 0
