@@ -253,8 +253,9 @@ def local_cluster(n: int) -> Any:
         )
 
 
-#: Set by a nanny in its own process's environment, besides the pre-spawn
-#: variables: the worker reads them at start (``distributed.proctitle``).
+#: Set by a nanny in its own process's environment besides the pre-spawn
+#: variables: the workers' hash seed (one for all, so that they hash alike)
+#: and the parent's pid (``distributed.proctitle``).
 _NANNY_SET_VARIABLES = ("PYTHONHASHSEED", "__DASK_PARENT_PID")
 
 
@@ -263,10 +264,10 @@ def _nanny_environ_restored() -> Iterator[None]:
     """Put back, on leaving, the environment variables Dask's nannies set here.
 
     A nanny writes its workers' pre-spawn environment
-    (``distributed.nanny.pre-spawn-environ``: OMP/MKL/OPENBLAS_NUM_THREADS=1,
-    glibc's malloc settings, and PYTHONHASHSEED) into ``os.environ`` before
-    it starts a worker, and leaves it there; a LocalCluster's nannies run in
-    the caller's process. Left behind, those values would reach every
+    (``distributed.nanny.pre-spawn-environ``: OMP/MKL/OPENBLAS_NUM_THREADS=1
+    and glibc's malloc settings), PYTHONHASHSEED and ``__DASK_PARENT_PID``
+    into ``os.environ`` before it starts a worker, and leaves them there; a
+    LocalCluster's nannies run in the caller's process. Left behind, those values would reach every
     subprocess the caller starts later (single-threaded BLAS, a fixed hash
     seed), and the next cluster's nannies would take them for the user's
     own settings. Only these variables are put back, to what they were.
