@@ -267,10 +267,11 @@ def _nanny_environ_restored() -> Iterator[None]:
     (``distributed.nanny.pre-spawn-environ``: OMP/MKL/OPENBLAS_NUM_THREADS=1
     and glibc's malloc settings), PYTHONHASHSEED and ``__DASK_PARENT_PID``
     into ``os.environ`` before it starts a worker, and leaves them there; a
-    LocalCluster's nannies run in the caller's process. Left behind, those values would reach every
-    subprocess the caller starts later (single-threaded BLAS, a fixed hash
-    seed), and the next cluster's nannies would take them for the user's
-    own settings. Only these variables are put back, to what they were.
+    LocalCluster's nannies run in the caller's process. Left behind, those
+    values would reach every subprocess the caller starts later
+    (single-threaded BLAS, a fixed hash seed), and the next cluster's
+    nannies would take them for the user's own settings. Only these
+    variables are put back, to what they were.
     """
     import dask
 
@@ -361,9 +362,12 @@ class _Writer:
 
     def add_failed(self, chunk: list[Item], exc: BaseException) -> None:
         """A task that never returned (``KilledWorker`` and the like)."""
+        self._take_failed(chunk, exc)
+        self._maybe_flush()
+
+    def _take_failed(self, chunk: list[Item], exc: BaseException) -> None:
         for item in chunk:
             self._take(item.id, [], failure_row(item, exc, self.summary.run_id))
-        self._maybe_flush()
 
     def _take(self, item_id: str, results: list[dict[str, Any]],
               failure: dict[str, Any] | None) -> None:
@@ -403,9 +407,7 @@ class _Writer:
                                    strict=True):
                     self._take(item.id, p["results"], p["failure"])
             elif fut.status == "error":
-                exc = fut.exception()
-                for item in chunk:
-                    self._take(item.id, [], failure_row(item, exc, self.summary.run_id))
+                self._take_failed(chunk, fut.exception())
             # else cancelled: nothing is stored; the items run again next time
             fut.release()
 
@@ -538,8 +540,9 @@ def run(
         fewer in a campaign too short for 4 tasks per worker thread. Dask
         costs a few milliseconds of CPU per task, split between the worker
         and the scheduler, so frames that take tens of milliseconds run
-        faster in tasks of a few; give 1 for frames of a second or more. A worker that dies costs the items
-        of the tasks it held; a Ctrl-C, those of the tasks still running.
+        faster in tasks of a few; give 1 for frames of a second or more. A
+        worker that dies costs the items of the tasks it held; a Ctrl-C,
+        those of the tasks still running.
 
     Returns
     -------
