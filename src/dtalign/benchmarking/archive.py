@@ -79,11 +79,11 @@ def _skipped(reason: str) -> list[dict[str, Any]]:
              "description": f"skipped: {reason}"}]
 
 
-#: The control task: SHA-256 over 40 MiB, ~30 ms of GIL-free C code with the
-#: CPU's SHA instructions (about a frame's time: a shorter task would measure
-#: Dask's cost per task more than the machine). Its 2-process scaling through
-#: the same cluster is what the machine allowed at that moment (other
-#: sessions share the cores).
+#: The control task: SHA-256 over 40 MiB, 25-30 ms of GIL-free C code with
+#: the CPU's SHA instructions (about a frame's time: a shorter task would
+#: measure Dask's cost per task more than the machine). Its 2-process scaling
+#: through the same cluster, a task each, is what the machine (other sessions
+#: share the cores) and Dask's cost per task allowed at that moment.
 _CONTROL_MIB = 40
 _CONTROL_TASKS = 32
 
