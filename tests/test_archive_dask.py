@@ -326,7 +326,8 @@ def test_rows_still_on_a_killed_worker_are_computed_again(cluster, frames, tmp_p
     """Rows wait on their worker until their part is fetched: a worker killed while it holds
     finished tasks' rows loses none of them (Dask computes them again elsewhere)."""
     _, client = cluster
-    manifest = campaign(frames, tmp_path / "m.jsonl", 60, noise=False)  # the kill comes after 2 tasks
+    # 60 items: the kill comes once a worker holds 2 finished tasks, long before the end.
+    manifest = campaign(frames, tmp_path / "m.jsonl", 60, noise=False)
     store = tmp_path / "store"
     killed: dict = {}
 

@@ -5,9 +5,9 @@ three polylines each: :func:`dtalign.archive.make_example`) on the
 LocalCluster :func:`~dtalign.archive.run` starts, with 2 worker processes
 (one thread each, the settings of
 :data:`dtalign.archive.runner.LOCAL_CLUSTER_CONFIG`), results into a fresh
-store, against the serial loop over the same items in this process (:func:`dtalign.archive.fit_item`: read,
-prepare, fit, the ambiguity examination included; no store), the two
-alternated. Timed region: the cluster side times one whole
+store, against the serial loop over the same items in this process
+(:func:`dtalign.archive.fit_item`: read, prepare, fit, the ambiguity
+examination included; no store), the two alternated. Timed region: the cluster side times one whole
 ``run(items, store, client)``, from planning against the (empty) store to
 its last part written, with ``run``'s default tasks (4 frames each here,
 ``items_per_task`` in the row); the cluster is started and its workers
