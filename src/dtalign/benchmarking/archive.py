@@ -152,6 +152,13 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
         _progress(f"archive: writing {ARCHIVE_FRAMES} frames of {ARCHIVE_SIZE}^2 ...")
         items = read_manifest(make_example(tmp / "campaign", frames=ARCHIVE_FRAMES,
                                            size=ARCHIVE_SIZE))
+        # The frames just written (256 MiB) are on disk before any timing:
+        # left dirty, the kernel writes them back about 30 s later
+        # (vm.dirty_expire_centisecs), in the middle of a timed pair, and a
+        # store part's fsync then waits for that writeback (286 ms once,
+        # against about 10 ms); the serial loop syncs nothing and never pays.
+        if hasattr(os, "sync"):
+            os.sync()
         serial_rows = [r for i in items for r in fit_item(i)["results"]]  # warm, and the truth
         _progress("archive: starting a LocalCluster of 2 worker processes ...")
         load_average = os.getloadavg()[0]
