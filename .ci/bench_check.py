@@ -24,8 +24,8 @@ core; in one campaign other engineers' test suites shared the machine
 throughout), spread = (median - min) / median of the ratio over a
 campaign's runs, the largest of the three, rounded up to the next 5 %.
 Where a CI run on another machine measured a larger drop on unchanged
-code (E below: a machine's caches, not the code), that drop sets the
-spread. The per-workload numbers are in FLOORS below.
+code (E below: most likely a machine's caches, not the code), that drop
+sets the spread. The per-workload numbers are in FLOORS below.
 """
 
 from __future__ import annotations
@@ -103,10 +103,10 @@ FLOORS: dict[str, tuple[float, float, float]] = {
     # E, CI machines: the fresh-clone CI run of a926c37 (2026-12-02; 994 s, the
     # green runs before it 441-540 s) gave 19.9x and, measured again, 20.6x,
     # on LM code unchanged since the green run of 7ee4619, with lm_n200 at
-    # 96.7x. The row is the one whose working set outgrows a core's L2: ~104
-    # bytes per vertex (points, sigmas and their 1/sigma^2, polarity,
-    # residuals, weights, samples and Jacobian of the state and of the trial
-    # step), 2.1 MB at N = 20,000. On the development machine of that day
+    # 96.7x (that machine could not be inspected). The row is the one whose
+    # working set outgrows a core's L2: ~104 bytes per vertex (points,
+    # sigmas and their 1/sigma^2, polarity, residuals, weights, samples and
+    # Jacobian of the state and of the trial step), 2.1 MB at N = 20,000. On the development machine of that day
     # (2 MiB of L2 per core) a vertex-iteration cost 7.9 ns up to N = 20,000
     # and 8.7-9.5 ns from N = 40,000 (20 forced iterations), and the row gave
     # 29.7-30.2x; a CPU with less L2 pays that at N = 20,000, while the
