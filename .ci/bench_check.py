@@ -106,11 +106,12 @@ FLOORS: dict[str, tuple[float, float, float]] = {
     # 96.7x (that machine could not be inspected). The row is the one whose
     # working set outgrows a core's L2: ~104 bytes per vertex (points,
     # sigmas and their 1/sigma^2, polarity, residuals, weights, samples and
-    # Jacobian of the state and of the trial step), 2.1 MB at N = 20,000. On the development machine of that day
-    # (2 MiB of L2 per core) a vertex-iteration cost 7.9 ns up to N = 20,000
-    # and 8.7-9.5 ns from N = 40,000 (20 forced iterations), and the row gave
-    # 29.7-30.2x; a CPU with less L2 pays that at N = 20,000, while the
-    # reference's NumPy temporaries stream from memory on any CPU. Spread
+    # Jacobian of the state and of the trial step), 2.1 MB at N = 20,000.
+    # On the development machine of that day (2 MiB of L2 per core) a
+    # vertex-iteration cost 7.9 ns up to N = 20,000 and 8.7-9.5 ns from
+    # N = 40,000 (20 forced iterations), and the row gave 29.7-30.2x; a
+    # CPU with less L2 pays that at N = 20,000, while the reference's NumPy
+    # temporaries stream from memory on any CPU. Spread
     # (31.8 - 19.9) / 31.8 = 0.37, rounded up: 0.40 (floor 18x).
     "lm_n20000": (30.0, 31.8, 0.40),
     # A 20.1 / 17.0 / 0.15   B 20.4 / 19.6 / 0.04   C 20.9 / 20.5 / 0.03
