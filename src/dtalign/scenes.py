@@ -10,6 +10,12 @@ the disc, the bright side, so every limb vertex passes the polarity test.
 half-lit body (limb arc plus terminator arc) and a straight ring edge, so a
 rotation fit is observable and the end-to-end workload fits three different
 polylines against one image's products.
+
+:func:`render_sphere` is the ground truth of the accuracy measurements: a
+shaded sphere (Lambert, Minnaert or Lommel-Seeliger) at any phase and light
+direction, integrated over each pixel's area, blurred, with noise, and a
+planted sub-pixel offset. It shares no code with the edge-profile model the
+fit uses.
 """
 
 from __future__ import annotations
@@ -20,7 +26,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Polyline", "Scene", "disc_scene", "navigation_scene"]
+__all__ = [
+    "Polyline", "Scene", "SphereScene", "disc_scene", "navigation_scene", "render_sphere",
+    "sun_direction_vu",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -261,4 +270,328 @@ def navigation_scene(
         pivot_vu=piv,
         pivot_distance_px=max(math.hypot(piv[0] - cv, piv[1] - cu), 1.0),
         search_window_vu=(search_window, search_window),
+    )
+
+
+# ---------------------------------------------------------------------------
+# Photometric spheres: an independent renderer for accuracy measurements
+# ---------------------------------------------------------------------------
+#
+# This renderer shades the 3-D surface at every sub-pixel sample and averages
+# the samples over each pixel. It deliberately shares no code with the edge
+# profile model the fit uses (dtalign.profiles): a renderer built from the
+# fit's own model would only show that the model agrees with itself.
+
+#: Reflectance laws :func:`render_sphere` knows.
+SPHERE_LAWS = ("lambert", "minnaert", "lommel-seeliger")
+
+#: PSF shapes :func:`render_sphere` knows: a Gaussian, and a Gaussian core
+#: with broad wings (not a Gaussian: what a fit that assumes one is not told).
+SPHERE_PSFS = ("gaussian", "core+wings")
+
+#: The core+wings PSF: this fraction of the light in a Gaussian of
+#: ``WINGS_SCALE`` times the core sigma, the rest in the core. Real optics
+#: scatter a few to tens of percent into a halo; 20 % at 4x is a strong,
+#: clearly non-Gaussian case.
+WINGS_FRACTION = 0.2
+WINGS_SCALE = 4.0
+
+#: Gaussian kernels reach this many sigmas (the mass beyond is < 1e-6).
+_PSF_TRUNCATE = 5.0
+
+
+@dataclass(frozen=True)
+class SphereScene:
+    """A rendered sphere, its model polylines and the truth they were made from.
+
+    The model polylines sit around ``model_center_vu = center_vu - offset``:
+    a correct fit of either returns ``true_offset_vu`` (as for
+    :func:`disc_scene`).
+
+    Attributes
+    ----------
+    image : ndarray, shape (H, W)
+        The rendered image in DN (background, PSF and noise included).
+    noise_sigma : float
+        Standard deviation of the added noise at the background level (read
+        noise and the background's shot noise); 0.0 when noise-free.
+    peak_snr : float
+        The brightest pixel's signal above background over its noise
+        standard deviation (``inf`` when noise-free).
+    true_offset_vu : tuple of float
+        The planted offset a correct fit returns.
+    center_vu : tuple of float
+        Where the sphere's centre really is in the image.
+    model_center_vu : tuple of float
+        Where the model (the polylines) puts it: ``center_vu - true_offset_vu``.
+    radius_px, phase_deg, illumination_deg : float
+        The sphere's geometry and lighting (see :func:`render_sphere`).
+    law : str
+        The reflectance law rendered.
+    minnaert_k : float or None
+        Minnaert's exponent (``law="minnaert"`` only).
+    psf : str
+        The PSF shape rendered (``"none"`` when no blur).
+    psf_sigma_px : float or None
+        The PSF's (core) sigma, None when no blur.
+    limb : Polyline
+        The sunlit half of the geometric limb around the model centre,
+        normals into the disc (the bright side), sigmas 1 px.
+    terminator : Polyline or None
+        The visible half of the geometric terminator (``cos i = 0``) around
+        the model centre, normals toward the lit side, sigmas 1 px; None at
+        phase 0, where it lies behind the limb.
+    """
+
+    image: FloatArray
+    noise_sigma: float
+    peak_snr: float
+    true_offset_vu: tuple[float, float]
+    center_vu: tuple[float, float]
+    model_center_vu: tuple[float, float]
+    radius_px: float
+    phase_deg: float
+    illumination_deg: float
+    law: str
+    minnaert_k: float | None
+    psf: str
+    psf_sigma_px: float | None
+    limb: Polyline
+    terminator: Polyline | None
+
+
+def sun_direction_vu(illumination_deg: float) -> tuple[float, float]:
+    """Unit in-image direction toward the Sun: 0 deg is -v (up), 90 deg is +u."""
+    a = math.radians(illumination_deg)
+    return -math.cos(a), math.sin(a)
+
+
+def _shade(
+    dv: FloatArray, du: FloatArray, radius: float, phase: float, sun: tuple[float, float],
+    law: str, k: float, albedo: float,
+) -> FloatArray:
+    """Radiance at image offsets ``(dv, du)`` from the centre (0 off the disc and in the dark)."""
+    rho2 = (dv * dv + du * du) / (radius * radius)
+    inside = rho2 < 1.0
+    cos_e = np.sqrt(np.where(inside, 1.0 - rho2, 0.0))
+    sin_p, cos_p = math.sin(phase), math.cos(phase)
+    cos_i = (dv * (sin_p * sun[0]) + du * (sin_p * sun[1])) / radius + cos_e * cos_p
+    lit = inside & (cos_i > 0.0)
+    ci = np.where(lit, cos_i, 0.0)
+    if law == "lambert":
+        out = ci
+    elif law == "minnaert":
+        # For k < 1, cos(e)^(k-1) brightens the limb without bound (an
+        # integrable singularity, (1 - rho^2)^((k-1)/2)): the pixel average is
+        # finite, and the samples, which never lie on rho = 1, stay finite.
+        ce = np.where(lit, cos_e, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = np.where(lit, ci**k * ce ** (k - 1.0), 0.0)
+    else:  # lommel-seeliger
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = np.where(lit, ci / (ci + cos_e), 0.0)
+    return albedo * np.where(np.isfinite(out), out, 0.0)
+
+
+def _gaussian_kernel_1d(sigma: float) -> FloatArray:
+    half = max(1, int(math.ceil(_PSF_TRUNCATE * sigma)))
+    x = np.arange(-half, half + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (x / sigma) ** 2)
+    return g / g.sum()
+
+
+def _blur_fine(fine: FloatArray, sigma_fine: float) -> FloatArray:
+    """Separable Gaussian blur of the fine grid (zero outside: the sky)."""
+    from scipy.ndimage import convolve1d
+
+    g = _gaussian_kernel_1d(sigma_fine)
+    out = convolve1d(fine, g, axis=0, mode="constant", cval=0.0)
+    return convolve1d(out, g, axis=1, mode="constant", cval=0.0)
+
+
+def _terminator_polyline(
+    model_center: FloatArray, radius: float, phase: float, sun: tuple[float, float], n: int
+) -> Polyline:
+    """The visible half of the great circle ``N . L = 0``, normals up ``grad(cos i)``."""
+    s = np.asarray(sun)
+    perp = np.array([-s[1], s[0]])
+    sin_p, cos_p = math.sin(phase), math.cos(phase)
+    # N(t) = cos t * (perp, 0) + sin t * (cos(p) s, -sin(p)): both are unit
+    # vectors perpendicular to L and to each other; N_z = -sin t sin p >= 0
+    # for t in (-pi, 0), the visible half.
+    t = -math.pi + math.pi * (np.arange(n) + 0.5) / n
+    nv = np.cos(t)[:, None] * perp[None, :] + (np.sin(t) * cos_p)[:, None] * s[None, :]
+    nz = -np.sin(t) * sin_p
+    pts = model_center[None, :] + radius * nv
+    # d(cos i)/dp = sin(p) s / R - cos(p) (p - c) / (R^2 N_z): toward the lit side.
+    grad = sin_p * s[None, :] / radius - cos_p * nv / (radius * np.maximum(nz, 1e-12))[:, None]
+    grad /= np.hypot(grad[:, 0], grad[:, 1])[:, None]
+    return Polyline("terminator", pts, grad, np.ones(n))
+
+
+def render_sphere(
+    *,
+    shape: tuple[int, int] = (300, 300),
+    center_vu: tuple[float, float] | None = None,
+    radius_px: float = 85.0,
+    phase_deg: float = 35.0,
+    illumination_deg: float = 0.0,
+    offset_vu: tuple[float, float] = (0.0, 0.0),
+    law: str = "lambert",
+    minnaert_k: float | None = None,
+    albedo_dn: float = 200.0,
+    background_dn: float = 0.0,
+    psf_sigma_px: float | None = None,
+    psf: str = "gaussian",
+    oversample: int = 8,
+    poisson_gain: float | None = None,
+    read_noise_dn: float = 0.0,
+    seed: int = 0,
+    n_vertices: int = 200,
+) -> SphereScene:
+    """Render a shaded sphere with a planted offset, for accuracy measurements.
+
+    Each pixel ``(i, j)`` (centred at ``(i, j)``) is the mean of
+    ``oversample x oversample`` radiance samples over its area; the PSF is
+    applied on that fine grid before the average, then background, shot
+    noise and read noise are added.
+
+    Geometry (see the profiles page of the docs): a point ``p`` at
+    normalised radius ``rho = |p - c| / R`` has the surface normal
+    ``N = ((p - c) / R, sqrt(1 - rho^2))`` in ``(v, u, z)``, ``z`` toward the
+    viewer, so ``cos e = N_z``; the Sun is ``L = (sin(phase) s, cos(phase))``
+    with ``s`` the in-image direction toward the Sun; ``cos i = N . L``.
+    Laws (albedo ``A``): Lambert ``A cos i``; Minnaert
+    ``A cos(i)^k cos(e)^(k-1)``; Lommel-Seeliger ``A cos i / (cos i + cos e)``.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Image shape ``(H, W)``.
+    center_vu : tuple of float, optional
+        The sphere's true centre; the image centre when None.
+    radius_px : float
+        Radius in pixels, > 0.
+    phase_deg : float
+        Phase angle in ``[0, 180)`` degrees.
+    illumination_deg : float
+        In-image direction from the centre toward the Sun: 0 is toward the
+        top of the image (-v), 90 toward +u.
+    offset_vu : tuple of float
+        The planted truth: the model polylines sit at ``center - offset``.
+    law : {"lambert", "minnaert", "lommel-seeliger"}
+        The reflectance law.
+    minnaert_k : float, optional
+        Minnaert's exponent, > 0 (``law="minnaert"`` only; 1 is Lambert).
+    albedo_dn : float
+        ``A`` in DN.
+    background_dn : float
+        Sky level in DN.
+    psf_sigma_px : float, optional
+        The PSF's (core) Gaussian sigma in pixels; no blur when None or 0.
+    psf : {"gaussian", "core+wings"}
+        The PSF shape: a Gaussian, or ``1 - WINGS_FRACTION`` of the light in
+        the Gaussian core and the rest in a Gaussian ``WINGS_SCALE`` times wider.
+    oversample : int
+        Samples per pixel along each axis, >= 1.
+    poisson_gain : float, optional
+        Electrons per DN for shot noise; no shot noise when None.
+    read_noise_dn : float
+        Gaussian read noise in DN.
+    seed : int
+        Seeds the noise (``numpy.random.default_rng``).
+    n_vertices : int
+        Vertices of each model polyline, >= 2.
+
+    Returns
+    -------
+    SphereScene
+    """
+    if law not in SPHERE_LAWS:
+        raise ValueError(f"law must be one of {SPHERE_LAWS}, got {law!r}")
+    if psf not in SPHERE_PSFS:
+        raise ValueError(f"psf must be one of {SPHERE_PSFS}, got {psf!r}")
+    if law == "minnaert":
+        if minnaert_k is None or not minnaert_k > 0.0:
+            raise ValueError(f"minnaert_k must be > 0 with law='minnaert', got {minnaert_k!r}")
+    elif minnaert_k is not None:
+        raise ValueError("minnaert_k is only used with law='minnaert'")
+    if not 0.0 <= phase_deg < 180.0:
+        raise ValueError(f"phase_deg must be in [0, 180), got {phase_deg!r}")
+    if not radius_px > 0.0:
+        raise ValueError(f"radius_px must be > 0, got {radius_px!r}")
+    if int(oversample) != oversample or oversample < 1:
+        raise ValueError(f"oversample must be an int >= 1, got {oversample!r}")
+    if int(n_vertices) != n_vertices or n_vertices < 2:
+        raise ValueError(f"n_vertices must be an int >= 2, got {n_vertices!r}")
+    h, w = int(shape[0]), int(shape[1])
+    c = np.asarray(_centre((h, w)) if center_vu is None else center_vu, dtype=np.float64)
+    off = np.asarray(offset_vu, dtype=np.float64)
+    phase = math.radians(phase_deg)
+    sun = sun_direction_vu(illumination_deg)
+    k = float(minnaert_k) if minnaert_k is not None else 1.0
+    psf_sigma = float(psf_sigma_px) if psf_sigma_px is not None else 0.0
+    blur = psf_sigma > 0.0
+    os_ = int(oversample)
+
+    # Shade only a box around the disc, widened by the PSF's reach.
+    reach = (_PSF_TRUNCATE * psf_sigma * (WINGS_SCALE if psf == "core+wings" else 1.0)
+             if blur else 0.0)
+    margin = radius_px + reach + 2.0
+    i0, i1 = max(0, int(math.floor(c[0] - margin))), min(h, int(math.ceil(c[0] + margin)) + 1)
+    j0, j1 = max(0, int(math.floor(c[1] - margin))), min(w, int(math.ceil(c[1] + margin)) + 1)
+    sub = (np.arange(os_) + 0.5) / os_ - 0.5
+    fv = (np.arange(i0, i1)[:, None] + sub[None, :]).ravel()
+    fu = (np.arange(j0, j1)[:, None] + sub[None, :]).ravel()
+    fine = _shade(fv[:, None] - c[0], fu[None, :] - c[1], radius_px, phase, sun, law, k,
+                  albedo_dn)
+    if blur:
+        sig = psf_sigma * os_
+        if psf == "gaussian":
+            fine = _blur_fine(fine, sig)
+        else:
+            fine = ((1.0 - WINGS_FRACTION) * _blur_fine(fine, sig)
+                    + WINGS_FRACTION * _blur_fine(fine, WINGS_SCALE * sig))
+    signal = np.zeros((h, w))
+    signal[i0:i1, j0:j1] = fine.reshape(i1 - i0, os_, j1 - j0, os_).mean(axis=(1, 3))
+
+    clean = signal + background_dn
+    rng = np.random.default_rng(seed)
+    image = clean
+    if poisson_gain is not None:
+        image = rng.poisson(np.maximum(clean, 0.0) * poisson_gain) / poisson_gain
+    if read_noise_dn > 0.0:
+        image = image + rng.normal(0.0, read_noise_dn, (h, w))
+    shot_bg = background_dn / poisson_gain if poisson_gain is not None else 0.0
+    noise_sigma = math.sqrt(read_noise_dn**2 + max(shot_bg, 0.0))
+    peak = float(signal.max())
+    shot_peak = (peak + background_dn) / poisson_gain if poisson_gain is not None else 0.0
+    peak_noise = math.sqrt(read_noise_dn**2 + max(shot_peak, 0.0))
+    peak_snr = peak / peak_noise if peak_noise > 0.0 else math.inf
+
+    model_c = c - off
+    s = np.asarray(sun)
+    perp = np.array([-s[1], s[0]])
+    theta = -0.5 * math.pi + math.pi * (np.arange(n_vertices) + 0.5) / n_vertices
+    radial = np.cos(theta)[:, None] * s[None, :] + np.sin(theta)[:, None] * perp[None, :]
+    limb = Polyline("limb", model_c[None, :] + radius_px * radial, -radial,
+                    np.ones(n_vertices))
+    term = (_terminator_polyline(model_c, radius_px, phase, sun, n_vertices)
+            if phase_deg > 0.0 else None)
+    return SphereScene(
+        image=np.ascontiguousarray(image, dtype=np.float64),
+        noise_sigma=float(noise_sigma),
+        peak_snr=float(peak_snr),
+        true_offset_vu=(float(off[0]), float(off[1])),
+        center_vu=(float(c[0]), float(c[1])),
+        model_center_vu=(float(model_c[0]), float(model_c[1])),
+        radius_px=float(radius_px),
+        phase_deg=float(phase_deg),
+        illumination_deg=float(illumination_deg),
+        law=law,
+        minnaert_k=None if minnaert_k is None else float(minnaert_k),
+        psf=psf if blur else "none",
+        psf_sigma_px=psf_sigma if blur else None,
+        limb=limb,
+        terminator=term,
     )
