@@ -524,12 +524,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             )
         lines.append(
             f"LM        : {fit.lm.iterations} iterations (cap {DEFAULT_LM_MAX_ITERATIONS}), "
-            f"converged={fit.converged}, rms {_fmt(fit.rms_px)} px, "
+            f"{_settled_text(fit)}, rms {_fmt(fit.rms_px)} px, "
             f"inliers {fit.inlier_count}/{len(poly)}"
         )
-        if not fit.converged:
-            lines.append("            (it stopped at the cap before an accepted step fell below "
-                         "0.001 px: the pose is the best found; see the docs)")
         lines += [
             f"status    : {fit.status}"
             + (f" ({', '.join(map(str, fit.reasons))})" if fit.reasons else ""),
@@ -542,6 +539,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         _plot(scene.image, poly.vertices_vu, fit, args.plot, "demo", zooms, args.zoom_half, messages)
     stdout.close(messages)
     return 0
+
+
+def _settled_text(fit: Any) -> str:
+    """How the LM ended, in a few words: converged, settled, or still moving."""
+    if fit.converged:
+        return "converged"
+    s = fit.settling
+    if s is None:
+        return "not converged"
+    if s.settled:
+        return f"settled (moved {s.shift_px:.2g} px over its last {s.iterations})"
+    return f"NOT settled (moved {s.shift_px:.3g} px over its last {s.iterations})"
 
 
 def _save_demo(scene: Any, folder: Path, args: argparse.Namespace, messages: _Messages) -> None:
@@ -755,7 +764,7 @@ def _table_single(job: _Job, poly: Any, fit: Any) -> str:
         f"observable   : {obs}",
         f"fit quality  : rms {_fmt(fit.rms_px)} px, inliers {fit.inlier_count}/{len(poly)}, "
         f"polarity-rejected {d['polarity_rejected']}, Tukey-rejected {d['tukey_rejected']}",
-        f"LM           : {fit.lm.iterations} iterations, converged={fit.converged}, "
+        f"LM           : {fit.lm.iterations} iterations, {_settled_text(fit)}, "
         f"degenerate={fit.degenerate}",
     ]
     lines.append(f"status       : {fit.status_message}")
@@ -787,6 +796,10 @@ def _offset_line(fit: Any) -> str:
     (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
     if fit.degenerate:
         return f"offset       : none measured (degenerate; the coarse seed is {fit.coarse_offset_vu})"
+    if fit.failed:
+        # a failed fit's pose is where the LM stopped, not a measurement: no sigma
+        return (f"offset       : not measured (status failed: see below); the LM stopped at "
+                f"({_fmt(dv, 2)}, {_fmt(du, 2)})")
     observed = fit.observable_offset()
     if len(observed) == 2 and math.isfinite(sv) and math.isfinite(su):
         return (f"offset       : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± "

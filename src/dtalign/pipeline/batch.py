@@ -117,7 +117,7 @@ import numpy as np
 
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
-from .fit import PolylineFit, fit_from, fit_polyline_products, wrap
+from .fit import PolylineFit, fit_from, fit_polyline_products, needs_settling, settle, wrap
 from .products import ImageProducts, prepare_image
 from .status import log_fit, log_fits, logger
 
@@ -744,12 +744,15 @@ def _fit_batch(
         f.timings_s["fit"] = per_fit
         if j in errors:  # its rows were never written
             fits[j] = None
-    if examine is None:
-        return fits, errors
     from . import hypotheses
 
-    good = [j for j, f in enumerate(fits) if f is not None]
-    if tick is not None and errors:  # failed fits are not examined: done
+    # Without the examination only the unconverged fits have work left: their
+    # settling (dtalign.pipeline.fit.settle), one more LM each.
+    good = [j for j, f in enumerate(fits)
+            if f is not None and (examine is not None or needs_settling(f))]
+    if not good:
+        return fits, errors
+    if tick is not None and errors and examine is not None:  # failed fits are not examined
         tick(len(errors))
     bounds = batch.starts.tolist()
 
@@ -759,12 +762,15 @@ def _fit_batch(
         item = _jobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
                              (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
                              float(batch.distances[j]))
-        return hypotheses.examine(fits[j], shared, item, seeds=examine,
-                                  refit=lambda seed: fit_from(shared, item, seed))
+        fit = fits[j]
+        if examine is not None:
+            fit = hypotheses.examine(fit, shared, item, seeds=examine,
+                                     refit=lambda seed: fit_from(shared, item, seed))
+        return settle(fit, shared, item)
 
-    examined, failures = _run_ordered(one, len(good), workers, stop_early=stop_early,
-                                      abort=abort,
-                                      on_done=None if tick is None else lambda: tick(1))
+    examined, failures = _run_ordered(
+        one, len(good), workers, stop_early=stop_early, abort=abort,
+        on_done=None if tick is None or examine is None else lambda: tick(1))
     for i, j in enumerate(good):
         fits[j] = examined[i]
         if i in failures:

@@ -28,6 +28,7 @@ the checks and compiled work of :mod:`dtalign.pipeline.jobs`.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -60,7 +61,7 @@ from .observability import (
     observable_rank,
 )
 from .products import ImageProducts, _readonly, prepare_image
-from .status import FitReason, FitStatus
+from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
 
 __all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
 
@@ -119,6 +120,11 @@ class PolylineFit:
         How clearly this basin beats the best rival basin (its ``ratio``,
         the rival, and whether the rival lies along an unobservable
         direction); None when not examined.
+    settling : Settling or None
+        For an LM that stopped before its step tolerance: how far the pose
+        moved over its last iterations, which decides
+        :attr:`~dtalign.pipeline.status.FitReason.NOT_CONVERGED`
+        (:func:`settle`); None when the LM converged or was not examined.
 
     Whether to trust the fit is read from these fields by :attr:`status`,
     :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.pipeline.status`);
@@ -146,6 +152,7 @@ class PolylineFit:
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
     hypotheses: tuple[Hypothesis, ...] = field(default=(), repr=False)
     ambiguity: Ambiguity | None = None
+    settling: Settling | None = None
 
     def __post_init__(self) -> None:
         for name in ("vertices_vu", "normals_vu"):
@@ -184,6 +191,12 @@ class PolylineFit:
     def converged(self) -> bool:
         """Whether the LM step fell below the step tolerance."""
         return self.lm.converged
+
+    @property
+    def settled(self) -> bool:
+        """Whether the pose is settled: the LM converged, or it stopped but its
+        pose no longer moved (:class:`~dtalign.pipeline.status.Settling`)."""
+        return _status.settled(self)
 
     @property
     def degenerate(self) -> bool:
@@ -617,6 +630,7 @@ def fit_polyline_products(
             fit, shared, item, seeds=seeds,
             refit=lambda seed: fit_from(shared, item, seed),
         )
+    fit = settle(fit, shared, item)
     _status.log_fit(fit)
     return fit
 
@@ -750,6 +764,55 @@ def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],
         vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
         tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": coarse_s, "lm": t3 - t2},
     )
+
+
+def needs_settling(fit: PolylineFit) -> bool:
+    """Whether :func:`settle` has anything to judge (an unconverged, measured fit)."""
+    return not (fit.lm.converged or fit.lm.degenerate) and fit.settling is None
+
+
+def settle(fit: PolylineFit, shared: jobs.Plan, it: jobs.Item) -> PolylineFit:
+    """``fit`` with its :class:`~dtalign.pipeline.status.Settling` when its LM did not converge.
+
+    The LM is deterministic, so running it again from the fit's start
+    (``coarse_offset_vu``) with ``iterations - SETTLE_ITERATIONS`` iterations
+    gives the pose it held that many iterations before it stopped; with
+    fewer iterations than that, the start is the earlier pose. The movement
+    between the two, in pixels and in units of the fit's one-sigma, says
+    whether further iterations could still change the answer: what
+    :attr:`~dtalign.pipeline.status.FitReason.NOT_CONVERGED` means. A
+    converged or degenerate fit is returned as it is.
+    """
+    if not needs_settling(fit):
+        return fit
+    lm = fit.lm
+    a = shared.lm
+    start = (float(fit.coarse_offset_vu[0]), float(fit.coarse_offset_vu[1]))
+    k = lm.iterations - SETTLE_ITERATIONS
+    if k > 0:
+        earlier = jobs._deps().fit_checked(a._replace(
+            vertices=it.vertices, normals=it.normals, sigmas=it.sigmas, offset=start,
+            pivot=it.pivot, pivot_distance=it.distance, max_iterations=k,
+        ))
+        before = (*earlier.offset_vu, earlier.rotation_rad)
+        span = SETTLE_ITERATIONS
+    else:
+        before = (*start, a.rotation)
+        span = lm.iterations
+    d = np.array([lm.offset_vu[0] - before[0], lm.offset_vu[1] - before[1],
+                  lm.rotation_rad - before[2]])
+    shift_px = float(math.hypot(d[0], d[1]) + abs(d[2]) * fit.pivot_distance_px)
+    p = 3 if fit.fit_rotation else 2
+    cov = np.asarray(lm.covariance, dtype=np.float64)
+    if np.isfinite(cov).all():
+        # the information the covariance holds (its pseudoinverse): a movement
+        # along a direction the fit does not observe weighs nothing
+        info = np.linalg.pinv(cov, rcond=fit.pinvh_rcond, hermitian=True)
+        shift_sigmas = float(math.sqrt(max(float(d[:p] @ info @ d[:p]), 0.0)))
+    else:
+        shift_sigmas = math.inf
+    ok = shift_sigmas <= SETTLE_SIGMAS or shift_px <= a.step_tolerance
+    return dataclasses.replace(fit, settling=Settling(span, shift_px, shift_sigmas, ok))
 
 
 def wrap(shared: jobs.Plan, batch: jobs.Batch, out: tuple[Any, ...], lo: int,
