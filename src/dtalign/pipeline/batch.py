@@ -98,6 +98,7 @@ import math
 import numbers
 import os
 import queue
+import sys
 import threading
 import time
 from collections import deque
@@ -243,8 +244,18 @@ def _reporter(progress: Callable[[int, int], Any] | bool | None, total: int,
                 "progress=True needs tqdm (pip install tqdm); or pass a callable "
                 "progress(done, total)"
             ) from None
+        from .._numba_cache import compile_listeners
+
         with tqdm(total=total, unit=unit) as bar:
-            yield _Progress(lambda done, _: bar.update(done - bar.n), total)
+            # the first-compile notice above the bar, not through it
+            def note(text: str) -> None:
+                bar.write(f"dtalign: {text}", file=sys.stderr)
+
+            compile_listeners.append(note)
+            try:
+                yield _Progress(lambda done, _: bar.update(done - bar.n), total)
+            finally:
+                compile_listeners.remove(note)
     else:
         yield _Progress(progress, total)
 
