@@ -76,6 +76,22 @@ COMPILE_NOTICE = (
     "the machine code is then cached on disk) ..."
 )
 
+#: The ``fit`` search margin unless ``--window`` says otherwise (px): the
+#: same value as the Python pipeline's default,
+#: ``dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`` (a test holds them equal;
+#: not imported here so that building the parser stays light).
+DEFAULT_WINDOW_PX = 30
+
+#: Options that take a pair of numbers, per subcommand: one style
+#: everywhere, the two numbers joined by a comma (``--displace 3,-2``).
+PAIR_OPTIONS: dict[str, frozenset[str]] = {
+    "demo": frozenset({"--zoom"}),
+    "fit": frozenset({"--window", "--zoom"}),
+    "overlay": frozenset({"--displace"}),
+}
+
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
 #: Half-size of a ``--zoom`` panel unless ``--zoom-half`` says otherwise (px):
 #: wide enough to show the edge and the model's residual at a glance.
 DEFAULT_ZOOM_HALF_PX = 20.0
@@ -272,11 +288,12 @@ def _compile_notice(messages: _Messages) -> None:
         messages.say(COMPILE_NOTICE)
 
 
-def _pair_arg(text: str, option: str, kind: Callable[[str], Any] = float) -> tuple[Any, Any]:
+def _pair_arg(text: str, option: str, kind: Callable[[str], Any] = float,
+              example: str = "120,340") -> tuple[Any, Any]:
     """``"A,B"`` -> ``(A, B)`` for options such as ``--zoom V,U``."""
     parts = text.split(",")
     if len(parts) != 2:
-        raise CLIError(f"{option} takes two numbers separated by a comma (e.g. 120,340), got {text!r}")
+        raise CLIError(f"{option} takes two numbers separated by a comma (e.g. {example}), got {text!r}")
     try:
         return kind(parts[0]), kind(parts[1])
     except ValueError:
@@ -369,9 +386,10 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     fit.add_argument("--glob", metavar="PATTERN", help="images matching PATTERN (quote it)")
     fit.add_argument(
         "--window",
-        default="30",
-        metavar="N[,M]",
-        help="search margin in px: N for both axes, or V,U (e.g. 30,20); default 30",
+        default=str(DEFAULT_WINDOW_PX),
+        metavar="N|V,U",
+        help="search margin in px: N for both axes, or V,U (e.g. 30,20); "
+        f"default {DEFAULT_WINDOW_PX}, as in Python",
     )
     fit.add_argument("--noise-sigma", type=float, help="image noise sigma (default: estimated)")
     fit.add_argument("--rotation", action="store_true", help="also fit an in-plane rotation")
@@ -400,11 +418,10 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     overlay.add_argument("--polyline", required=True, metavar="OUT.csv", help="write the polyline here")
     overlay.add_argument(
         "--displace",
-        type=float,
-        nargs=2,
-        default=(0.0, 0.0),
-        metavar=("DV", "DU"),
-        help="move the model by -(DV, DU): a correct fit then returns about (DV, DU)",
+        default="0,0",
+        metavar="DV,DU",
+        help="move the model by -(DV, DU), e.g. --displace 3,-2: a correct fit then returns "
+        "about (DV, DU)",
     )
 
     bench = sub.add_parser(
@@ -719,11 +736,14 @@ def _window(text: str) -> tuple[int, int]:
     return (values[0], values[0]) if len(values) == 1 else (values[0], values[1])
 
 
-def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int]) -> tuple[Any, Any, Any]:
+def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
+             messages: _Messages) -> tuple[Any, Any, Any]:
     import dtalign.io as io
     import dtalign.pipeline as pipeline
 
-    image = io.load_image(job.image)
+    image, colour = io.read_image(job.image)
+    if colour is not None:  # the library's rule (dtalign.api.colour), said here
+        messages.say(f"{PROG}: {'warning' if colour.luma else 'note'}: {colour.text}")
     poly = io.load_polyline_csv(job.polyline)
     fit = pipeline.fit_polyline(
         image,
@@ -835,7 +855,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         for job in progress:
             _log_label(str(job.image))
             try:
-                image, poly, fit = _fit_one(job, args, window)
+                image, poly, fit = _fit_one(job, args, window, messages)
                 if plot_path is not None:
                     out = plot_path
                     if batch:
@@ -909,6 +929,7 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
 def _cmd_overlay(args: argparse.Namespace) -> int:
     if args.n_lines < 1:
         raise CLIError(f"--n-lines must be >= 1, got {args.n_lines}")
+    _pair_arg(args.displace, "--displace", example="3,-2")  # before any file is written
     _check_output_file(args.image, "--image")
     _check_output_file(args.polyline, "--polyline")
 
@@ -921,8 +942,11 @@ def _cmd_overlay(args: argparse.Namespace) -> int:
     frame = load_cassini_overlay_frame(args.png)
     lines = overlay_polylines(frame, shape=args.shape, n_lines=args.n_lines)
     model = concatenate_polylines(lines, name=Path(args.png).stem)
+    displace = _pair_arg(args.displace, "--displace", example="3,-2")
+    if not all(math.isfinite(x) for x in displace):
+        raise CLIError(f"--displace must be finite, got {args.displace!r}")
     moved = Polyline(
-        model.name, model.vertices_vu - np.asarray(args.displace), model.normals_vu, model.sigmas
+        model.name, model.vertices_vu - np.asarray(displace), model.normals_vu, model.sigmas
     )
     np.save(args.image, frame.image)
     save_polyline_csv(args.polyline, moved)
@@ -952,6 +976,37 @@ def _cmd_archive(args: argparse.Namespace) -> int:
     return archive_cli.command(args)
 
 
+def _pairs_joined(command: str, argv: list[str], parser: argparse.ArgumentParser) -> list[str]:
+    """``argv`` with each pair option's value attached (``--displace=-2,3``), or a usage error.
+
+    A pair is one word, its numbers joined by a comma (:data:`PAIR_OPTIONS`).
+    Attaching the value lets it start with a minus sign, which argparse
+    would otherwise read as an option. Two numbers given as two words
+    (``--displace 3 -2``, ``--window 30 20``) are refused with the form to
+    use, instead of argparse's or the file pairing's own, misleading, error.
+    """
+    options = PAIR_OPTIONS.get(command, frozenset())
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        word = argv[i]
+        if word in options and i + 1 < len(argv) and not argv[i + 1].startswith("--"):
+            value = argv[i + 1]
+            after = argv[i + 2] if i + 2 < len(argv) else None
+            if (_NUMBER.fullmatch(value) and after is not None and _NUMBER.fullmatch(after)
+                    and not os.path.exists(after)):
+                parser.error(
+                    f"{word} takes its two numbers as one word, joined by a comma: "
+                    f"write {word} {value},{after}, not {word} {value} {after}"
+                )
+            out.append(f"{word}={value}")
+            i += 2
+            continue
+        out.append(word)
+        i += 1
+    return out
+
+
 def _parse(argv: list[str]) -> argparse.Namespace | int:
     """The parsed arguments, or an exit status (help, version, usage error).
 
@@ -968,7 +1023,9 @@ def _parse(argv: list[str]) -> argparse.Namespace | int:
         else:
             args = parser.parse_args(argv[:where])
             if not args.version:
-                args = commands[argv[where]].parse_intermixed_args(argv[where + 1 :])
+                command = commands[argv[where]]
+                rest = _pairs_joined(argv[where], argv[where + 1 :], command)
+                args = command.parse_intermixed_args(rest)
                 args.command, args.version = argv[where], False
     except SystemExit as exc:  # argparse printed help or its usage error
         return int(exc.code or 0)

@@ -434,13 +434,14 @@ def _run_ordered(
 def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
     """``(vertices, normals, sigmas)`` of a polyline given as an object or a 3-sequence."""
     if type(item) in (tuple, list) and len(item) == 3:  # plain: no such attributes
-        return item[0], item[1], item[2]
+        return item[0], item[1], _jobs.broadcast_sigmas(item[0], item[2])
     try:  # one attempt for the three attributes, not three hasattr() calls
-        return item.vertices_vu, item.normals_vu, item.sigmas
+        return item.vertices_vu, item.normals_vu, _jobs.broadcast_sigmas(item.vertices_vu,
+                                                                          item.sigmas)
     except AttributeError:
         pass
     if isinstance(item, Sequence) and not isinstance(item, (str, bytes)) and len(item) == 3:
-        return item[0], item[1], item[2]
+        return item[0], item[1], _jobs.broadcast_sigmas(item[0], item[2])
     raise TypeError(
         f"polylines[{index}] must have vertices_vu, normals_vu and sigmas attributes "
         f"or be a (vertices_vu, normals_vu, sigmas) sequence, got {type(item).__name__}"
@@ -528,13 +529,15 @@ def results_equal(a: Any, b: Any) -> bool:
 
 @overload
 def fit_many(
-    products: ImageProducts, polylines: Iterable[Any], *, search_window_vu: Any,
+    products: ImageProducts, polylines: Iterable[Any], *,
+    search_window_vu: tuple[int, int] = ...,
     workers: int = ..., errors: Literal["raise"] = ...,
     progress: Callable[[int, int], Any] | bool | None = ..., **options: Any,
 ) -> list[PolylineFit]: ...
 @overload
 def fit_many(
-    products: ImageProducts, polylines: Iterable[Any], *, search_window_vu: Any,
+    products: ImageProducts, polylines: Iterable[Any], *,
+    search_window_vu: tuple[int, int] = ...,
     workers: int = ..., errors: Literal["collect"],
     progress: Callable[[int, int], Any] | bool | None = ..., **options: Any,
 ) -> list[PolylineFit | Exception]: ...
@@ -542,7 +545,7 @@ def fit_many(
     products: ImageProducts,
     polylines: Iterable[Any],
     *,
-    search_window_vu: Any,
+    search_window_vu: tuple[int, int] = _jobs.DEFAULT_SEARCH_WINDOW_VU,
     workers: int = DEFAULT_WORKERS,
     errors: str = "raise",
     progress: Callable[[int, int], Any] | bool | None = None,
@@ -559,8 +562,9 @@ def fit_many(
         Each item has ``vertices_vu``, ``normals_vu`` and ``sigmas``
         attributes (like :class:`dtalign.scenes.Polyline`) or is a
         ``(vertices_vu, normals_vu, sigmas)`` sequence.
-    search_window_vu : tuple of int
-        Coarse-search margin ``(mv, mu)`` for every polyline.
+    search_window_vu : tuple of int, optional
+        Coarse-search margin ``(mv, mu)`` for every polyline; default
+        ``(30, 30)`` (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
     workers : int, optional
         Threads (default: the CPUs this process may use); 1 fits serially
         (in one thread of the call's pool when called from the main thread).
@@ -827,14 +831,14 @@ def _fit_image(
 
 @overload
 def fit_images(
-    items: Iterable[Any], *, search_window_vu: Any, workers: int = ...,
+    items: Iterable[Any], *, search_window_vu: tuple[int, int] = ..., workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
     errors: Literal["raise"] = ..., progress: Callable[[int, int], Any] | bool | None = ...,
     **options: Any,
 ) -> list[list[PolylineFit]]: ...
 @overload
 def fit_images(
-    items: Iterable[Any], *, search_window_vu: Any, workers: int = ...,
+    items: Iterable[Any], *, search_window_vu: tuple[int, int] = ..., workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
     errors: Literal["collect"], progress: Callable[[int, int], Any] | bool | None = ...,
     **options: Any,
@@ -842,7 +846,7 @@ def fit_images(
 def fit_images(
     items: Iterable[Any],
     *,
-    search_window_vu: Any,
+    search_window_vu: tuple[int, int] = _jobs.DEFAULT_SEARCH_WINDOW_VU,
     workers: int = DEFAULT_WORKERS,
     executor: str | Executor = "thread",
     config: ImageDerivativesConfig | None = None,
@@ -860,8 +864,9 @@ def fit_images(
         ``image`` is an array or a path (loaded in the task with
         :func:`dtalign.io.load_image`), ``noise_sigma`` may be None
         (estimated), ``polylines`` as in :func:`fit_many`.
-    search_window_vu : tuple of int
-        Coarse-search margin for every polyline.
+    search_window_vu : tuple of int, optional
+        Coarse-search margin for every polyline; default ``(30, 30)``
+        (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
     workers : int, optional
         Parallel tasks (default: the CPUs this process may use); 1 runs
         serially (with ``executor="thread"``, as :func:`fit_many`).

@@ -527,11 +527,11 @@ def fit_polyline_products(
     products: ImageProducts,
     vertices_vu: ArrayLike,
     normals_vu: ArrayLike,
-    sigmas: ArrayLike,
+    sigmas: ArrayLike | float,
     *,
-    search_window_vu: Any,
+    search_window_vu: tuple[int, int] = jobs.DEFAULT_SEARCH_WINDOW_VU,
     fit_rotation: bool = False,
-    pivot_vu: Any = None,
+    pivot_vu: tuple[float, float] | None = None,
     pivot_distance_px: float | None = None,
     use_polarity: bool = True,
     trust_region_px: float | None = None,
@@ -563,11 +563,15 @@ def fit_polyline_products(
     normals_vu : array_like, shape (N, 2)
         Unit normals pointing to the bright side of each edge (the polarity
         test accepts a vertex when its normal points up the gradient).
-    sigmas : array_like, shape (N,)
-        Prior one-sigma of each vertex along its normal, pixels, > 0.
-    search_window_vu : tuple of int
+    sigmas : array_like, shape (N,), or float
+        Prior one-sigma of each vertex along its normal, pixels, > 0; a
+        single number applies to every vertex (see the guide's "Choosing
+        the vertex sigmas").
+    search_window_vu : tuple of int, optional
         Coarse-search margin ``(mv, mu)``: every integer shift in
-        ``[-mv, mv] x [-mu, mu]`` is scored.
+        ``[-mv, mv] x [-mu, mu]`` is scored. Default
+        :data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`, ``(30, 30)``,
+        the command line's default too.
     fit_rotation : bool, optional
         Also fit an in-plane rotation about ``pivot_vu``.
     pivot_vu : tuple of float, optional
@@ -614,7 +618,8 @@ def fit_polyline_products(
     """
     seeds = _hypotheses.check_seeds(seeds)
     shared, item = jobs.plan(
-        products, vertices_vu, normals_vu, sigmas, search_window_vu=search_window_vu,
+        products, vertices_vu, normals_vu, jobs.broadcast_sigmas(vertices_vu, sigmas),
+        search_window_vu=search_window_vu,
         fit_rotation=fit_rotation, pivot_vu=pivot_vu, pivot_distance_px=pivot_distance_px,
         lm_options={
             "use_polarity": use_polarity, "max_iterations": max_iterations, "damping": damping,
@@ -639,12 +644,12 @@ def fit_polyline(
     image: ArrayLike,
     vertices_vu: ArrayLike,
     normals_vu: ArrayLike,
-    sigmas: ArrayLike,
+    sigmas: ArrayLike | float,
     *,
-    search_window_vu: Any,
+    search_window_vu: tuple[int, int] = jobs.DEFAULT_SEARCH_WINDOW_VU,
     noise_sigma: float | None = None,
     fit_rotation: bool = False,
-    pivot_vu: Any = None,
+    pivot_vu: tuple[float, float] | None = None,
     pivot_distance_px: float | None = None,
     config: ImageDerivativesConfig | None = None,
     use_polarity: bool = True,
@@ -669,12 +674,15 @@ def fit_polyline(
 
     Parameters
     ----------
-    image : array_like, shape (H, W)
-        The image (any real dtype; converted to float64).
+    image : array_like, shape (H, W), or (H, W, 3 or 4) for colour
+        The image (any real dtype; converted to float64). A colour image is
+        converted as :func:`~dtalign.pipeline.products.prepare_image` says
+        (:mod:`dtalign.api.colour`), and the conversion logged.
     vertices_vu, normals_vu, sigmas
         The model polyline: see :func:`fit_polyline_products`.
-    search_window_vu : tuple of int
-        Coarse-search margin ``(mv, mu)``.
+    search_window_vu : tuple of int, optional
+        Coarse-search margin ``(mv, mu)``; default ``(30, 30)``
+        (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
     noise_sigma : float, optional
         Image noise sigma; estimated by
         :func:`~dtalign.pipeline.products.estimate_noise_sigma` when None.

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..api.checks import check_image, check_noise_sigma, resolve_config
+from ..api.colour import grey_image, log_note
 from ..api.results import ImageDerivativesConfig
 
 __all__ = [
@@ -212,8 +213,11 @@ def prepare_image(
 
     Parameters
     ----------
-    image : array_like, shape (H, W)
-        A finite, non-empty 2-D image.
+    image : array_like, shape (H, W), or (H, W, 3 or 4) for colour
+        A finite, non-empty image. A colour one is converted by the rule of
+        :mod:`dtalign.api.colour` and the conversion logged on the
+        ``dtalign`` logger: equal channels give their grey values (``INFO``),
+        others the luma (``WARNING``: a coloured overlay is fitted too).
     noise_sigma : float, optional
         The image noise sigma, in the image's units. Estimated with
         :func:`estimate_noise_sigma` when None.
@@ -228,12 +232,15 @@ def prepare_image(
     Raises
     ------
     TypeError
-        If ``image`` is not a 2-D numeric array, or ``config`` is not an
+        If ``image`` is not a 2-D (or colour) numeric array, or ``config`` is not an
         :class:`~dtalign.ImageDerivativesConfig`.
     ValueError
         If ``image`` is empty or not finite, or ``noise_sigma`` is negative
         or not finite.
     """
+    # colour: the rule of dtalign.api.colour, said on the logger
+    image, note = grey_image(image)
+    log_note(note)
     try:
         arr = check_image(image)
     except (TypeError, ValueError) as exc:
