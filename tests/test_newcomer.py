@@ -193,3 +193,73 @@ def test_one_documented_default_window_in_python_and_on_the_cli(scene):
     fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas)
     assert fit.search_window_vu == (30, 30)
     assert np.allclose(fit.offset_vu, TRUE, atol=0.2)
+
+
+# --------------------------------------------------------------------------- item 8: small ones
+
+
+def test_json_writes_infinite_sigmas_as_null_and_from_dict_round_trips(scene):
+    import json
+
+    from dtalign.pipeline import PolylineFit
+
+    p = scene.polyline
+    fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(8, 8),
+                       fit_rotation=True, max_iterations=3)  # a circle: rotation sigma inf
+    d = fit.to_dict(arrays=True)
+    text = json.dumps(d, allow_nan=False)  # strict JSON: no Infinity, no NaN
+    assert d["sigma_rotation_rad"] is None and '"inf"' not in text
+    back = PolylineFit.from_dict(json.loads(text))
+    assert back.to_dict(arrays=True) == d
+    assert back.status == fit.status and back.reasons == fit.reasons
+    assert back.sigma_vu == fit.sigma_vu and back.sigma_rotation_rad == fit.sigma_rotation_rad
+    with pytest.raises(ValueError, match="to_dict\\(arrays=True\\)"):
+        PolylineFit.from_dict(fit.to_dict())
+
+
+def test_plot_titles_lead_with_the_status(scene, tmp_path):
+    pytest.importorskip("matplotlib")
+    from dtalign.plotting import plot_fit
+
+    p = scene.polyline
+    bad = fit_polyline(scene.image, p.vertices_vu, -p.normals_vu, p.sigmas, search_window_vu=(8, 8))
+    fig = plot_fit(scene.image, p.vertices_vu, bad)
+    title = fig.axes[0].get_title()
+    assert title.startswith("status FAILED (most_polarity_rejected")
+    assert "no offset measured" in title and "±" not in title.splitlines()[1]
+
+
+def test_bench_exits_1_when_a_row_fails(monkeypatch, capsys):
+    import dtalign.benchmarking as bench
+
+    rows = [{"name": "x", "passed": True}, {"name": "y", "passed": False}]
+    monkeypatch.setattr(bench, "run", lambda *a, **k: {
+        "rows": rows, "total_s": 1.0, "warmup_s": 0.0, "other_load_cores": 0.0,
+        "all_passed": False})
+    monkeypatch.setattr(bench, "format_table", lambda rows: "| table |")
+    assert bench.main(["--quick"]) == 1
+    assert "1 row(s) FAIL: exit status 1" in capsys.readouterr().err
+    assert bench.main(["--quick", "--allow-fail"]) == 0
+    rows[1]["passed"] = True
+    assert bench.main(["--quick"]) == 0
+
+
+def test_quantised_noise_estimate_is_said(caplog):
+    from dtalign.pipeline.products import QUANTISED_NOISE_STEP, quantised_noise_steps
+
+    assert quantised_noise_steps(0.4942) == 2.0  # both Cassini frames' estimate
+    assert QUANTISED_NOISE_STEP * 2 == pytest.approx(0.4942, abs=1e-12)
+    assert quantised_noise_steps(2.006) is None
+    caplog.set_level(logging.INFO, logger="dtalign")
+    rng = np.random.default_rng(0)
+    image = np.round(50.0 + 0.5 * rng.standard_normal((64, 64)))  # 8-bit-like, ~0.5 DN
+    products = prepare_image(image)
+    assert quantised_noise_steps(products.noise_sigma) is not None
+    assert any("MAD of quantised pixels" in r.getMessage() for r in caplog.records)
+
+
+def test_citation_file_names_this_version():
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "CITATION.cff").read_text(encoding="utf-8")
+    assert "cff-version: 1.2.0" in text and f'version: "{dtalign.__version__}"' in text
+    assert "license: BSD-3-Clause" in text

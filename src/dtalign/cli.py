@@ -761,13 +761,13 @@ def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
     return image, poly, fit
 
 
-def _table_single(job: _Job, poly: Any, fit: Any) -> str:
+def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str:
     d = fit.to_dict()
     p = 3 if fit.fit_rotation else 2
     lines = [
         f"image        : {job.image}",
         f"polyline     : {job.polyline} ({len(poly)} vertices)",
-        f"noise sigma  : {fit.noise_sigma:.4g}",
+        f"noise sigma  : {fit.noise_sigma:.4g}{_quantised(fit.noise_sigma) if estimated else ''}",
         f"coarse       : (dv, du) = {fit.coarse_offset_vu}, window ±{fit.search_window_vu}",
         _offset_line(fit),
     ]
@@ -804,6 +804,17 @@ def _table_single(job: _Job, poly: Any, fit: Any) -> str:
                     for k in ("noise", "derivatives", "coarse", "lm", "hypotheses") if k in t)
     )
     return "\n".join(lines)
+
+
+def _quantised(sigma: float) -> str:
+    """A note after a noise estimate that sits on the quantisation floor of integer pixels."""
+    from .pipeline.products import QUANTISED_NOISE_STEP, quantised_noise_steps
+
+    steps = quantised_noise_steps(sigma)
+    if steps is None:
+        return ""
+    return (f" (= {steps:g} x {QUANTISED_NOISE_STEP:.4f}: the MAD of quantised pixels, "
+            f"about {round(sigma, 1):g} DN; --noise-sigma if known)")
 
 
 def _offset_line(fit: Any) -> str:
@@ -878,7 +889,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             failed_fits += fit.failed
             doubtful_fits += str(fit.status) in ("suspect", "ambiguous")
             if not args.json and not batch:
-                stdout.emit(_table_single(job, poly, fit))
+                stdout.emit(_table_single(job, poly, fit, args.noise_sigma is None))
     if args.json:
         stdout.emit(json.dumps(results if batch else results[0], indent=2))
     elif batch:
@@ -910,12 +921,17 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
             continue
 
         def f(x: Any, d: int) -> str:
-            return x if isinstance(x, str) else f"{x:.{d}f}"
+            return "inf" if x is None else f"{x:.{d}f}"  # to_dict's None: not finite
 
         status = r["status"] + (f" ({', '.join(r['reasons'])})" if r["reasons"] else "")
+        # a failed fit's pose is not a measurement: no numbers in its row
+        (dv, du), (sv, su) = (
+            (("-", "-"), ("-", "-")) if r["status"] == "failed"
+            else ((f(r["offset_vu"][0], 3), f(r["offset_vu"][1], 3)),
+                  (f(r["sigma_vu"][0], 4), f(r["sigma_vu"][1], 4))))
         rows.append(
-            f"{name:<{width}} {f(r['offset_vu'][0], 3):>9} {f(r['offset_vu'][1], 3):>9} "
-            f"{f(r['sigma_vu'][0], 4):>8} {f(r['sigma_vu'][1], 4):>8} {r['observable_rank']:>4} "
+            f"{name:<{width}} {dv:>9} {du:>9} "
+            f"{sv:>8} {su:>8} {r['observable_rank']:>4} "
             f"{str(r['inlier_count']) + '/' + str(r['n_vertices']):>9}  {status}"
         )
     return "\n".join(rows)

@@ -1,8 +1,8 @@
-"""Compile the pipeline's kernels ahead of time: :func:`warm_up`.
+"""Compile the pipeline's kernels ahead of time: :func:`dtalign.warm_up`.
 
 Numba compiles each kernel on its first call (about a minute or more on a
 cold cache) and caches the machine code on disk, so only the first process
-pays. :func:`warm_up` makes that first call at a moment of the caller's
+pays. :func:`dtalign.warm_up` makes that first call at a moment of the caller's
 choosing (a service's start, a notebook's first cell, an image build that
 should ship a warm cache), on a small synthetic scene, through the same
 public functions a user calls: every kernel those use is compiled, or

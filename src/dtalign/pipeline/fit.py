@@ -124,7 +124,8 @@ class PolylineFit:
         For an LM that stopped before its step tolerance: how far the pose
         moved over its last iterations, which decides
         :attr:`~dtalign.pipeline.status.FitReason.NOT_CONVERGED`
-        (:func:`settle`); None when the LM converged or was not examined.
+        (:func:`~dtalign.pipeline.fit.settle`); None when the LM converged or was not
+        examined.
 
     Whether to trust the fit is read from these fields by :attr:`status`,
     :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.pipeline.status`);
@@ -152,7 +153,8 @@ class PolylineFit:
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
     hypotheses: tuple[Hypothesis, ...] = field(default=(), repr=False)
     ambiguity: Ambiguity | None = None
-    settling: Settling | None = None
+    # not printed: the status and reasons say what it decided
+    settling: Settling | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("vertices_vu", "normals_vu"):
@@ -394,7 +396,8 @@ class PolylineFit:
             rel = np.column_stack([c * rel[:, 0] - s_ * rel[:, 1], s_ * rel[:, 0] + c * rel[:, 1]])
         return rel + self.pivot_vu + self.offset_vu
 
-    def sigma_along(self, direction_vu: Any, *, scaled: bool = False) -> float:
+    def sigma_along(self, direction_vu: tuple[float, float] | ArrayLike, *,
+                    scaled: bool = False) -> float:
         """One-sigma of the translation projected on a direction ``(v, u)``.
 
         ``sqrt(d^T C d)`` with ``d`` the unit direction and ``C`` the
@@ -450,13 +453,38 @@ class PolylineFit:
                         self.sigma_along(ev)))
         return out
 
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready summary (no per-vertex arrays)."""
+    def to_dict(self, *, arrays: bool = False) -> dict[str, Any]:
+        """A JSON-ready summary; with ``arrays=True``, everything :meth:`from_dict` needs.
 
-        def num(x: float) -> float | str:
-            return x if math.isfinite(x) else ("inf" if x > 0 else "-inf")
+        A value that is not finite is written as ``None`` (JSON ``null``):
+        in practice ``+inf``, the sigma or covariance of a direction the fit
+        does not measure, or the rms of a degenerate fit (JSON has no
+        infinity; the string ``"inf"`` it used to hold is no number).
+
+        Parameters
+        ----------
+        arrays : bool, optional
+            Also write the per-vertex arrays (``vertices_vu``,
+            ``normals_vu``, ``residuals_px``, ``weights``), from which the
+            fit's derived readings (status, sigmas, observable rank) are
+            computed again on loading.
+        """
+
+        def num(x: float) -> float | None:
+            return x if math.isfinite(x) else None
+
+        def hyp(h: Hypothesis) -> dict[str, Any]:
+            return {"source": h.source, "seed_vu": list(h.seed_vu), "offset_vu": list(h.offset_vu),
+                    "rotation_rad": h.rotation_rad, "cost": num(h.cost), "inliers": h.inliers,
+                    "converged": h.converged, "coarse_score": num(h.coarse_score)}
 
         cov = np.asarray(self.lm.covariance)
+        amb = self.ambiguity
+        extra: dict[str, Any] = {}
+        if arrays:
+            extra = {name: np.asarray(getattr(src, name)).tolist() for src, name in (
+                (self, "vertices_vu"), (self, "normals_vu"), (self.lm, "residuals_px"),
+                (self.lm, "weights"))}
         return {
             "offset_vu": [num(x) for x in self.offset_vu],
             "rotation_rad": num(self.rotation_rad),
@@ -475,12 +503,17 @@ class PolylineFit:
                 None if self.ambiguity is None or self.ambiguity.rival is None
                 else [num(x) for x in self.ambiguity.rival.offset_vu]
             ),
-            "hypotheses": [
-                {"source": h.source, "seed_vu": list(h.seed_vu), "offset_vu": list(h.offset_vu),
-                 "rotation_rad": h.rotation_rad, "cost": num(h.cost), "inliers": h.inliers,
-                 "converged": h.converged}
-                for h in self.hypotheses
-            ],
+            "ambiguity": None if amb is None else {
+                "ratio": num(amb.ratio), "rival": None if amb.rival is None else hyp(amb.rival),
+                "ambiguous": amb.ambiguous, "along_unobservable": amb.along_unobservable,
+                "reason": amb.reason,
+            },
+            "settling": None if self.settling is None else {
+                "iterations": self.settling.iterations, "shift_px": num(self.settling.shift_px),
+                "shift_sigmas": num(self.settling.shift_sigmas),
+                "settled": self.settling.settled,
+            },
+            "hypotheses": [hyp(h) for h in self.hypotheses],
             "covariance": [[num(float(x)) for x in row] for row in cov],
             "normal_covariance": [
                 [num(float(x)) for x in row] for row in np.asarray(self.normal_covariance)
@@ -502,8 +535,89 @@ class PolylineFit:
             "n_vertices": int(np.asarray(self.lm.residuals_px).shape[0]),
             "polarity_rejected": self.polarity_rejected_count,
             "tukey_rejected": int(self.tukey_rejected.sum()),
+            "pinvh_rcond": self.pinvh_rcond,
+            "tukey_c": self.tukey_c,
             "timings_s": dict(self.timings_s),
+            **extra,
         }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PolylineFit:
+        """The fit :meth:`to_dict` described, from ``to_dict(arrays=True)`` (or its JSON).
+
+        ``from_dict(fit.to_dict(arrays=True)).to_dict(arrays=True)`` equals
+        ``fit.to_dict(arrays=True)``: the pose, covariance, hypotheses,
+        ambiguity and settling are read back, and the derived readings
+        (status, reasons, sigmas, observable rank) computed again from them
+        and the per-vertex arrays. ``None`` stands for ``+inf`` (``nan`` for
+        a coarse score).
+
+        Raises
+        ------
+        ValueError
+            If ``d`` lacks the per-vertex arrays (a summary written by
+            ``to_dict()`` without ``arrays=True``) or another field.
+        """
+        needed = ("vertices_vu", "normals_vu", "residuals_px", "weights")
+        missing = [k for k in needed if k not in d]
+        if missing:
+            raise ValueError(
+                f"PolylineFit.from_dict needs the per-vertex arrays {missing}: write the dict "
+                "with to_dict(arrays=True)"
+            )
+
+        def inf(x: Any) -> float:
+            return math.inf if x is None else float(x)
+
+        def hyp(h: dict[str, Any]) -> Hypothesis:
+            return Hypothesis(
+                source=h["source"], seed_vu=(int(h["seed_vu"][0]), int(h["seed_vu"][1])),
+                coarse_score=math.nan if h["coarse_score"] is None else float(h["coarse_score"]),
+                offset_vu=(float(h["offset_vu"][0]), float(h["offset_vu"][1])),
+                rotation_rad=float(h["rotation_rad"]), cost=inf(h["cost"]),
+                inliers=int(h["inliers"]), converged=bool(h["converged"]),
+            )
+
+        try:
+            vertices = np.asarray(d["vertices_vu"], dtype=np.float64).reshape(-1, 2)
+            normals = np.asarray(d["normals_vu"], dtype=np.float64).reshape(-1, 2)
+            cov = np.array([[inf(x) for x in row] for row in d["covariance"]], dtype=np.float64)
+            lm = LMRefineResult(
+                offset_vu=(float(d["offset_vu"][0]), float(d["offset_vu"][1])),
+                rotation_rad=float(d["rotation_rad"]), covariance=_readonly(cov),
+                residuals_px=_readonly(np.asarray(d["residuals_px"], dtype=np.float64)),
+                weights=_readonly(np.asarray(d["weights"], dtype=np.float64)),
+                rms_px=inf(d["rms_px"]), raw_rms_px=inf(d["raw_rms_px"]),
+                iterations=int(d["iterations"]), converged=bool(d["converged"]),
+                inlier_count=int(d["inlier_count"]), degenerate=bool(d["degenerate"]),
+                polarity_rejected_count=int(d["polarity_rejected"]),
+            )
+            a = d["ambiguity"]
+            ambiguity = None if a is None else Ambiguity(
+                ratio=inf(a["ratio"]), rival=None if a["rival"] is None else hyp(a["rival"]),
+                ambiguous=bool(a["ambiguous"]), along_unobservable=bool(a["along_unobservable"]),
+                reason=str(a["reason"]),
+            )
+            st = d["settling"]
+            settling = None if st is None else Settling(
+                int(st["iterations"]), inf(st["shift_px"]), inf(st["shift_sigmas"]),
+                bool(st["settled"]))
+            return cls(
+                offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad,
+                coarse_offset_vu=(int(d["coarse_offset_vu"][0]), int(d["coarse_offset_vu"][1])),
+                at_window_edge=bool(d["at_window_edge"]), lm=lm,
+                search_window_vu=(int(d["search_window_vu"][0]), int(d["search_window_vu"][1])),
+                fit_rotation=bool(d["fit_rotation"]),
+                pivot_vu=(float(d["pivot_vu"][0]), float(d["pivot_vu"][1])),
+                pivot_distance_px=float(d["pivot_distance_px"]),
+                noise_sigma=float(d["noise_sigma"]), vertices_vu=vertices, normals_vu=normals,
+                pinvh_rcond=float(d["pinvh_rcond"]), tukey_c=float(d["tukey_c"]),
+                timings_s={str(k): float(v) for k, v in d["timings_s"].items()},
+                hypotheses=tuple(hyp(h) for h in d["hypotheses"]), ambiguity=ambiguity,
+                settling=settling,
+            )
+        except KeyError as exc:
+            raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
 
     # Printing: field-generic (see dtalign.api.results), arrays summarised.
     _SUMMARY_EXTRA = ("sigma_vu", "sigma_rotation_rad", "observable_rank", "status", "reasons")

@@ -179,6 +179,69 @@ SEVERITY: dict[FitReason, FitStatus] = {
 
 _ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.AMBIGUOUS, FitStatus.FAILED)
 
+#: What each status tells the caller, one sentence: the documentation's
+#: status table (``docs/status.rst``) is generated from this and the enums.
+STATUS_MEANING: dict[FitStatus, str] = {
+    FitStatus.OK: "the pose is a measurement; the fit may carry notes (reasons whose "
+    "status is ``ok``).",
+    FitStatus.SUSPECT: "the pose is a measurement that should be checked. No reason of "
+    "this version implies it (``most_polarity_rejected`` did, and is now ``failed``); "
+    "kept so that filters and stores of earlier versions stay valid.",
+    FitStatus.AMBIGUOUS: "another basin across the edge fits the image about as well: "
+    "the pose may be the wrong one of two.",
+    FitStatus.FAILED: "the pose is not a measurement of the image: do not use it.",
+}
+
+#: What each reason means and what to do, one or two sentences, in the
+#: order a fit lists them: the documentation's reasons table is generated
+#: from this, :data:`SEVERITY` and the enum.
+REASON_MEANING: dict[FitReason, str] = {
+    FitReason.ALL_POLARITY_REJECTED: "no vertex's normal points up the image gradient: the "
+    "normals point the wrong way (flip them), or there is no gradient under the polyline "
+    "at all (outside the image). Comes with ``degenerate``.",
+    FitReason.MOST_POLARITY_REJECTED: "more than half of the vertices see the gradient the "
+    "wrong way: are the normals pointing to the bright side? (Or the polyline lies on the "
+    "wrong edge.) The pose rests on the few vertices that happened to agree.",
+    FitReason.DEGENERATE: "no vertex kept any weight; the pose is the coarse seed, the "
+    "covariance ``inf``. The polyline may be outside the image, no edge may lie near it, "
+    "or the noise sigma may be so high that no edge passed the threshold.",
+    FitReason.AT_WINDOW_EDGE: "the coarse seed is on the boundary of the search window: "
+    "the true offset may lie outside it. Widen ``search_window_vu`` (``--window``).",
+    FitReason.AMBIGUOUS: "a rival basin across the edge (another coarse peak, or the DT "
+    "cost's competing basin) costs less than 1.5 times this one: two parallel edges of "
+    "one polarity, a decoy edge. See :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.",
+    FitReason.NOT_CONVERGED: "the pose has not settled: the LM stopped before its step "
+    "tolerance and its pose still moved more than 0.25 sigma over its last 5 iterations. "
+    "Raise ``max_iterations``. See `Converged, settled, and the iteration cap`_.",
+    FitReason.AMBIGUOUS_ALONG_EDGE: "the rival basin lies along a direction the fit cannot "
+    "observe (a straight edge's along-edge shift): ambiguous along the edge, which its "
+    "``inf`` sigma there already says, not across it.",
+    FitReason.RANK_DEFICIENT: "the geometry leaves a pose direction unmeasured (a straight "
+    "edge: the along-edge shift; a circle: its rotation). The sigmas along it are ``inf``.",
+}
+
+
+def _doc_tables() -> str:
+    """The documentation's status and reason tables, as reStructuredText.
+
+    Written to ``docs/_generated/status_tables.rst`` by the Sphinx
+    configuration at each build (and compared with that file by
+    ``tests/test_docs_status.py``), so the page lists exactly the enums'
+    members, in their order, with their :data:`SEVERITY`.
+    """
+    lines = [".. list-table::", "   :header-rows: 1", "   :widths: 15 85", "",
+             "   * - status", "     - meaning"]
+    for status in FitStatus:
+        lines += [f"   * - ``{status.value}``", f"     - {STATUS_MEANING[status]}"]
+    lines += ["", ".. list-table::", "   :header-rows: 1", "   :widths: 25 12 63", "",
+              "   * - reason", "     - status", "     - meaning"]
+    for reason in FitReason:
+        severity = SEVERITY[reason]
+        cell = f"``{severity.value}``" if severity is not FitStatus.OK else "note (``ok``)"
+        lines += [f"   * - ``{reason.value}``", f"     - {cell}",
+                  f"     - {REASON_MEANING[reason]}"]
+    return "\n".join(lines) + "\n"
+
 
 def _n_vertices(fit: Any) -> int:
     return int(fit.lm.residuals_px.shape[0])
