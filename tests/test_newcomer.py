@@ -263,3 +263,16 @@ def test_citation_file_names_this_version():
     text = (root / "CITATION.cff").read_text(encoding="utf-8")
     assert "cff-version: 1.2.0" in text and f'version: "{dtalign.__version__}"' in text
     assert "license: BSD-3-Clause" in text
+
+
+def test_the_issues_flipped_demo_disc_is_failed_not_ambiguous():
+    """Issue 30.1 as written: disc_scene(seed=2) with its normals negated was
+    ``ambiguous`` at (0, 0) with 1 inlier; it is ``failed``, the polarity
+    reason first."""
+    s = scenes.disc_scene(seed=2)
+    p = s.polyline
+    fit = fit_polyline(s.image, p.vertices_vu, -p.normals_vu, p.sigmas, search_window_vu=(30, 30))
+    assert fit.status == "failed"
+    assert str(fit.reasons[0]) == "most_polarity_rejected"
+    assert fit.status_message.startswith(
+        "failed: most vertices see the gradient the wrong way")
