@@ -129,8 +129,9 @@ def run(
     _progress("warming up (compiling or loading the Numba cache) ...")
     warm_s = warm_up(names or ["lm_n200"], inputs)
     rows: list[dict[str, Any]] = []
-    # The synthetic fits stop at the iteration cap (status "suspect"): their
-    # warnings would flood the table's output, and are not what is timed.
+    # Some timed fits are flagged on purpose (the outlier and window
+    # variants): their warnings would flood the table's output, and are not
+    # what is timed.
     log = logging.getLogger("dtalign")
     level = log.level
     log.setLevel(logging.ERROR)

@@ -365,14 +365,16 @@ class PolylineFit:
 
     @property
     def status(self) -> FitStatus:
-        """``"ok"``, ``"suspect"`` or ``"failed"`` (:class:`~dtalign.pipeline.status.FitStatus`).
+        """``"ok"``, ``"ambiguous"`` or ``"failed"`` (:class:`~dtalign.pipeline.status.FitStatus`).
 
         The worst severity among :attr:`reasons`: ``failed`` when the pose is
-        not a measurement (degenerate, every vertex polarity-rejected, seed
-        on the window edge); ``suspect`` when it should be checked (most
-        vertices polarity-rejected); ``ok`` otherwise, with notes in
-        :attr:`reasons` for a fit that stopped before converging or that
-        is rank-deficient (its unobservable sigmas are ``inf``).
+        not a measurement (most or all vertices polarity-rejected, degenerate,
+        seed on the window edge); ``ambiguous`` when a rival basin across
+        the edge fits about as well; ``ok`` otherwise, with notes in
+        :attr:`reasons` for a pose that has not settled or that is
+        rank-deficient (its unobservable sigmas are ``inf``). (``suspect``
+        remains a :class:`~dtalign.pipeline.status.FitStatus` value for
+        older stores; no reason implies it now.)
         """
         return _status.fit_status(_status.fit_problems(self))
 
