@@ -99,6 +99,7 @@ def coverage(session: nox.Session) -> None:
     # run would time Python, not the package.
     session.run(
         "python", "-m", "coverage", "run", "--append", "--source=dtalign",
-        "-m", "dtalign.benchmarking", "--quick",
+        # coverage's tracing slows the timed code: its ratios are not the point here
+        "-m", "dtalign.benchmarking", "--quick", "--allow-fail",
     )
     session.run("python", "-m", "coverage", "report", "--show-missing")

@@ -281,7 +281,7 @@ def test_overlay_then_fit_a_cassini_frame(capsys, tmp_path):
         pytest.skip("Cassini frames not present")
     img, csv = tmp_path / "t.npy", tmp_path / "t.csv"
     code, out, err = run(
-        capsys, "overlay", str(png), "--shape", "limb", "--displace", "6", "-4",
+        capsys, "overlay", str(png), "--shape", "limb", "--displace", "6,-4",
         "--image", str(img), "--polyline", str(csv),
     )
     assert code == 0, err

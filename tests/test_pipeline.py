@@ -306,8 +306,9 @@ def test_image_and_products_validation(small):
     p = small.polyline
     with pytest.raises(TypeError, match="products must be an ImageProducts"):
         fit_polyline_products(small.image, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(1, 1))
+    # (H, W, 3 or 4) is a colour image, converted since issue 30; (H, W, 2) is not an image
     with pytest.raises(TypeError, match="image must be 2-D"):
-        fit_polyline(np.zeros((4, 4, 4)), p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(1, 1))
+        fit_polyline(np.zeros((4, 4, 2)), p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(1, 1))
     with pytest.raises(ValueError, match="image must not be empty"):
         prepare_image(np.zeros((0, 5)))
     with pytest.raises(ValueError, match="noise_sigma must be finite and >= 0"):

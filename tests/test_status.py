@@ -60,9 +60,12 @@ def test_a_clean_fit_is_ok_and_logs_nothing(products, scene, caplog):
     caplog.set_level(logging.WARNING, logger="dtalign")
     fit = _fit(products, scene)
     assert fit.status == "ok" and fit.status is FitStatus.OK and not fit.failed
-    # the LM ends at its damping bound on this small disc: a note, not a problem
-    assert fit.reasons == (FitReason.NOT_CONVERGED,)
-    assert fit.status_message.startswith("ok: not converged")
+    # the LM ends at its damping bound on this small disc, but its pose has
+    # settled there: no reason (issue 30: not_converged means "not settled")
+    assert not fit.converged and fit.settled
+    assert fit.settling is not None and fit.settling.shift_sigmas <= 0.25
+    assert fit.reasons == ()
+    assert fit.status_message == "ok"
     assert not _warnings(caplog)
     assert np.allclose(fit.offset_vu, TRUE, atol=0.1)
 
@@ -111,15 +114,20 @@ def test_noise_sigma_so_high_no_edge_survives_fails(scene, caplog):
     assert len(_warnings(caplog)) == 1
 
 
-def test_most_vertices_polarity_rejected_is_suspect_with_the_normals_hint(products, scene, caplog):
+def test_most_vertices_polarity_rejected_fails_with_the_normals_reason_first(
+        products, scene, caplog):
+    # issue 30: was "suspect"; a fit whose polarity test rejects most
+    # vertices is failed, and the polarity reason comes first
     caplog.set_level(logging.WARNING, logger="dtalign")
     normals = scene.polyline.normals_vu.copy()
     normals[:70] *= -1.0
     fit = _fit(products, scene, normals=normals)
-    assert fit.status == "suspect" and not fit.failed
-    assert FitReason.MOST_POLARITY_REJECTED in fit.reasons
-    assert "70 of 100 vertices polarity-rejected" in fit.status_message
-    assert "normals may point the wrong way" in _warnings(caplog)[0].getMessage()
+    assert fit.status == "failed" and fit.failed
+    assert fit.reasons[0] is FitReason.MOST_POLARITY_REJECTED
+    assert "70 of 100 polarity-rejected" in fit.status_message
+    assert fit.status_message.startswith(
+        "failed: most vertices see the gradient the wrong way")
+    assert "are the normals pointing to the bright side?" in _warnings(caplog)[0].getMessage()
 
 
 def test_seed_on_the_window_edge_fails(products, scene, caplog):
@@ -133,9 +141,9 @@ def test_seed_on_the_window_edge_fails(products, scene, caplog):
 def test_not_converged_is_a_note_logged_at_info(products, scene, caplog):
     caplog.set_level(logging.INFO, logger="dtalign")
     fit = _fit(products, scene, max_iterations=2)
-    assert not fit.converged
+    assert not fit.converged and not fit.settled
     assert fit.reasons == (FitReason.NOT_CONVERGED,) and fit.status == "ok"
-    assert "2 iterations" in fit.status_message
+    assert "last 2 of 2 iterations" in fit.status_message
     assert not _warnings(caplog)
     assert any(r.levelno == logging.INFO and "not converged" in r.getMessage()
                for r in caplog.records)
@@ -164,7 +172,8 @@ def test_status_values_are_documented_strings():
 def test_to_dict_carries_the_status(products, scene):
     d = _fit(products, scene, normals=np.zeros_like(scene.polyline.normals_vu)).to_dict()
     assert d["status"] == "failed"
-    assert d["reasons"] == ["degenerate", "all_polarity_rejected"]
+    # the likeliest cause first (issue 30)
+    assert d["reasons"] == ["all_polarity_rejected", "degenerate"]
     json.dumps(d)
 
 
@@ -312,16 +321,35 @@ def test_cli_batch_exits_3_with_the_reason_on_the_fit_line(files):
     rows = [line for line in proc.stdout.splitlines() if line.startswith("disc.npy")]
     assert len(rows) == 2
     assert rows[0].split("  ")[-1].startswith("ok")
-    assert "failed (degenerate, all_polarity_rejected)" in rows[1]
+    assert "failed (all_polarity_rejected, degenerate)" in rows[1]
 
 
-def test_cli_exits_4_when_a_fit_is_suspect(files):
+def test_cli_exits_3_when_the_normals_are_flipped(files):
     """Flipped normals: the polarity-weighted seed finds a shift where a few
-    vertices agree, so a pose is measured, but most vertices are rejected."""
+    vertices agree, but most vertices are rejected. Issue 30: this was
+    ``suspect`` (exit 4); the pose is not a measurement, so it is ``failed``
+    (exit 3), the polarity reason first and no offset presented."""
     proc = _python_m("fit", "disc.npy", "flipped.csv", "--window", "8", cwd=files)
+    assert proc.returncode == 3, proc.stderr
+    assert "fit failed: most vertices see the gradient the wrong way" in proc.stderr
+    assert "are the normals pointing to the bright side?" in proc.stderr
+    (offset,) = [line for line in proc.stdout.splitlines() if line.startswith("offset")]
+    assert "not measured" in offset and "±" not in offset
+
+
+def test_cli_exits_4_when_a_fit_is_ambiguous(tmp_path):
+    """Two parallel edges of one polarity: a rival basin fits as well."""
+    from dtalign.robustness import parallel_rings
+
+    sc = parallel_rings(0)
+    np.save(tmp_path / "rings.npy", sc.image)
+    save_polyline_csv(tmp_path / "rings.csv", sc.polyline)
+    proc = _python_m("fit", "rings.npy", "rings.csv", "--no-polarity", cwd=tmp_path)
     assert proc.returncode == 4, proc.stderr
-    assert "polarity-rejected" in proc.stderr and "wrong way" in proc.stderr
     assert "suspect or ambiguous" in proc.stderr
+    # the status names itself once (issue 30: "ambiguous: ambiguous: a rival ...")
+    (status,) = [line for line in proc.stdout.splitlines() if line.startswith("status")]
+    assert "ambiguous: a rival basin" in status and "ambiguous: ambiguous" not in status
 
 
 def test_cli_exits_0_for_a_sound_fit(files):

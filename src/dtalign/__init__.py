@@ -72,6 +72,7 @@ _LAZY: dict[str, str] = {
     "fit_polyline": ".pipeline.fit",
     "fit_polyline_products": ".pipeline.fit",
     "prepare_image": ".pipeline.products",
+    "warm_up": ".warmup",
 }
 
 #: Private names today's techniques import (SPEC section 8.6): importable,
@@ -154,3 +155,4 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         observable_rank,
     )
     from .pipeline.products import ImageProducts, estimate_noise_sigma, prepare_image
+    from .warmup import warm_up

@@ -73,6 +73,36 @@ CACHE_FORMAT = "dtalign-sha256-1"
 #: Length of the SHA-256 digest that prefixes each checked payload.
 _DIGEST_SIZE = hashlib.sha256().digest_size
 
+#: Logged once per process on the ``dtalign`` logger at INFO when the first
+#: kernel is about to compile (a cache miss): from Python, a first call
+#: otherwise sits silent for the whole compilation and looks hung.
+COMPILE_NOTICE = (
+    "compiling dtalign's kernels for first use (about 1-3 minutes, once: the machine code "
+    "is then cached on disk; dtalign.warm_up() does it ahead of time) ..."
+)
+
+#: Callables given the notice too, while registered (a progress bar's writer).
+compile_listeners: list[Any] = []
+
+_announced = False
+
+
+def announce_compile() -> None:
+    """Log :data:`COMPILE_NOTICE` at INFO, the first time in this process only,
+    and hand it to each of :data:`compile_listeners`."""
+    global _announced
+    with _reported_lock:
+        if _announced:
+            return
+        _announced = True
+    logger.info("%s", COMPILE_NOTICE)
+    for listener in list(compile_listeners):
+        try:
+            listener(COMPILE_NOTICE)
+        except Exception:  # a display's failure must not stop the compile
+            logger.debug("compile notice listener %r failed", listener, exc_info=True)
+
+
 #: (kind, folder) pairs already logged at WARNING in this process.
 _reported: set[tuple[str, str]] = set()
 _reported_lock = threading.Lock()
@@ -271,10 +301,13 @@ class CheckedFunctionCache(_FunctionCache):  # type: ignore[misc, valid-type]
 
     def load_overload(self, sig: Any, target_context: Any) -> Any:
         try:
-            return super().load_overload(sig, target_context)
+            data = super().load_overload(sig, target_context)
         except Exception as exc:  # e.g. LLVM cannot parse a bitcode that passed the checksum
             self._cache_file._damaged(exc)
-            return None
+            data = None
+        if data is None:  # a miss: Numba compiles next
+            announce_compile()
+        return data
 
     def save_overload(self, sig: Any, data: Any) -> None:
         try:
@@ -300,6 +333,10 @@ class UncachedFunctionCache(_NullCache):  # type: ignore[misc, valid-type]
     def __init__(self, py_func: Any, reason: str) -> None:
         self._py_func = py_func
         self._reason = reason
+
+    def load_overload(self, sig: Any, target_context: Any) -> Any:
+        announce_compile()  # nothing to load: every first call compiles
+        return None
 
     def save_overload(self, sig: Any, data: Any) -> None:
         source_dir = os.path.dirname(os.path.abspath(self._py_func.__code__.co_filename))

@@ -76,6 +76,22 @@ COMPILE_NOTICE = (
     "the machine code is then cached on disk) ..."
 )
 
+#: The ``fit`` search margin unless ``--window`` says otherwise (px): the
+#: same value as the Python pipeline's default,
+#: ``dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`` (a test holds them equal;
+#: not imported here so that building the parser stays light).
+DEFAULT_WINDOW_PX = 30
+
+#: Options that take a pair of numbers, per subcommand: one style
+#: everywhere, the two numbers joined by a comma (``--displace 3,-2``).
+PAIR_OPTIONS: dict[str, frozenset[str]] = {
+    "demo": frozenset({"--zoom"}),
+    "fit": frozenset({"--window", "--zoom"}),
+    "overlay": frozenset({"--displace"}),
+}
+
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
 #: Half-size of a ``--zoom`` panel unless ``--zoom-half`` says otherwise (px):
 #: wide enough to show the edge and the model's residual at a glance.
 DEFAULT_ZOOM_HALF_PX = 20.0
@@ -272,11 +288,12 @@ def _compile_notice(messages: _Messages) -> None:
         messages.say(COMPILE_NOTICE)
 
 
-def _pair_arg(text: str, option: str, kind: Callable[[str], Any] = float) -> tuple[Any, Any]:
+def _pair_arg(text: str, option: str, kind: Callable[[str], Any] = float,
+              example: str = "120,340") -> tuple[Any, Any]:
     """``"A,B"`` -> ``(A, B)`` for options such as ``--zoom V,U``."""
     parts = text.split(",")
     if len(parts) != 2:
-        raise CLIError(f"{option} takes two numbers separated by a comma (e.g. 120,340), got {text!r}")
+        raise CLIError(f"{option} takes two numbers separated by a comma (e.g. {example}), got {text!r}")
     try:
         return kind(parts[0]), kind(parts[1])
     except ValueError:
@@ -369,9 +386,10 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     fit.add_argument("--glob", metavar="PATTERN", help="images matching PATTERN (quote it)")
     fit.add_argument(
         "--window",
-        default="30",
-        metavar="N[,M]",
-        help="search margin in px: N for both axes, or V,U (e.g. 30,20); default 30",
+        default=str(DEFAULT_WINDOW_PX),
+        metavar="N|V,U",
+        help="search margin in px: N for both axes, or V,U (e.g. 30,20); "
+        f"default {DEFAULT_WINDOW_PX}, as in Python",
     )
     fit.add_argument("--noise-sigma", type=float, help="image noise sigma (default: estimated)")
     fit.add_argument("--rotation", action="store_true", help="also fit an in-plane rotation")
@@ -400,11 +418,10 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     overlay.add_argument("--polyline", required=True, metavar="OUT.csv", help="write the polyline here")
     overlay.add_argument(
         "--displace",
-        type=float,
-        nargs=2,
-        default=(0.0, 0.0),
-        metavar=("DV", "DU"),
-        help="move the model by -(DV, DU): a correct fit then returns about (DV, DU)",
+        default="0,0",
+        metavar="DV,DU",
+        help="move the model by -(DV, DU), e.g. --displace 3,-2: a correct fit then returns "
+        "about (DV, DU)",
     )
 
     bench = sub.add_parser(
@@ -524,12 +541,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             )
         lines.append(
             f"LM        : {fit.lm.iterations} iterations (cap {DEFAULT_LM_MAX_ITERATIONS}), "
-            f"converged={fit.converged}, rms {_fmt(fit.rms_px)} px, "
+            f"{_settled_text(fit)}, rms {_fmt(fit.rms_px)} px, "
             f"inliers {fit.inlier_count}/{len(poly)}"
         )
-        if not fit.converged:
-            lines.append("            (it stopped at the cap before an accepted step fell below "
-                         "0.001 px: the pose is the best found; see the docs)")
         lines += [
             f"status    : {fit.status}"
             + (f" ({', '.join(map(str, fit.reasons))})" if fit.reasons else ""),
@@ -542,6 +556,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         _plot(scene.image, poly.vertices_vu, fit, args.plot, "demo", zooms, args.zoom_half, messages)
     stdout.close(messages)
     return 0
+
+
+def _settled_text(fit: Any) -> str:
+    """How the LM ended, in a few words: converged, settled, or still moving."""
+    if fit.converged:
+        return "converged"
+    s = fit.settling
+    if s is None:
+        return "not converged"
+    if s.settled:
+        return f"settled (moved {s.shift_px:.2g} px over its last {s.iterations})"
+    return f"NOT settled (moved {s.shift_px:.3g} px over its last {s.iterations})"
 
 
 def _save_demo(scene: Any, folder: Path, args: argparse.Namespace, messages: _Messages) -> None:
@@ -710,11 +736,14 @@ def _window(text: str) -> tuple[int, int]:
     return (values[0], values[0]) if len(values) == 1 else (values[0], values[1])
 
 
-def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int]) -> tuple[Any, Any, Any]:
+def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
+             messages: _Messages) -> tuple[Any, Any, Any]:
     import dtalign.io as io
     import dtalign.pipeline as pipeline
 
-    image = io.load_image(job.image)
+    image, colour = io.read_image(job.image)
+    if colour is not None:  # the library's rule (dtalign.api.colour), said here
+        messages.say(f"{PROG}: {'warning' if colour.luma else 'note'}: {colour.text}")
     poly = io.load_polyline_csv(job.polyline)
     fit = pipeline.fit_polyline(
         image,
@@ -732,13 +761,13 @@ def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int]) -> tu
     return image, poly, fit
 
 
-def _table_single(job: _Job, poly: Any, fit: Any) -> str:
+def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str:
     d = fit.to_dict()
     p = 3 if fit.fit_rotation else 2
     lines = [
         f"image        : {job.image}",
         f"polyline     : {job.polyline} ({len(poly)} vertices)",
-        f"noise sigma  : {fit.noise_sigma:.4g}",
+        f"noise sigma  : {fit.noise_sigma:.4g}{_quantised(fit.noise_sigma) if estimated else ''}",
         f"coarse       : (dv, du) = {fit.coarse_offset_vu}, window ±{fit.search_window_vu}",
         _offset_line(fit),
     ]
@@ -755,7 +784,7 @@ def _table_single(job: _Job, poly: Any, fit: Any) -> str:
         f"observable   : {obs}",
         f"fit quality  : rms {_fmt(fit.rms_px)} px, inliers {fit.inlier_count}/{len(poly)}, "
         f"polarity-rejected {d['polarity_rejected']}, Tukey-rejected {d['tukey_rejected']}",
-        f"LM           : {fit.lm.iterations} iterations, converged={fit.converged}, "
+        f"LM           : {fit.lm.iterations} iterations, {_settled_text(fit)}, "
         f"degenerate={fit.degenerate}",
     ]
     lines.append(f"status       : {fit.status_message}")
@@ -777,6 +806,17 @@ def _table_single(job: _Job, poly: Any, fit: Any) -> str:
     return "\n".join(lines)
 
 
+def _quantised(sigma: float) -> str:
+    """A note after a noise estimate that sits on the quantisation floor of integer pixels."""
+    from .pipeline.products import QUANTISED_NOISE_STEP, quantised_noise_steps
+
+    steps = quantised_noise_steps(sigma)
+    if steps is None:
+        return ""
+    return (f" (= {steps:g} x {QUANTISED_NOISE_STEP:.4f}: the MAD of quantised pixels, "
+            f"about {round(sigma, 1):g} DN; --noise-sigma if known)")
+
+
 def _offset_line(fit: Any) -> str:
     """The main line: the offset where the fit observes it, with the rank.
 
@@ -787,6 +827,10 @@ def _offset_line(fit: Any) -> str:
     (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
     if fit.degenerate:
         return f"offset       : none measured (degenerate; the coarse seed is {fit.coarse_offset_vu})"
+    if fit.failed:
+        # a failed fit's pose is where the LM stopped, not a measurement: no sigma
+        return (f"offset       : not measured (status failed: see below); the LM stopped at "
+                f"({_fmt(dv, 2)}, {_fmt(du, 2)})")
     observed = fit.observable_offset()
     if len(observed) == 2 and math.isfinite(sv) and math.isfinite(su):
         return (f"offset       : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± "
@@ -822,7 +866,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         for job in progress:
             _log_label(str(job.image))
             try:
-                image, poly, fit = _fit_one(job, args, window)
+                image, poly, fit = _fit_one(job, args, window, messages)
                 if plot_path is not None:
                     out = plot_path
                     if batch:
@@ -845,7 +889,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             failed_fits += fit.failed
             doubtful_fits += str(fit.status) in ("suspect", "ambiguous")
             if not args.json and not batch:
-                stdout.emit(_table_single(job, poly, fit))
+                stdout.emit(_table_single(job, poly, fit, args.noise_sigma is None))
     if args.json:
         stdout.emit(json.dumps(results if batch else results[0], indent=2))
     elif batch:
@@ -877,12 +921,17 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
             continue
 
         def f(x: Any, d: int) -> str:
-            return x if isinstance(x, str) else f"{x:.{d}f}"
+            return "inf" if x is None else f"{x:.{d}f}"  # to_dict's None: not finite
 
         status = r["status"] + (f" ({', '.join(r['reasons'])})" if r["reasons"] else "")
+        # a failed fit's pose is not a measurement: no numbers in its row
+        (dv, du), (sv, su) = (
+            (("-", "-"), ("-", "-")) if r["status"] == "failed"
+            else ((f(r["offset_vu"][0], 3), f(r["offset_vu"][1], 3)),
+                  (f(r["sigma_vu"][0], 4), f(r["sigma_vu"][1], 4))))
         rows.append(
-            f"{name:<{width}} {f(r['offset_vu'][0], 3):>9} {f(r['offset_vu'][1], 3):>9} "
-            f"{f(r['sigma_vu'][0], 4):>8} {f(r['sigma_vu'][1], 4):>8} {r['observable_rank']:>4} "
+            f"{name:<{width}} {dv:>9} {du:>9} "
+            f"{sv:>8} {su:>8} {r['observable_rank']:>4} "
             f"{str(r['inlier_count']) + '/' + str(r['n_vertices']):>9}  {status}"
         )
     return "\n".join(rows)
@@ -896,6 +945,7 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
 def _cmd_overlay(args: argparse.Namespace) -> int:
     if args.n_lines < 1:
         raise CLIError(f"--n-lines must be >= 1, got {args.n_lines}")
+    _pair_arg(args.displace, "--displace", example="3,-2")  # before any file is written
     _check_output_file(args.image, "--image")
     _check_output_file(args.polyline, "--polyline")
 
@@ -908,8 +958,11 @@ def _cmd_overlay(args: argparse.Namespace) -> int:
     frame = load_cassini_overlay_frame(args.png)
     lines = overlay_polylines(frame, shape=args.shape, n_lines=args.n_lines)
     model = concatenate_polylines(lines, name=Path(args.png).stem)
+    displace = _pair_arg(args.displace, "--displace", example="3,-2")
+    if not all(math.isfinite(x) for x in displace):
+        raise CLIError(f"--displace must be finite, got {args.displace!r}")
     moved = Polyline(
-        model.name, model.vertices_vu - np.asarray(args.displace), model.normals_vu, model.sigmas
+        model.name, model.vertices_vu - np.asarray(displace), model.normals_vu, model.sigmas
     )
     np.save(args.image, frame.image)
     save_polyline_csv(args.polyline, moved)
@@ -939,6 +992,37 @@ def _cmd_archive(args: argparse.Namespace) -> int:
     return archive_cli.command(args)
 
 
+def _pairs_joined(command: str, argv: list[str], parser: argparse.ArgumentParser) -> list[str]:
+    """``argv`` with each pair option's value attached (``--displace=-2,3``), or a usage error.
+
+    A pair is one word, its numbers joined by a comma (:data:`PAIR_OPTIONS`).
+    Attaching the value lets it start with a minus sign, which argparse
+    would otherwise read as an option. Two numbers given as two words
+    (``--displace 3 -2``, ``--window 30 20``) are refused with the form to
+    use, instead of argparse's or the file pairing's own, misleading, error.
+    """
+    options = PAIR_OPTIONS.get(command, frozenset())
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        word = argv[i]
+        if word in options and i + 1 < len(argv) and not argv[i + 1].startswith("--"):
+            value = argv[i + 1]
+            after = argv[i + 2] if i + 2 < len(argv) else None
+            if (_NUMBER.fullmatch(value) and after is not None and _NUMBER.fullmatch(after)
+                    and not os.path.exists(after)):
+                parser.error(
+                    f"{word} takes its two numbers as one word, joined by a comma: "
+                    f"write {word} {value},{after}, not {word} {value} {after}"
+                )
+            out.append(f"{word}={value}")
+            i += 2
+            continue
+        out.append(word)
+        i += 1
+    return out
+
+
 def _parse(argv: list[str]) -> argparse.Namespace | int:
     """The parsed arguments, or an exit status (help, version, usage error).
 
@@ -955,7 +1039,9 @@ def _parse(argv: list[str]) -> argparse.Namespace | int:
         else:
             args = parser.parse_args(argv[:where])
             if not args.version:
-                args = commands[argv[where]].parse_intermixed_args(argv[where + 1 :])
+                command = commands[argv[where]]
+                rest = _pairs_joined(argv[where], argv[where + 1 :], command)
+                args = command.parse_intermixed_args(rest)
                 args.command, args.version = argv[where], False
     except SystemExit as exc:  # argparse printed help or its usage error
         return int(exc.code or 0)

@@ -11,14 +11,18 @@ machine and never changes the caller's pyplot backend or state. Pass
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .api import checks as check
 from .api.constants import POLARITY_PENALTY_RESIDUAL
+
+if TYPE_CHECKING:
+    from .pipeline.fit import PolylineFit
 
 __all__ = ["plot_fit", "plot_residual_histogram"]
 
@@ -66,14 +70,14 @@ def _ellipse_points(cov: np.ndarray, scale: float, n: int = 200) -> np.ndarray:
 def plot_fit(
     image: ArrayLike,
     vertices_vu: ArrayLike,
-    fit: Any,
+    fit: PolylineFit,
     path: str | Path | None = None,
     *,
     ax: Any = None,
     title: str | None = None,
     margin_px: float = 20.0,
     ellipse_scale: float | None = None,
-    zoom_vu: Any = None,
+    zoom_vu: Sequence[tuple[float, float]] | None = None,
     zoom_half_px: float = 20.0,
     figsize: tuple[float, float] = (8.0, 7.0),
     dpi: int = 110,
@@ -234,7 +238,17 @@ def _rectangle(u: float, v: float, size: float) -> Any:
 def _summary(fit: Any) -> str:
     dv, du = fit.offset_vu
     sv, su = fit.sigma_vu
-    text = f"offset (dv, du) = ({dv:.3f} ± {sv:.3f}, {du:.3f} ± {su:.3f}) px"
+    # the status leads: a picture of a failed fit must not read as a result
+    status = getattr(fit, "status", None)
+    reasons = tuple(getattr(fit, "reasons", ()))
+    text = ""
+    if status is not None:
+        label = str(status).upper() if str(status) != "ok" else "ok"
+        text = f"status {label}" + (f" ({', '.join(map(str, reasons))})" if reasons else "") + "\n"
+    if str(status) == "failed":
+        text += f"no offset measured (the LM stopped at ({dv:.2f}, {du:.2f}))"
+    else:
+        text += f"offset (dv, du) = ({dv:.3f} ± {sv:.3f}, {du:.3f} ± {su:.3f}) px"
     if fit.fit_rotation:
         text += f", rotation {fit.rotation_rad:.5f} rad"
     text += f"\ncoarse seed {fit.coarse_offset_vu}, rms {fit.rms_px:.3f} px, "
@@ -275,7 +289,7 @@ def _draw_covariance(
 
 
 def plot_residual_histogram(
-    fit: Any,
+    fit: PolylineFit,
     path: str | Path | None = None,
     *,
     ax: Any = None,

@@ -671,7 +671,7 @@ def plain_fit(scene: HardScene) -> Any:
     """The plain one-call pipeline on a scene: :func:`dtalign.pipeline.fit_polyline`.
 
     With the scene's window, noise sigma and polarity setting, every other
-    option at its default. The result's ``status`` (``ok``, ``suspect`` or
+    option at its default. The result's ``status`` (``ok``, ``ambiguous`` or
     ``failed``, from :mod:`dtalign.pipeline.status`) is what :func:`evaluate` reads.
     """
     from .pipeline.fit import fit_polyline

@@ -132,8 +132,9 @@ class RunSummary:
     rows : int
         Result rows written (one per polyline).
     flagged_rows : int
-        Of those, the fits whose ``status`` is not ``"ok"`` (suspect or
-        failed: the ``status`` and ``reasons`` columns say why); 0 with a
+        Of those, the fits whose ``status`` is not ``"ok"`` (suspect,
+        ambiguous or failed: the ``status`` and ``reasons`` columns say
+        why), printed as "flagged"; 0 with a
         ``dtalign`` whose fits carry no status.
     interrupted : bool
         True when Ctrl-C stopped the run (the store holds what had finished).
@@ -171,13 +172,16 @@ class RunSummary:
 
     def __str__(self) -> str:
         text = (
-            f"{self.done} item(s) done, {self.failed} failed ({self.rows} result rows), "
+            # "in error" for items that raised, "flagged" for fits whose status
+            # is not ok: one word for each, never "failed" for both
+            f"{self.done} item(s) done, {self.failed} item(s) in error ({self.rows} result rows), "
             f"{self.skipped_done} already done"
         )
         if self.flagged_rows:
-            text += f", {self.flagged_rows} fit(s) suspect or failed (status column)"
+            text += (f", {self.flagged_rows} fit(s) flagged (status not 'ok': see the status "
+                     "and reasons columns)")
         if self.skipped_failed:
-            text += f", {self.skipped_failed} failed earlier (--retry-failed to redo)"
+            text += f", {self.skipped_failed} item(s) in error earlier (--retry-failed to redo)"
         text += (f"; {self.elapsed_s:.1f} s on {self.workers} worker(s), "
                  f"{self.items_per_task} item(s) a task (warm-up {self.warm_s:.1f} s); "
                  f"store {self.store}")

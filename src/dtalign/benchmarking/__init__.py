@@ -129,8 +129,9 @@ def run(
     _progress("warming up (compiling or loading the Numba cache) ...")
     warm_s = warm_up(names or ["lm_n200"], inputs)
     rows: list[dict[str, Any]] = []
-    # The synthetic fits stop at the iteration cap (status "suspect"): their
-    # warnings would flood the table's output, and are not what is timed.
+    # Some timed fits are flagged on purpose (the outlier and window
+    # variants): their warnings would flood the table's output, and are not
+    # what is timed.
     log = logging.getLogger("dtalign")
     level = log.level
     log.setLevel(logging.ERROR)
@@ -189,7 +190,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--readme", default=None,
                    help="also rewrite the table between the bench-table markers of this "
                         "Markdown file (nox -s bench: README.md)")
-    p.add_argument("--strict", action="store_true", help="exit 1 when a target is missed")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 1 when a target is missed (the default; kept for older scripts)")
+    p.add_argument("--allow-fail", action="store_true",
+                   help="exit 0 even when a target is missed (the table still says FAIL)")
     p.add_argument("--list", action="store_true", help="list the workloads and exit")
     return p
 
@@ -233,4 +237,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         path = Path(args.readme)
         path.write_text(replace_readme_table(path.read_text(), report))
         print(f"wrote {path}")
-    return 1 if args.strict and not report["all_passed"] else 0
+    missed = [r for r in report["rows"] if not r["passed"]]
+    if missed and not args.allow_fail:
+        # a FAIL row is a result to act on, not a line to scroll past
+        print(f"{len(missed)} row(s) FAIL: exit status 1 (--allow-fail to exit 0)",
+              file=sys.stderr)
+        return 1
+    return 0

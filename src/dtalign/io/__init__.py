@@ -11,6 +11,7 @@ from .files import (
     concatenate_polylines,
     load_image,
     load_polyline_csv,
+    read_image,
     save_polyline_csv,
 )
 
@@ -19,5 +20,6 @@ __all__ = [
     "concatenate_polylines",
     "load_image",
     "load_polyline_csv",
+    "read_image",
     "save_polyline_csv",
 ]

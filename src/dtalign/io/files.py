@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from ..api.colour import Conversion, grey_image, log_note
 from ..scenes import Polyline
 
 __all__ = [
@@ -30,6 +31,7 @@ __all__ = [
     "concatenate_polylines",
     "load_image",
     "load_polyline_csv",
+    "read_image",
     "save_polyline_csv",
 ]
 
@@ -41,10 +43,6 @@ POLYLINE_COLUMNS: tuple[str, ...] = ("v", "u", "nv", "nu", "sigma")
 
 _FITS_SUFFIXES = {".fits", ".fit", ".fts"}
 
-#: ITU-R BT.601 luma weights, used for a colour image that is not grey.
-_LUMA = np.array([0.299, 0.587, 0.114])
-
-
 def _existing(path: PathLike, what: str) -> Path:
     p = Path(path)
     if not p.exists():
@@ -52,14 +50,6 @@ def _existing(path: PathLike, what: str) -> Path:
     if p.is_dir():
         raise ValueError(f"{what} is a directory, not a file: {p}")
     return p
-
-
-def _rgb_to_grey(arr: np.ndarray) -> FloatArray:
-    """Grey from an ``(H, W, 3|4)`` array: the G channel when R == G == B."""
-    rgb = arr[..., :3].astype(np.float64)
-    if np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 1], rgb[..., 2]):
-        return np.ascontiguousarray(rgb[..., 1])
-    return np.ascontiguousarray(rgb @ _LUMA)
 
 
 def _reason(exc: BaseException) -> str:
@@ -121,7 +111,19 @@ def _pillow_array(p: Path) -> np.ndarray:
 
 
 def load_image(path: PathLike) -> FloatArray:
-    """Read a 2-D image as float64.
+    """Read a 2-D image as float64; a colour image's conversion is logged.
+
+    :func:`read_image`, with its note about a colour image logged on the
+    ``dtalign`` logger (``INFO`` for a grey image saved as colour,
+    ``WARNING`` for a colour one read as its luma).
+    """
+    image, note = read_image(path)
+    log_note(note)
+    return image
+
+
+def read_image(path: PathLike) -> tuple[FloatArray, Conversion | None]:
+    """Read a 2-D image as float64, and say how a colour image was converted.
 
     Parameters
     ----------
@@ -129,10 +131,11 @@ def load_image(path: PathLike) -> FloatArray:
         ``.npy`` (a 2-D numeric array, loaded without pickles), ``.fits`` /
         ``.fit`` / ``.fts`` (the first HDU holding 2-D data; needs astropy),
         or any format Pillow reads (``.png``, ``.tif``, ``.jpg``...).
-        A colour image whose channels are all equal (a grey image saved as
-        RGB, like the Cassini summary PNGs) gives its G channel; any other
-        colour image gives the BT.601 luma ``0.299 R + 0.587 G + 0.114 B``.
-        An alpha channel is ignored. Pillow modes: grey ``L``, ``I;16``,
+        A colour image follows the pipeline's rule
+        (:mod:`dtalign.api.colour`): channels all equal (a grey image saved
+        as RGB, like the Cassini summary PNGs) give their G channel; any
+        other colour image gives the BT.601 luma ``0.299 R + 0.587 G +
+        0.114 B``. An alpha channel is ignored. Pillow modes: grey ``L``, ``I;16``,
         ``I`` and ``F`` keep their values; ``1`` gives 0/255; ``LA`` its
         grey; palette (``P``, ``PA``), ``CMYK``, ``YCbCr``, ``HSV``,
         ``RGBX`` and ``RGBa`` are converted to RGB by Pillow first. Other
@@ -141,7 +144,10 @@ def load_image(path: PathLike) -> FloatArray:
 
     Returns
     -------
-    ndarray, shape (H, W), float64
+    image : ndarray, shape (H, W), float64
+    note : Conversion or None
+        What was done to a colour image (:class:`dtalign.api.colour.Conversion`),
+        None for a grey one.
 
     Raises
     ------
@@ -165,8 +171,7 @@ def load_image(path: PathLike) -> FloatArray:
         arr = _load_fits(p)
     else:
         arr = _pillow_array(p)
-    if arr.ndim == 3 and arr.shape[2] in (3, 4):
-        arr = _rgb_to_grey(arr)
+    arr, note = grey_image(arr, f"image {p}")
     if arr.ndim != 2:
         raise ValueError(f"image {p} must be 2-D (or RGB), got shape {arr.shape}")
     if arr.size == 0:
@@ -174,7 +179,7 @@ def load_image(path: PathLike) -> FloatArray:
     out = np.ascontiguousarray(arr, dtype=np.float64)
     if not np.isfinite(out).all():
         raise ValueError(f"image {p} has NaN or inf pixels")
-    return out
+    return out, note
 
 
 def _load_npy(p: Path) -> np.ndarray:

@@ -15,6 +15,7 @@ Importing this package does not import Numba: the kernels load on the first fit.
 """
 
 from .fit import PolylineFit, fit_polyline, fit_polyline_products
+from .jobs import DEFAULT_SEARCH_WINDOW_VU
 from .observability import (
     covariance_with_unobservable_inf,
     normal_information_covariance,
@@ -24,6 +25,7 @@ from .observability import (
 from .products import ImageProducts, estimate_noise_sigma, prepare_image
 
 __all__ = [
+    "DEFAULT_SEARCH_WINDOW_VU",
     "ImageProducts",
     "PolylineFit",
     "covariance_with_unobservable_inf",

@@ -98,6 +98,7 @@ import math
 import numbers
 import os
 import queue
+import sys
 import threading
 import time
 from collections import deque
@@ -117,7 +118,7 @@ import numpy as np
 
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
-from .fit import PolylineFit, fit_from, fit_polyline_products, wrap
+from .fit import PolylineFit, fit_from, fit_polyline_products, needs_settling, settle, wrap
 from .products import ImageProducts, prepare_image
 from .status import log_fit, log_fits, logger
 
@@ -243,8 +244,18 @@ def _reporter(progress: Callable[[int, int], Any] | bool | None, total: int,
                 "progress=True needs tqdm (pip install tqdm); or pass a callable "
                 "progress(done, total)"
             ) from None
+        from .._numba_cache import compile_listeners
+
         with tqdm(total=total, unit=unit) as bar:
-            yield _Progress(lambda done, _: bar.update(done - bar.n), total)
+            # the first-compile notice above the bar, not through it
+            def note(text: str) -> None:
+                bar.write(f"dtalign: {text}", file=sys.stderr)
+
+            compile_listeners.append(note)
+            try:
+                yield _Progress(lambda done, _: bar.update(done - bar.n), total)
+            finally:
+                compile_listeners.remove(note)
     else:
         yield _Progress(progress, total)
 
@@ -423,13 +434,14 @@ def _run_ordered(
 def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
     """``(vertices, normals, sigmas)`` of a polyline given as an object or a 3-sequence."""
     if type(item) in (tuple, list) and len(item) == 3:  # plain: no such attributes
-        return item[0], item[1], item[2]
+        return item[0], item[1], _jobs.broadcast_sigmas(item[0], item[2])
     try:  # one attempt for the three attributes, not three hasattr() calls
-        return item.vertices_vu, item.normals_vu, item.sigmas
+        return item.vertices_vu, item.normals_vu, _jobs.broadcast_sigmas(item.vertices_vu,
+                                                                          item.sigmas)
     except AttributeError:
         pass
     if isinstance(item, Sequence) and not isinstance(item, (str, bytes)) and len(item) == 3:
-        return item[0], item[1], item[2]
+        return item[0], item[1], _jobs.broadcast_sigmas(item[0], item[2])
     raise TypeError(
         f"polylines[{index}] must have vertices_vu, normals_vu and sigmas attributes "
         f"or be a (vertices_vu, normals_vu, sigmas) sequence, got {type(item).__name__}"
@@ -517,13 +529,15 @@ def results_equal(a: Any, b: Any) -> bool:
 
 @overload
 def fit_many(
-    products: ImageProducts, polylines: Iterable[Any], *, search_window_vu: Any,
+    products: ImageProducts, polylines: Iterable[Any], *,
+    search_window_vu: tuple[int, int] = ...,
     workers: int = ..., errors: Literal["raise"] = ...,
     progress: Callable[[int, int], Any] | bool | None = ..., **options: Any,
 ) -> list[PolylineFit]: ...
 @overload
 def fit_many(
-    products: ImageProducts, polylines: Iterable[Any], *, search_window_vu: Any,
+    products: ImageProducts, polylines: Iterable[Any], *,
+    search_window_vu: tuple[int, int] = ...,
     workers: int = ..., errors: Literal["collect"],
     progress: Callable[[int, int], Any] | bool | None = ..., **options: Any,
 ) -> list[PolylineFit | Exception]: ...
@@ -531,7 +545,7 @@ def fit_many(
     products: ImageProducts,
     polylines: Iterable[Any],
     *,
-    search_window_vu: Any,
+    search_window_vu: tuple[int, int] = _jobs.DEFAULT_SEARCH_WINDOW_VU,
     workers: int = DEFAULT_WORKERS,
     errors: str = "raise",
     progress: Callable[[int, int], Any] | bool | None = None,
@@ -548,8 +562,9 @@ def fit_many(
         Each item has ``vertices_vu``, ``normals_vu`` and ``sigmas``
         attributes (like :class:`dtalign.scenes.Polyline`) or is a
         ``(vertices_vu, normals_vu, sigmas)`` sequence.
-    search_window_vu : tuple of int
-        Coarse-search margin ``(mv, mu)`` for every polyline.
+    search_window_vu : tuple of int, optional
+        Coarse-search margin ``(mv, mu)`` for every polyline; default
+        ``(30, 30)`` (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
     workers : int, optional
         Threads (default: the CPUs this process may use); 1 fits serially
         (in one thread of the call's pool when called from the main thread).
@@ -744,12 +759,15 @@ def _fit_batch(
         f.timings_s["fit"] = per_fit
         if j in errors:  # its rows were never written
             fits[j] = None
-    if examine is None:
-        return fits, errors
     from . import hypotheses
 
-    good = [j for j, f in enumerate(fits) if f is not None]
-    if tick is not None and errors:  # failed fits are not examined: done
+    # Without the examination only the unconverged fits have work left: their
+    # settling (dtalign.pipeline.fit.settle), one more LM each.
+    good = [j for j, f in enumerate(fits)
+            if f is not None and (examine is not None or needs_settling(f))]
+    if not good:
+        return fits, errors
+    if tick is not None and errors and examine is not None:  # failed fits are not examined
         tick(len(errors))
     bounds = batch.starts.tolist()
 
@@ -759,12 +777,15 @@ def _fit_batch(
         item = _jobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
                              (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
                              float(batch.distances[j]))
-        return hypotheses.examine(fits[j], shared, item, seeds=examine,
-                                  refit=lambda seed: fit_from(shared, item, seed))
+        fit = fits[j]
+        if examine is not None:
+            fit = hypotheses.examine(fit, shared, item, seeds=examine,
+                                     refit=lambda seed: fit_from(shared, item, seed))
+        return settle(fit, shared, item)
 
-    examined, failures = _run_ordered(one, len(good), workers, stop_early=stop_early,
-                                      abort=abort,
-                                      on_done=None if tick is None else lambda: tick(1))
+    examined, failures = _run_ordered(
+        one, len(good), workers, stop_early=stop_early, abort=abort,
+        on_done=None if tick is None or examine is None else lambda: tick(1))
     for i, j in enumerate(good):
         fits[j] = examined[i]
         if i in failures:
@@ -810,14 +831,14 @@ def _fit_image(
 
 @overload
 def fit_images(
-    items: Iterable[Any], *, search_window_vu: Any, workers: int = ...,
+    items: Iterable[Any], *, search_window_vu: tuple[int, int] = ..., workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
     errors: Literal["raise"] = ..., progress: Callable[[int, int], Any] | bool | None = ...,
     **options: Any,
 ) -> list[list[PolylineFit]]: ...
 @overload
 def fit_images(
-    items: Iterable[Any], *, search_window_vu: Any, workers: int = ...,
+    items: Iterable[Any], *, search_window_vu: tuple[int, int] = ..., workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
     errors: Literal["collect"], progress: Callable[[int, int], Any] | bool | None = ...,
     **options: Any,
@@ -825,7 +846,7 @@ def fit_images(
 def fit_images(
     items: Iterable[Any],
     *,
-    search_window_vu: Any,
+    search_window_vu: tuple[int, int] = _jobs.DEFAULT_SEARCH_WINDOW_VU,
     workers: int = DEFAULT_WORKERS,
     executor: str | Executor = "thread",
     config: ImageDerivativesConfig | None = None,
@@ -843,8 +864,9 @@ def fit_images(
         ``image`` is an array or a path (loaded in the task with
         :func:`dtalign.io.load_image`), ``noise_sigma`` may be None
         (estimated), ``polylines`` as in :func:`fit_many`.
-    search_window_vu : tuple of int
-        Coarse-search margin for every polyline.
+    search_window_vu : tuple of int, optional
+        Coarse-search margin for every polyline; default ``(30, 30)``
+        (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
     workers : int, optional
         Parallel tasks (default: the CPUs this process may use); 1 runs
         serially (with ``executor="thread"``, as :func:`fit_many`).

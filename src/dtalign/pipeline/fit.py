@@ -28,6 +28,7 @@ the checks and compiled work of :mod:`dtalign.pipeline.jobs`.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -60,7 +61,7 @@ from .observability import (
     observable_rank,
 )
 from .products import ImageProducts, _readonly, prepare_image
-from .status import FitReason, FitStatus
+from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
 
 __all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
 
@@ -119,6 +120,12 @@ class PolylineFit:
         How clearly this basin beats the best rival basin (its ``ratio``,
         the rival, and whether the rival lies along an unobservable
         direction); None when not examined.
+    settling : Settling or None
+        For an LM that stopped before its step tolerance: how far the pose
+        moved over its last iterations, which decides
+        :attr:`~dtalign.pipeline.status.FitReason.NOT_CONVERGED`
+        (:func:`~dtalign.pipeline.fit.settle`); None when the LM converged or was not
+        examined.
 
     Whether to trust the fit is read from these fields by :attr:`status`,
     :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.pipeline.status`);
@@ -146,6 +153,8 @@ class PolylineFit:
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
     hypotheses: tuple[Hypothesis, ...] = field(default=(), repr=False)
     ambiguity: Ambiguity | None = None
+    # not printed: the status and reasons say what it decided
+    settling: Settling | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("vertices_vu", "normals_vu"):
@@ -184,6 +193,12 @@ class PolylineFit:
     def converged(self) -> bool:
         """Whether the LM step fell below the step tolerance."""
         return self.lm.converged
+
+    @property
+    def settled(self) -> bool:
+        """Whether the pose is settled: the LM converged, or it stopped but its
+        pose no longer moved (:class:`~dtalign.pipeline.status.Settling`)."""
+        return _status.settled(self)
 
     @property
     def degenerate(self) -> bool:
@@ -350,14 +365,16 @@ class PolylineFit:
 
     @property
     def status(self) -> FitStatus:
-        """``"ok"``, ``"suspect"`` or ``"failed"`` (:class:`~dtalign.pipeline.status.FitStatus`).
+        """``"ok"``, ``"ambiguous"`` or ``"failed"`` (:class:`~dtalign.pipeline.status.FitStatus`).
 
         The worst severity among :attr:`reasons`: ``failed`` when the pose is
-        not a measurement (degenerate, every vertex polarity-rejected, seed
-        on the window edge); ``suspect`` when it should be checked (most
-        vertices polarity-rejected); ``ok`` otherwise, with notes in
-        :attr:`reasons` for a fit that stopped before converging or that
-        is rank-deficient (its unobservable sigmas are ``inf``).
+        not a measurement (most or all vertices polarity-rejected, degenerate,
+        seed on the window edge); ``ambiguous`` when a rival basin across
+        the edge fits about as well; ``ok`` otherwise, with notes in
+        :attr:`reasons` for a pose that has not settled or that is
+        rank-deficient (its unobservable sigmas are ``inf``). (``suspect``
+        remains a :class:`~dtalign.pipeline.status.FitStatus` value for
+        older stores; no reason implies it now.)
         """
         return _status.fit_status(_status.fit_problems(self))
 
@@ -381,7 +398,8 @@ class PolylineFit:
             rel = np.column_stack([c * rel[:, 0] - s_ * rel[:, 1], s_ * rel[:, 0] + c * rel[:, 1]])
         return rel + self.pivot_vu + self.offset_vu
 
-    def sigma_along(self, direction_vu: Any, *, scaled: bool = False) -> float:
+    def sigma_along(self, direction_vu: tuple[float, float] | ArrayLike, *,
+                    scaled: bool = False) -> float:
         """One-sigma of the translation projected on a direction ``(v, u)``.
 
         ``sqrt(d^T C d)`` with ``d`` the unit direction and ``C`` the
@@ -437,13 +455,38 @@ class PolylineFit:
                         self.sigma_along(ev)))
         return out
 
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready summary (no per-vertex arrays)."""
+    def to_dict(self, *, arrays: bool = False) -> dict[str, Any]:
+        """A JSON-ready summary; with ``arrays=True``, everything :meth:`from_dict` needs.
 
-        def num(x: float) -> float | str:
-            return x if math.isfinite(x) else ("inf" if x > 0 else "-inf")
+        A value that is not finite is written as ``None`` (JSON ``null``):
+        in practice ``+inf``, the sigma or covariance of a direction the fit
+        does not measure, or the rms of a degenerate fit (JSON has no
+        infinity; the string ``"inf"`` it used to hold is no number).
+
+        Parameters
+        ----------
+        arrays : bool, optional
+            Also write the per-vertex arrays (``vertices_vu``,
+            ``normals_vu``, ``residuals_px``, ``weights``), from which the
+            fit's derived readings (status, sigmas, observable rank) are
+            computed again on loading.
+        """
+
+        def num(x: float) -> float | None:
+            return x if math.isfinite(x) else None
+
+        def hyp(h: Hypothesis) -> dict[str, Any]:
+            return {"source": h.source, "seed_vu": list(h.seed_vu), "offset_vu": list(h.offset_vu),
+                    "rotation_rad": h.rotation_rad, "cost": num(h.cost), "inliers": h.inliers,
+                    "converged": h.converged, "coarse_score": num(h.coarse_score)}
 
         cov = np.asarray(self.lm.covariance)
+        amb = self.ambiguity
+        extra: dict[str, Any] = {}
+        if arrays:
+            extra = {name: np.asarray(getattr(src, name)).tolist() for src, name in (
+                (self, "vertices_vu"), (self, "normals_vu"), (self.lm, "residuals_px"),
+                (self.lm, "weights"))}
         return {
             "offset_vu": [num(x) for x in self.offset_vu],
             "rotation_rad": num(self.rotation_rad),
@@ -462,12 +505,17 @@ class PolylineFit:
                 None if self.ambiguity is None or self.ambiguity.rival is None
                 else [num(x) for x in self.ambiguity.rival.offset_vu]
             ),
-            "hypotheses": [
-                {"source": h.source, "seed_vu": list(h.seed_vu), "offset_vu": list(h.offset_vu),
-                 "rotation_rad": h.rotation_rad, "cost": num(h.cost), "inliers": h.inliers,
-                 "converged": h.converged}
-                for h in self.hypotheses
-            ],
+            "ambiguity": None if amb is None else {
+                "ratio": num(amb.ratio), "rival": None if amb.rival is None else hyp(amb.rival),
+                "ambiguous": amb.ambiguous, "along_unobservable": amb.along_unobservable,
+                "reason": amb.reason,
+            },
+            "settling": None if self.settling is None else {
+                "iterations": self.settling.iterations, "shift_px": num(self.settling.shift_px),
+                "shift_sigmas": num(self.settling.shift_sigmas),
+                "settled": self.settling.settled,
+            },
+            "hypotheses": [hyp(h) for h in self.hypotheses],
             "covariance": [[num(float(x)) for x in row] for row in cov],
             "normal_covariance": [
                 [num(float(x)) for x in row] for row in np.asarray(self.normal_covariance)
@@ -489,8 +537,89 @@ class PolylineFit:
             "n_vertices": int(np.asarray(self.lm.residuals_px).shape[0]),
             "polarity_rejected": self.polarity_rejected_count,
             "tukey_rejected": int(self.tukey_rejected.sum()),
+            "pinvh_rcond": self.pinvh_rcond,
+            "tukey_c": self.tukey_c,
             "timings_s": dict(self.timings_s),
+            **extra,
         }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PolylineFit:
+        """The fit :meth:`to_dict` described, from ``to_dict(arrays=True)`` (or its JSON).
+
+        ``from_dict(fit.to_dict(arrays=True)).to_dict(arrays=True)`` equals
+        ``fit.to_dict(arrays=True)``: the pose, covariance, hypotheses,
+        ambiguity and settling are read back, and the derived readings
+        (status, reasons, sigmas, observable rank) computed again from them
+        and the per-vertex arrays. ``None`` stands for ``+inf`` (``nan`` for
+        a coarse score).
+
+        Raises
+        ------
+        ValueError
+            If ``d`` lacks the per-vertex arrays (a summary written by
+            ``to_dict()`` without ``arrays=True``) or another field.
+        """
+        needed = ("vertices_vu", "normals_vu", "residuals_px", "weights")
+        missing = [k for k in needed if k not in d]
+        if missing:
+            raise ValueError(
+                f"PolylineFit.from_dict needs the per-vertex arrays {missing}: write the dict "
+                "with to_dict(arrays=True)"
+            )
+
+        def inf(x: Any) -> float:
+            return math.inf if x is None else float(x)
+
+        def hyp(h: dict[str, Any]) -> Hypothesis:
+            return Hypothesis(
+                source=h["source"], seed_vu=(int(h["seed_vu"][0]), int(h["seed_vu"][1])),
+                coarse_score=math.nan if h["coarse_score"] is None else float(h["coarse_score"]),
+                offset_vu=(float(h["offset_vu"][0]), float(h["offset_vu"][1])),
+                rotation_rad=float(h["rotation_rad"]), cost=inf(h["cost"]),
+                inliers=int(h["inliers"]), converged=bool(h["converged"]),
+            )
+
+        try:
+            vertices = np.asarray(d["vertices_vu"], dtype=np.float64).reshape(-1, 2)
+            normals = np.asarray(d["normals_vu"], dtype=np.float64).reshape(-1, 2)
+            cov = np.array([[inf(x) for x in row] for row in d["covariance"]], dtype=np.float64)
+            lm = LMRefineResult(
+                offset_vu=(float(d["offset_vu"][0]), float(d["offset_vu"][1])),
+                rotation_rad=float(d["rotation_rad"]), covariance=_readonly(cov),
+                residuals_px=_readonly(np.asarray(d["residuals_px"], dtype=np.float64)),
+                weights=_readonly(np.asarray(d["weights"], dtype=np.float64)),
+                rms_px=inf(d["rms_px"]), raw_rms_px=inf(d["raw_rms_px"]),
+                iterations=int(d["iterations"]), converged=bool(d["converged"]),
+                inlier_count=int(d["inlier_count"]), degenerate=bool(d["degenerate"]),
+                polarity_rejected_count=int(d["polarity_rejected"]),
+            )
+            a = d["ambiguity"]
+            ambiguity = None if a is None else Ambiguity(
+                ratio=inf(a["ratio"]), rival=None if a["rival"] is None else hyp(a["rival"]),
+                ambiguous=bool(a["ambiguous"]), along_unobservable=bool(a["along_unobservable"]),
+                reason=str(a["reason"]),
+            )
+            st = d["settling"]
+            settling = None if st is None else Settling(
+                int(st["iterations"]), inf(st["shift_px"]), inf(st["shift_sigmas"]),
+                bool(st["settled"]))
+            return cls(
+                offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad,
+                coarse_offset_vu=(int(d["coarse_offset_vu"][0]), int(d["coarse_offset_vu"][1])),
+                at_window_edge=bool(d["at_window_edge"]), lm=lm,
+                search_window_vu=(int(d["search_window_vu"][0]), int(d["search_window_vu"][1])),
+                fit_rotation=bool(d["fit_rotation"]),
+                pivot_vu=(float(d["pivot_vu"][0]), float(d["pivot_vu"][1])),
+                pivot_distance_px=float(d["pivot_distance_px"]),
+                noise_sigma=float(d["noise_sigma"]), vertices_vu=vertices, normals_vu=normals,
+                pinvh_rcond=float(d["pinvh_rcond"]), tukey_c=float(d["tukey_c"]),
+                timings_s={str(k): float(v) for k, v in d["timings_s"].items()},
+                hypotheses=tuple(hyp(h) for h in d["hypotheses"]), ambiguity=ambiguity,
+                settling=settling,
+            )
+        except KeyError as exc:
+            raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
 
     # Printing: field-generic (see dtalign.api.results), arrays summarised.
     _SUMMARY_EXTRA = ("sigma_vu", "sigma_rotation_rad", "observable_rank", "status", "reasons")
@@ -514,11 +643,11 @@ def fit_polyline_products(
     products: ImageProducts,
     vertices_vu: ArrayLike,
     normals_vu: ArrayLike,
-    sigmas: ArrayLike,
+    sigmas: ArrayLike | float,
     *,
-    search_window_vu: Any,
+    search_window_vu: tuple[int, int] = jobs.DEFAULT_SEARCH_WINDOW_VU,
     fit_rotation: bool = False,
-    pivot_vu: Any = None,
+    pivot_vu: tuple[float, float] | None = None,
     pivot_distance_px: float | None = None,
     use_polarity: bool = True,
     trust_region_px: float | None = None,
@@ -550,11 +679,15 @@ def fit_polyline_products(
     normals_vu : array_like, shape (N, 2)
         Unit normals pointing to the bright side of each edge (the polarity
         test accepts a vertex when its normal points up the gradient).
-    sigmas : array_like, shape (N,)
-        Prior one-sigma of each vertex along its normal, pixels, > 0.
-    search_window_vu : tuple of int
+    sigmas : array_like, shape (N,), or float
+        Prior one-sigma of each vertex along its normal, pixels, > 0; a
+        single number applies to every vertex (see the guide's "Choosing
+        the vertex sigmas").
+    search_window_vu : tuple of int, optional
         Coarse-search margin ``(mv, mu)``: every integer shift in
-        ``[-mv, mv] x [-mu, mu]`` is scored.
+        ``[-mv, mv] x [-mu, mu]`` is scored. Default
+        :data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`, ``(30, 30)``,
+        the command line's default too.
     fit_rotation : bool, optional
         Also fit an in-plane rotation about ``pivot_vu``.
     pivot_vu : tuple of float, optional
@@ -601,7 +734,8 @@ def fit_polyline_products(
     """
     seeds = _hypotheses.check_seeds(seeds)
     shared, item = jobs.plan(
-        products, vertices_vu, normals_vu, sigmas, search_window_vu=search_window_vu,
+        products, vertices_vu, normals_vu, jobs.broadcast_sigmas(vertices_vu, sigmas),
+        search_window_vu=search_window_vu,
         fit_rotation=fit_rotation, pivot_vu=pivot_vu, pivot_distance_px=pivot_distance_px,
         lm_options={
             "use_polarity": use_polarity, "max_iterations": max_iterations, "damping": damping,
@@ -617,6 +751,7 @@ def fit_polyline_products(
             fit, shared, item, seeds=seeds,
             refit=lambda seed: fit_from(shared, item, seed),
         )
+    fit = settle(fit, shared, item)
     _status.log_fit(fit)
     return fit
 
@@ -625,12 +760,12 @@ def fit_polyline(
     image: ArrayLike,
     vertices_vu: ArrayLike,
     normals_vu: ArrayLike,
-    sigmas: ArrayLike,
+    sigmas: ArrayLike | float,
     *,
-    search_window_vu: Any,
+    search_window_vu: tuple[int, int] = jobs.DEFAULT_SEARCH_WINDOW_VU,
     noise_sigma: float | None = None,
     fit_rotation: bool = False,
-    pivot_vu: Any = None,
+    pivot_vu: tuple[float, float] | None = None,
     pivot_distance_px: float | None = None,
     config: ImageDerivativesConfig | None = None,
     use_polarity: bool = True,
@@ -655,12 +790,15 @@ def fit_polyline(
 
     Parameters
     ----------
-    image : array_like, shape (H, W)
-        The image (any real dtype; converted to float64).
+    image : array_like, shape (H, W), or (H, W, 3 or 4) for colour
+        The image (any real dtype; converted to float64). A colour image is
+        converted as :func:`~dtalign.pipeline.products.prepare_image` says
+        (:mod:`dtalign.api.colour`), and the conversion logged.
     vertices_vu, normals_vu, sigmas
         The model polyline: see :func:`fit_polyline_products`.
-    search_window_vu : tuple of int
-        Coarse-search margin ``(mv, mu)``.
+    search_window_vu : tuple of int, optional
+        Coarse-search margin ``(mv, mu)``; default ``(30, 30)``
+        (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
     noise_sigma : float, optional
         Image noise sigma; estimated by
         :func:`~dtalign.pipeline.products.estimate_noise_sigma` when None.
@@ -750,6 +888,55 @@ def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],
         vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
         tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": coarse_s, "lm": t3 - t2},
     )
+
+
+def needs_settling(fit: PolylineFit) -> bool:
+    """Whether :func:`settle` has anything to judge (an unconverged, measured fit)."""
+    return not (fit.lm.converged or fit.lm.degenerate) and fit.settling is None
+
+
+def settle(fit: PolylineFit, shared: jobs.Plan, it: jobs.Item) -> PolylineFit:
+    """``fit`` with its :class:`~dtalign.pipeline.status.Settling` when its LM did not converge.
+
+    The LM is deterministic, so running it again from the fit's start
+    (``coarse_offset_vu``) with ``iterations - SETTLE_ITERATIONS`` iterations
+    gives the pose it held that many iterations before it stopped; with
+    fewer iterations than that, the start is the earlier pose. The movement
+    between the two, in pixels and in units of the fit's one-sigma, says
+    whether further iterations could still change the answer: what
+    :attr:`~dtalign.pipeline.status.FitReason.NOT_CONVERGED` means. A
+    converged or degenerate fit is returned as it is.
+    """
+    if not needs_settling(fit):
+        return fit
+    lm = fit.lm
+    a = shared.lm
+    start = (float(fit.coarse_offset_vu[0]), float(fit.coarse_offset_vu[1]))
+    k = lm.iterations - SETTLE_ITERATIONS
+    if k > 0:
+        earlier = jobs._deps().fit_checked(a._replace(
+            vertices=it.vertices, normals=it.normals, sigmas=it.sigmas, offset=start,
+            pivot=it.pivot, pivot_distance=it.distance, max_iterations=k,
+        ))
+        before = (*earlier.offset_vu, earlier.rotation_rad)
+        span = SETTLE_ITERATIONS
+    else:
+        before = (*start, a.rotation)
+        span = lm.iterations
+    d = np.array([lm.offset_vu[0] - before[0], lm.offset_vu[1] - before[1],
+                  lm.rotation_rad - before[2]])
+    shift_px = float(math.hypot(d[0], d[1]) + abs(d[2]) * fit.pivot_distance_px)
+    p = 3 if fit.fit_rotation else 2
+    cov = np.asarray(lm.covariance, dtype=np.float64)
+    if np.isfinite(cov).all():
+        # the information the covariance holds (its pseudoinverse): a movement
+        # along a direction the fit does not observe weighs nothing
+        info = np.linalg.pinv(cov, rcond=fit.pinvh_rcond, hermitian=True)
+        shift_sigmas = float(math.sqrt(max(float(d[:p] @ info @ d[:p]), 0.0)))
+    else:
+        shift_sigmas = math.inf
+    ok = shift_sigmas <= SETTLE_SIGMAS or shift_px <= a.step_tolerance
+    return dataclasses.replace(fit, settling=Settling(span, shift_px, shift_sigmas, ok))
 
 
 def wrap(shared: jobs.Plan, batch: jobs.Batch, out: tuple[Any, ...], lo: int,

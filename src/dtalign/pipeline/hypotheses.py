@@ -59,8 +59,8 @@ def tukey_rho(x: NDArray[np.float64], c: float) -> NDArray[np.float64]:
 
 
 def robust_cost(
-    edge_dt: Any,
-    gradient_vu: Any,
+    edge_dt: NDArray[np.float64],
+    gradient_vu: NDArray[np.float64],
     vertices_vu: NDArray[np.float64],
     normals_vu: NDArray[np.float64],
     sigmas: NDArray[np.float64],

@@ -86,6 +86,34 @@ class Item(NamedTuple):
     distance: float
 
 
+#: The pipeline's coarse-search margin when a call gives none, px per axis:
+#: wide enough for the pointing errors the navigation frames show (the
+#: disc demo's offset is ~9 px), small enough that a 1024 x 1024 frame's
+#: search stays a fraction of a millisecond. The command line's
+#: ``--window`` default is the same value.
+DEFAULT_SEARCH_WINDOW_VU: tuple[int, int] = (30, 30)
+
+
+def broadcast_sigmas(vertices_vu: Any, sigmas: Any) -> Any:
+    """A scalar ``sigmas`` applied to every vertex; anything else as given.
+
+    A real number (not a bool) becomes ``np.full(N, sigmas)`` when
+    ``vertices_vu`` has the shape ``(N, 2)``; the usual checks then judge
+    it (a negative or non-finite scalar is refused as ``sigmas``). The
+    drop-in :func:`dtalign.lm_subpixel_refine` keeps its per-vertex
+    contract and does not do this.
+    """
+    if isinstance(sigmas, bool | np.bool_) or not (
+            isinstance(sigmas, int | float | np.integer | np.floating)
+            or (isinstance(sigmas, np.ndarray) and sigmas.ndim == 0
+                and sigmas.dtype.kind in "iuf")):
+        return sigmas
+    shape = np.shape(vertices_vu)
+    if len(shape) != 2:
+        return sigmas
+    return np.full(shape[0], float(sigmas))
+
+
 def _distance(products: ImageProducts, pivot: tuple[float, float], fit_rotation: bool,
               pivot_distance_px: Any) -> float:
     """The pivot distance the pipeline passes to the LM (see ``fit_polyline_products``)."""

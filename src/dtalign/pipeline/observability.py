@@ -219,10 +219,10 @@ def normal_information_covariance(
     normals_vu: ArrayLike,
     weights: ArrayLike,
     *,
-    offset_vu: Any = (0.0, 0.0),
+    offset_vu: tuple[float, float] = (0.0, 0.0),
     rotation_rad: float = 0.0,
     fit_rotation: bool = False,
-    pivot_vu: Any = None,
+    pivot_vu: tuple[float, float] | None = None,
     rcond: float = DEFAULT_PINVH_RCOND,
 ) -> FloatArray:
     """Covariance of the pose when each vertex measures only its normal shift.

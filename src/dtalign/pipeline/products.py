@@ -14,6 +14,7 @@ These names are re-exported by :mod:`dtalign.pipeline` and the top-level
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..api.checks import check_image, check_noise_sigma, resolve_config
+from ..api.colour import grey_image, log_note
 from ..api.results import ImageDerivativesConfig
 
 __all__ = [
@@ -65,6 +67,50 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------
 
 
+#: The noise estimate's step on integer-valued pixels: the filtered values
+#: are integers, so their MAD moves in whole DN and the estimate
+#: ``1.4826 * MAD / 6`` in steps of this (0.2471 DN).
+QUANTISED_NOISE_STEP = 1.4826 / 6.0
+
+#: An estimate of at most this many (whole or half) steps is reported as
+#: quantised: a few steps say "about a DN", not three digits.
+#: (8-bit Cassini summary frames give exactly 2 steps, 0.4942 DN.)
+_QUANTISED_NOTE_STEPS = 4
+
+logger = logging.getLogger("dtalign")
+
+
+def quantised_noise_steps(sigma: float) -> float | None:
+    """How many :data:`QUANTISED_NOISE_STEP` a noise estimate is, when it sits on that floor.
+
+    A whole or half number of steps, at most a few (the MAD of quantised
+    pixels, see :func:`estimate_noise_sigma`); None otherwise.
+    """
+    steps = sigma / QUANTISED_NOISE_STEP
+    half = round(steps * 2) / 2
+    if 0.0 < steps <= _QUANTISED_NOTE_STEPS and abs(steps - half) < 1e-9:
+        return half
+    return None
+
+
+def _quantised_note(sigma: float) -> None:
+    """Log at INFO when an estimate sits on the quantisation floor of integer pixels.
+
+    That is, when it is a whole or half number of :data:`QUANTISED_NOISE_STEP`,
+    at most a few: the MAD of the filtered values was a whole number of DN,
+    which quantised pixels give (the bulk of the image: an image whose
+    overlay was painted over with medians still has it) and continuous
+    noise almost never does.
+    """
+    steps = quantised_noise_steps(sigma)
+    if steps is None:
+        return
+    logger.info(
+        "noise sigma estimated as %.4g = %g x %.4f (1.4826 / 6 of 1 DN): the MAD of quantised "
+        "pixels, so it only says 'about %g DN'; pass noise_sigma if the camera's noise is known",
+        sigma, steps, QUANTISED_NOISE_STEP, round(sigma, 1))
+
+
 def estimate_noise_sigma(image: ArrayLike) -> float:
     """Robust estimate of the per-pixel Gaussian noise sigma of an image.
 
@@ -83,6 +129,15 @@ def estimate_noise_sigma(image: ArrayLike) -> float:
     with almost no noise, where the MAD is 0), the mean absolute value is
     used instead: ``sqrt(pi / 2) * mean(|x|) / 6``, Immerkaer's original
     estimator.
+
+    On integer-valued pixels (8- or 16-bit data) the filtered values are
+    integers, so the MAD is a whole (or half) number of DN and the estimate
+    moves in steps of :data:`QUANTISED_NOISE_STEP` = 1.4826 / 6 = 0.2471:
+    a low-noise 8-bit frame gives a few steps (both Cassini summary frames
+    give exactly 0.4942, two steps), which says "about half a DN", not four
+    digits. :func:`prepare_image` logs an ``INFO`` note when its estimate
+    sits on that floor; pass ``noise_sigma`` when the camera's noise is
+    known.
 
     The work is compiled (:mod:`dtalign._kernels.noise`: the responses a
     row at a time, exact selection medians) and gives the value of its
@@ -212,8 +267,11 @@ def prepare_image(
 
     Parameters
     ----------
-    image : array_like, shape (H, W)
-        A finite, non-empty 2-D image.
+    image : array_like, shape (H, W), or (H, W, 3 or 4) for colour
+        A finite, non-empty image. A colour one is converted by the rule of
+        :mod:`dtalign.api.colour` and the conversion logged on the
+        ``dtalign`` logger: equal channels give their grey values (``INFO``),
+        others the luma (``WARNING``: a coloured overlay is fitted too).
     noise_sigma : float, optional
         The image noise sigma, in the image's units. Estimated with
         :func:`estimate_noise_sigma` when None.
@@ -228,12 +286,15 @@ def prepare_image(
     Raises
     ------
     TypeError
-        If ``image`` is not a 2-D numeric array, or ``config`` is not an
+        If ``image`` is not a 2-D (or colour) numeric array, or ``config`` is not an
         :class:`~dtalign.ImageDerivativesConfig`.
     ValueError
         If ``image`` is empty or not finite, or ``noise_sigma`` is negative
         or not finite.
     """
+    # colour: the rule of dtalign.api.colour, said on the logger
+    image, note = grey_image(image)
+    log_note(note)
     try:
         arr = check_image(image)
     except (TypeError, ValueError) as exc:
@@ -244,6 +305,8 @@ def prepare_image(
     estimated = noise_sigma is None
     if estimated:
         sigma = _estimate_noise_sigma_checked(arr)
+        if logger.isEnabledFor(logging.INFO):
+            _quantised_note(sigma)
     else:
         try:
             sigma = check_noise_sigma(noise_sigma)

@@ -10,9 +10,8 @@ single search's result (:func:`dtalign.coarse_polarity_search_scored` or
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._kernels import coarse as _coarse
 from .._kernels import polarity_search as _ps
@@ -31,14 +30,14 @@ DEFAULT_SEED_SEPARATION_PX = 3.0
 
 
 def top_k_seeds(
-    edge_mask: Any,
-    vertices_vu: Any,
-    search_window_vu: Any,
+    edge_mask: ArrayLike,
+    vertices_vu: ArrayLike,
+    search_window_vu: tuple[int, int],
     *,
     k: int = 3,
     min_separation_px: float = DEFAULT_SEED_SEPARATION_PX,
-    normals_vu: Any = None,
-    image_gradient_vu: Any = None,
+    normals_vu: ArrayLike | None = None,
+    image_gradient_vu: ArrayLike | None = None,
     min_support_fraction: float = DEFAULT_COARSE_MIN_SUPPORT_FRACTION,
 ) -> tuple[CoarseSearchResult, ...]:
     """The ``k`` best distinct integer seeds of the coarse score surface.
