@@ -72,6 +72,10 @@ _LAZY: dict[str, str] = {
     "fit_polyline": ".pipeline.fit",
     "fit_polyline_products": ".pipeline.fit",
     "prepare_image": ".pipeline.products",
+    # photometric edge profiles
+    "EdgeProfile": ".api.profiles",
+    "sphere_edge_profile": ".api.profiles",
+    "ProfileRefinement": ".pipeline.profile_fit",
 }
 
 #: Private names today's techniques import (SPEC section 8.6): importable,
@@ -134,6 +138,7 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         RidgeRefineResult,
         SecondaryBasin,
     )
+    from .api.profiles import EdgeProfile, sphere_edge_profile
     from .api.ridge import gradient_ridge_refine
     from .api.sampling import (
         _rotate_directions,
@@ -154,3 +159,4 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         observable_rank,
     )
     from .pipeline.products import ImageProducts, estimate_noise_sigma, prepare_image
+    from .pipeline.profile_fit import ProfileRefinement
