@@ -251,7 +251,6 @@ def refine_with_profile(
     j1 = min(values.shape[1] - 1, int(math.ceil((reach - o0) / h)))
     nb = j1 - j0 + 1
     d0 = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
-    shifted = np.ascontiguousarray(verts + np.asarray(d0))
     tau = _tau_max(verts)
     hgt, wid = image.shape
     known = profile.psf_sigma_px is not None

@@ -1,0 +1,182 @@
+"""The NumPy specification of the edge-profile refinement kernels.
+
+Same names and arguments as :mod:`dtalign._kernels.profile` (whose module
+docstring states the model), written with array operations: the compiled
+kernels are held against these to 1e-9 by ``tests/test_profiles.py``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import erf
+
+from .._kernels.profile import MAX_HALVINGS, MIN_BOX_WIDTH, SCALE_FLOOR, SCALE_ITERATIONS, TAPS_SIGMAS
+
+FloatArray = np.ndarray
+
+
+def hat_gauss_taps(sigma: float, h: float) -> FloatArray:
+    """``(hat_h * G_sigma)(m h)`` from the Gaussian's second antiderivative."""
+    if sigma <= 0.0:
+        return np.ones(1)
+    half = int(math.ceil(TAPS_SIGMAS * sigma / h)) + 1
+    m = np.arange(-half, half + 1, dtype=np.float64)
+
+    def f2(x: FloatArray) -> FloatArray:
+        return x * 0.5 * (1.0 + erf(x / (sigma * math.sqrt(2.0)))) + sigma / math.sqrt(
+            2.0 * math.pi) * np.exp(-(x / (sigma * math.sqrt(2.0))) ** 2)
+
+    return np.asarray((f2((m - 1) * h) - 2.0 * f2(m * h) + f2((m + 1) * h)) / h)
+
+
+def tables(values: FloatArray, j0: int, nb: int, sigma: float, h: float
+           ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    taps = hat_gauss_taps(sigma, h)
+    half = (taps.shape[0] - 1) // 2
+    cols = j0 + np.arange(nb)[:, None] + half - np.arange(taps.shape[0])[None, :]
+    cols = np.clip(cols, 0, values.shape[1] - 1)
+    b = (values[:, cols] * taps[None, None, :]).sum(axis=2)
+    slope = np.diff(b, axis=1)
+    c = np.concatenate([np.zeros((b.shape[0], 1)),
+                        np.cumsum(h * (b[:, :-1] + b[:, 1:]) * 0.5, axis=1)], axis=1)
+    inc = c[:, :-1] * h + b[:, :-1] * h * h * 0.5 + slope * h * h / 6.0
+    d = np.concatenate([np.zeros((b.shape[0], 1)), np.cumsum(inc, axis=1)], axis=1)
+    return b, c, d
+
+
+def _antiderivs(b: FloatArray, c: FloatArray, d: FloatArray, k: FloatArray, x: FloatArray,
+                h: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    nb = b.shape[1]
+    end = (nb - 1) * h
+    i = np.clip((np.clip(x, 0.0, end) / h).astype(np.int64), 0, nb - 2)
+    t = x - i * h
+    b0, b1 = b[k, i], b[k, i + 1]
+    slope = (b1 - b0) / h
+    bv = b0 + slope * t
+    cv = c[k, i] + b0 * t + slope * t * t * 0.5
+    dv = d[k, i] + c[k, i] * t + b0 * t * t * 0.5 + slope * t ** 3 / 6.0
+    lo, hi = x <= 0.0, x >= end
+    v0, te = b[k, 0], x - end
+    vn = b[k, nb - 1]
+    dv = np.where(lo, v0 * x * x * 0.5,
+                  np.where(hi, d[k, nb - 1] + c[k, nb - 1] * te + vn * te * te * 0.5, dv))
+    cv = np.where(lo, v0 * x, np.where(hi, c[k, nb - 1] + vn * te, cv))
+    bv = np.where(lo, v0, np.where(hi, vn, bv))
+    slope = np.where(lo | hi, 0.0, slope)
+    return dv, cv, bv, slope
+
+
+def _box_model(b: FloatArray, c: FloatArray, d: FloatArray, k: FloatArray, x: FloatArray,
+               h: float, wa: FloatArray, wb: FloatArray) -> tuple[FloatArray, ...]:
+    c1, c2 = 0.5 * (wa + wb), 0.5 * (wa - wb)
+    p1 = _antiderivs(b, c, d, k, x + c1, h)
+    p2 = _antiderivs(b, c, d, k, x + c2, h)
+    p3 = _antiderivs(b, c, d, k, x - c2, h)
+    p4 = _antiderivs(b, c, d, k, x - c1, h)
+    two = [(p1[i] - p2[i] - p3[i] + p4[i]) / (wa * wb) for i in range(3)]
+    q1 = _antiderivs(b, c, d, k, x + 0.5 * wa, h)
+    q2 = _antiderivs(b, c, d, k, x - 0.5 * wa, h)
+    one = [(q1[i + 1] - q2[i + 1]) / wa for i in range(3)]
+    use = wb >= MIN_BOX_WIDTH
+    return tuple(np.where(use, two[i], one[i]) for i in range(3))
+
+
+def select_pixels(shape_h: int, shape_w: int, verts: FloatArray, normals: FloatArray,
+                  tau_max: FloatArray, half_width: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    kk, ii, jj = [], [], []
+    for k in range(verts.shape[0]):
+        r = math.sqrt(half_width**2 + tau_max[k] ** 2) + 1.0
+        i0, i1 = max(0, math.floor(verts[k, 0] - r)), min(shape_h - 1, math.ceil(verts[k, 0] + r))
+        j0, j1 = max(0, math.floor(verts[k, 1] - r)), min(shape_w - 1, math.ceil(verts[k, 1] + r))
+        gi, gj = np.meshgrid(np.arange(i0, i1 + 1), np.arange(j0, j1 + 1), indexing="ij")
+        dv, du = gi - verts[k, 0], gj - verts[k, 1]
+        s = dv * normals[k, 0] + du * normals[k, 1]
+        t = -dv * normals[k, 1] + du * normals[k, 0]
+        keep = (np.abs(s) <= half_width) & (np.abs(t) <= tau_max[k])
+        kk.append(np.full(int(keep.sum()), k))
+        ii.append(gi[keep])
+        jj.append(gj[keep])
+    return (np.concatenate(kk).astype(np.int64), np.concatenate(ii).astype(np.int64),
+            np.concatenate(jj).astype(np.int64))
+
+
+def evaluate(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatArray,
+             verts: FloatArray, normals: FloatArray, curv: FloatArray, b: FloatArray,
+             c: FloatArray, d: FloatArray, t0: float, h: float, params: FloatArray,
+             n_par: int) -> tuple[FloatArray, FloatArray]:
+    dv0, du0, gain, bg, sigma = params
+    nv, nu = normals[pix_k, 0], normals[pix_k, 1]
+    ev = pix_v - verts[pix_k, 0] - dv0
+    eu = pix_u - verts[pix_k, 1] - du0
+    s = ev * nv + eu * nu
+    tau = -ev * nu + eu * nv
+    kap = curv[pix_k]
+    s_eff = s - 0.5 * kap * (tau * tau + sigma * sigma + 1.0 / 12.0)
+    m0, m1, m2 = _box_model(b, c, d, pix_k, s_eff - t0, h, np.abs(nv), np.abs(nu))
+    r = obs - (bg + gain * m0)
+    cols = [gain * m1 * (-nv - kap * tau * nu), gain * m1 * (-nu + kap * tau * nv), m0,
+            np.ones_like(m0)]
+    if n_par > 4:
+        cols.append(gain * (sigma * m2 - kap * sigma * m1))
+    return r, np.stack(cols, axis=1)
+
+
+def _rho(x: FloatArray) -> FloatArray:
+    return np.where(np.abs(x) >= 1.0, 1.0 / 6.0, (1.0 - (1.0 - x * x) ** 3) / 6.0)
+
+
+def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatArray,
+           verts: FloatArray, normals: FloatArray, curv: FloatArray, values: FloatArray,
+           o0: float, h: float, j0: int, nb: int, params0: FloatArray, fit_sigma: bool,
+           max_iterations: int, tolerance_px: float, tukey_c: float
+           ) -> tuple[FloatArray, int, bool, FloatArray, float, float]:
+    n_par = 5 if fit_sigma else 4
+    t0 = o0 + j0 * h
+    params = params0.copy()
+    tab = tables(values, j0, nb, params[4], h)
+    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, *tab, t0, h, params, n_par)
+    converged, iterations, scale, cost = False, 0, 0.0, 0.0
+    info = np.zeros((n_par, n_par))
+    for it in range(max_iterations):
+        iterations = it + 1
+        if it < SCALE_ITERATIONS:
+            scale = max(1.4826 * float(np.median(np.abs(r))),
+                        SCALE_FLOOR * max(abs(params[2]), 1e-300))
+        cs = tukey_c * scale
+        cost = float(_rho(r / cs).sum())
+        x = r / cs
+        w = np.where(np.abs(x) >= 1.0, 0.0, (1.0 - x * x) ** 2)
+        info = (jac * w[:, None]).T @ jac
+        grad = (jac * w[:, None]).T @ r
+        try:
+            step = np.linalg.solve(info, grad)
+        except np.linalg.LinAlgError:
+            break
+        full = max(abs(step[0]), abs(step[1]), abs(step[4]) if n_par > 4 else 0.0)
+        accepted = False
+        for _ in range(MAX_HALVINGS):
+            trial = params.copy()
+            trial[:n_par] += step
+            trial[4] = max(trial[4], 0.0)
+            tt = tables(values, j0, nb, trial[4], h) if trial[4] != params[4] else tab
+            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, *tt, t0, h,
+                              trial, n_par)
+            if float(_rho(rt / cs).sum()) <= cost:
+                params, tab, r, jac = trial, tt, rt, jt
+                accepted = True
+                converged = full < tolerance_px
+                break
+            step = step * 0.5
+        if not accepted:
+            converged = max(abs(step[0]), abs(step[1])) < tolerance_px
+            break
+        if converged:
+            break
+    try:
+        inv = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        inv = np.full((n_par, n_par), np.inf)
+    return params, iterations, converged, inv, scale, cost
