@@ -79,6 +79,7 @@ CASES = [  # phase, illumination, radius, psf, psf known, noise
     (35.0, 135.0, 85.0, 1.0, True, False),
     (45.0, 77.0, 85.0, 1.5, False, False),
     (35.0, 300.0, 100.0, 0.7, False, True),
+    (40.0, 250.0, 90.0, None, True, True),
 ]
 
 

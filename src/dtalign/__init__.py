@@ -131,6 +131,7 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         compute_image_gradient_vu,
     )
     from .api.lm import lm_subpixel_refine
+    from .api.profiles import EdgeProfile, sphere_edge_profile
     from .api.results import (
         CoarseSearchResult,
         ImageDerivativesConfig,
@@ -138,7 +139,6 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         RidgeRefineResult,
         SecondaryBasin,
     )
-    from .api.profiles import EdgeProfile, sphere_edge_profile
     from .api.ridge import gradient_ridge_refine
     from .api.sampling import (
         _rotate_directions,

@@ -48,6 +48,11 @@ TAPS_SIGMAS = 4.0
 #: near the cutoff then chase it for tens of iterations.
 SCALE_ITERATIONS = 3
 
+#: Parameters of the refinement: dv, du, gain, background, PSF sigma, the
+#: amplitude of the profile's optional shape basis, and the background's
+#: slope along the normal (scattered light: a PSF's wings, a glow).
+N_PARAMS = 7
+
 #: Step halvings tried before an iteration is declared stuck.
 MAX_HALVINGS = 8
 
@@ -198,13 +203,19 @@ def select_pixels(shape_h: int, shape_w: int, verts: np.ndarray, normals: np.nda
 @kernel
 def evaluate(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndarray,
              verts: np.ndarray, normals: np.ndarray, curv: np.ndarray,
-             b: np.ndarray, c: np.ndarray, d: np.ndarray, t0: float, h: float,
-             params: np.ndarray, n_par: int) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals ``obs - model`` and the model's Jacobian (columns dv, du, gain, background, sigma)."""
+             b: np.ndarray, c: np.ndarray, d: np.ndarray,
+             bs: np.ndarray, cs: np.ndarray, ds: np.ndarray, use_shape: bool,
+             t0: float, h: float, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals ``obs - model`` and the model's Jacobian.
+
+    Columns: dv, du, gain, background, sigma, shape amplitude. The profile
+    is ``P + a S`` (``S`` the optional shape basis, tables ``bs, cs, ds``).
+    """
     npx = obs.shape[0]
     r = np.empty(npx)
-    jac = np.zeros((npx, n_par))
-    dv0, du0, gain, bg, sigma = params[0], params[1], params[2], params[3], params[4]
+    jac = np.zeros((npx, N_PARAMS))
+    dv0, du0, gain, bg, sigma, amp, slope = (params[0], params[1], params[2], params[3],
+                                             params[4], params[5], params[6])
     spread = sigma * sigma + 1.0 / 12.0
     for q in range(npx):
         k = pix_k[q]
@@ -216,17 +227,24 @@ def evaluate(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.nd
         kap = curv[k]
         s_eff = s - 0.5 * kap * (tau * tau + spread)
         m0, m1, m2 = box_model(b, c, d, k, s_eff - t0, h, abs(nv), abs(nu))
-        r[q] = obs[q] - (bg + gain * m0)
+        a0 = 0.0
+        if use_shape:
+            a0, a1, a2 = box_model(bs, cs, ds, k, s_eff - t0, h, abs(nv), abs(nu))
+            m0 += amp * a0
+            m1 += amp * a1
+            m2 += amp * a2
+        r[q] = obs[q] - (bg + slope * s + gain * m0)
         # d s_eff / d(dv, du) = -n + kappa tau t, with t = (-nu, nv)
         gv = -nv - kap * tau * nu
         gu = -nu + kap * tau * nv
-        jac[q, 0] = gain * m1 * gv
-        jac[q, 1] = gain * m1 * gu
+        jac[q, 0] = gain * m1 * gv - slope * nv
+        jac[q, 1] = gain * m1 * gu - slope * nu
         jac[q, 2] = m0
         jac[q, 3] = 1.0
-        if n_par > 4:
-            # heat equation: dM/dsigma = sigma M''; the curvature shift moves with sigma^2
-            jac[q, 4] = gain * (sigma * m2 - kap * sigma * m1)
+        # heat equation: dM/dsigma = sigma M''; the curvature shift moves with sigma^2
+        jac[q, 4] = gain * (sigma * m2 - kap * sigma * m1)
+        jac[q, 5] = gain * a0
+        jac[q, 6] = s
     return r, jac
 
 
@@ -292,24 +310,33 @@ def tables(values: np.ndarray, j0: int, nb: int, sigma: float, h: float
 @kernel
 def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndarray,
            verts: np.ndarray, normals: np.ndarray, curv: np.ndarray, values: np.ndarray,
-           o0: float, h: float, j0: int, nb: int, params0: np.ndarray, fit_sigma: bool,
-           max_iterations: int, tolerance_px: float, tukey_c: float
+           shape: np.ndarray, o0: float, h: float, j0: int, nb: int, params0: np.ndarray,
+           active: np.ndarray, max_iterations: int, tolerance_px: float, tukey_c: float
            ) -> tuple[np.ndarray, int, bool, np.ndarray, float, float]:
-    """Gauss-Newton with Tukey weights on ``(dv, du, gain, background[, sigma])``.
+    """Gauss-Newton with Tukey weights on the ``active`` parameters.
 
-    Returns the parameters, the iterations, whether the last step fell
-    below ``tolerance_px``, the inverse information matrix, the residual
-    scale (1.4826 MAD) and the final robust cost.
+    Parameters are ``(dv, du, gain, background, sigma, shape amplitude)``;
+    ``active`` lists the fitted ones (the others are held). ``shape`` is
+    the shape basis, or an empty ``(N, 0)`` array for none. Returns the
+    parameters, the iterations, whether the last full step fell below
+    ``tolerance_px``, the inverse information matrix of the active
+    parameters, the residual scale (1.4826 MAD, floored) and the final
+    robust cost.
     """
-    n_par = 5 if fit_sigma else 4
+    n_act = active.shape[0]
+    use_shape = shape.shape[1] > 0
     t0 = o0 + j0 * h
     params = params0.copy()
     b, c, d = tables(values, j0, nb, params[4], h)
-    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, b, c, d, t0, h, params,
-                      n_par)
+    if use_shape:
+        bs, cs_, ds = tables(shape, j0, nb, params[4], h)
+    else:
+        bs, cs_, ds = b, c, d
+    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, b, c, d, bs, cs_, ds,
+                      use_shape, t0, h, params)
     converged = False
     iterations = 0
-    info = np.zeros((n_par, n_par))
+    info = np.zeros((n_act, n_act))
     scale = 0.0
     cost = 0.0
     for it in range(max_iterations):
@@ -319,49 +346,57 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
             floor = SCALE_FLOOR * max(abs(params[2]), 1e-300)
             if scale < floor:
                 scale = floor
-        cs = tukey_c * scale
-        cost = robust_cost(r, cs)
+        cut = tukey_c * scale
+        cost = robust_cost(r, cut)
         info[:, :] = 0.0
-        grad = np.zeros(n_par)
+        grad = np.zeros(n_act)
         for q in range(r.shape[0]):
-            x = r[q] / cs
+            x = r[q] / cut
             if abs(x) >= 1.0:
                 continue
             w = (1.0 - x * x) ** 2
-            for a in range(n_par):
-                ja = jac[q, a] * w
+            for a in range(n_act):
+                ja = jac[q, active[a]] * w
                 grad[a] += ja * r[q]
-                for e in range(a, n_par):
-                    info[a, e] += ja * jac[q, e]
-        for a in range(n_par):
+                for e in range(a, n_act):
+                    info[a, e] += ja * jac[q, active[e]]
+        for a in range(n_act):
             for e in range(a):
                 info[a, e] = info[e, a]
         step, ok = solve_small(info, grad)
         if not ok:
             break
+        full = 0.0
+        for a in range(n_act):
+            ia = active[a]
+            if ia == 0 or ia == 1 or ia == 4:
+                full = max(full, abs(step[a]))
         accepted = False
-        full = max(abs(step[0]), abs(step[1]), abs(step[4]) if n_par > 4 else 0.0)
         for _ in range(MAX_HALVINGS):
             trial = params.copy()
-            for a in range(n_par):
-                trial[a] += step[a]
+            for a in range(n_act):
+                trial[active[a]] += step[a]
             if trial[4] < 0.0:
                 trial[4] = 0.0
             if trial[4] != params[4]:
                 bt, ct, dt = tables(values, j0, nb, trial[4], h)
+                if use_shape:
+                    bst, cst, dst = tables(shape, j0, nb, trial[4], h)
+                else:
+                    bst, cst, dst = bt, ct, dt
             else:
-                bt, ct, dt = b, c, d
-            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, bt, ct, dt, t0, h,
-                              trial, n_par)
-            if robust_cost(rt, cs) <= cost:
+                bt, ct, dt, bst, cst, dst = b, c, d, bs, cs_, ds
+            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, bt, ct, dt,
+                              bst, cst, dst, use_shape, t0, h, trial)
+            if robust_cost(rt, cut) <= cost:
                 params = trial
-                b, c, d, r, jac = bt, ct, dt, rt, jt
+                b, c, d, bs, cs_, ds, r, jac = bt, ct, dt, bst, cst, dst, rt, jt
                 accepted = True
                 # judged on the full Gauss-Newton step: a halved one is short by construction
                 if full < tolerance_px:
                     converged = True
                 break
-            for a in range(n_par):
+            for a in range(n_act):
                 step[a] *= 0.5
         if not accepted:
             # no step lowers the cost: a minimum when the step has shrunk to nothing
@@ -369,9 +404,10 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
             break
         if converged:
             break
-    ident = np.eye(n_par)
-    inv, ok = np.zeros((n_par, n_par)), True
-    for a in range(n_par):
+    ident = np.eye(n_act)
+    inv = np.zeros((n_act, n_act))
+    ok = True
+    for a in range(n_act):
         col, good = solve_small(info, ident[:, a].copy())
         ok = ok and good
         inv[:, a] = col

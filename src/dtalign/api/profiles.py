@@ -75,6 +75,13 @@ class EdgeProfile:
         unknown: the fit then estimates it.
     edge : str
         What kind of edge it is (:data:`EDGE_KINDS`).
+    shape_values : ndarray, shape (N, M), or None
+        An optional shape basis: the fit models the radiance as ``values +
+        a * shape_values`` with the amplitude ``a`` fitted, so a model that
+        is uncertain in one direction (a sphere's reflectance law:
+        :func:`sphere_edge_profile` gives the first-order change of the
+        limb darkening) is fitted along it. None: the profile is fitted as
+        given.
     step_jump : ndarray, shape (N,)
         Fraction of each vertex's contrast that is a step at the edge:
         the profile's change across the edge's cell over its full range
@@ -91,6 +98,7 @@ class EdgeProfile:
     curvature_px: FloatArray
     psf_sigma_px: float | None = None
     edge: str = "other"
+    shape_values: FloatArray | None = field(default=None, repr=False)
     step_jump: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -126,6 +134,14 @@ class EdgeProfile:
             psf = check.nonnegative_real(psf, "psf_sigma_px")
         if not isinstance(self.edge, str) or self.edge not in EDGE_KINDS:
             raise ValueError(f"edge must be one of {EDGE_KINDS}, got {self.edge!r}")
+        if self.shape_values is not None:
+            shape = check.as_float_array(self.shape_values, "shape_values")
+            if shape.shape != values.shape:
+                raise ValueError(
+                    f"shape_values must have the shape of values {values.shape}, got {shape.shape}"
+                )
+            check.require_finite(shape, "shape_values")
+            object.__setattr__(self, "shape_values", check.readonly(shape))
         object.__setattr__(self, "offsets_px", check.readonly(offsets))
         object.__setattr__(self, "values", check.readonly(values))
         object.__setattr__(self, "normals_vu", check.readonly(normals))
@@ -162,8 +178,10 @@ def _step_jump(offsets: FloatArray, values: FloatArray) -> FloatArray:
 
 
 def _sphere_radiance(pv: FloatArray, pu: FloatArray, center: tuple[float, float], radius: float,
-                     phase: float, sun: tuple[float, float], law: str, k: float) -> FloatArray:
-    """Radiance (albedo 1) of the sphere at image points: 0 off the disc and on the night side."""
+                     phase: float, sun: tuple[float, float], law: str, k: float
+                     ) -> tuple[FloatArray, FloatArray]:
+    """Radiance (albedo 1) of the sphere at image points (0 off the disc and on the night
+    side), and its derivative along Minnaert's exponent, ``I ln(cos i cos e)``."""
     qv = (pv - center[0]) / radius
     qu = (pu - center[1]) / radius
     rho2 = qv * qv + qu * qu
@@ -178,7 +196,9 @@ def _sphere_radiance(pv: FloatArray, pu: FloatArray, center: tuple[float, float]
         out = np.where(lit, ci**k * ce ** (k - 1.0), 0.0)
     else:
         out = np.where(lit, ci / np.where(lit, ci + cos_e, 1.0), 0.0)
-    return np.asarray(out, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dk = np.where(lit, out * np.log(np.where(lit, ci * np.maximum(cos_e, 1e-300), 1.0)), 0.0)
+    return np.asarray(out, dtype=np.float64), np.asarray(dk, dtype=np.float64)
 
 
 def sphere_edge_profile(
@@ -192,6 +212,7 @@ def sphere_edge_profile(
     law: str = "lambert",
     minnaert_k: float | None = None,
     psf_sigma_px: float | None = None,
+    fit_law: bool = True,
     step_px: float = SPHERE_PROFILE_STEP_PX,
     half_range_px: float = SPHERE_PROFILE_HALF_RANGE_PX,
 ) -> EdgeProfile:
@@ -231,6 +252,12 @@ def sphere_edge_profile(
     psf_sigma_px : float, optional
         The image's Gaussian PSF sigma, >= 0; None when unknown (the fit
         estimates it).
+    fit_law : bool, optional
+        Give the profile a shape basis (:attr:`EdgeProfile.shape_values`):
+        the first-order change of the radiance with Minnaert's exponent,
+        ``I ln(cos i cos e)``, so the fit adjusts the limb darkening when
+        the law is not quite right (True, the default); False fits the law
+        exactly as given.
     step_px, half_range_px : float, optional
         The offsets grid: ``step_px`` apart, the geometric edge midway
         between two samples' cells, reaching ``half_range_px`` each way.
@@ -293,12 +320,14 @@ def sphere_edge_profile(
         curvature = (math.copysign(1.0, math.cos(phase)) * a * b
                      / (a * a * sin_t2 + b * b * cos_t**2) ** 1.5)
     n_half = int(math.ceil(half / h))
-    offsets = (np.arange(-n_half, n_half) + 0.5) * h
+    offsets = np.asarray((np.arange(-n_half, n_half) + 0.5) * h, dtype=np.float64)
     sub = (np.arange(_SUBSAMPLES) + 0.5) / _SUBSAMPLES - 0.5
     along = (offsets[:, None] + h * sub[None, :]).ravel()
     pv = verts[:, 0:1] + along[None, :] * normals[:, 0:1]
     pu = verts[:, 1:2] + along[None, :] * normals[:, 1:2]
-    rad = _sphere_radiance(pv, pu, center, radius, phase, sun, law, k)
-    values = rad.reshape(verts.shape[0], offsets.shape[0], _SUBSAMPLES).mean(axis=2)
+    rad, dk = _sphere_radiance(pv, pu, center, radius, phase, sun, law, k)
+    shape = (verts.shape[0], offsets.shape[0], _SUBSAMPLES)
+    values = rad.reshape(shape).mean(axis=2)
+    basis = dk.reshape(shape).mean(axis=2) if fit_law else None
     return EdgeProfile(offsets_px=offsets, values=values, normals_vu=normals,
-                       curvature_px=curvature, psf_sigma_px=psf, edge=edge)
+                       curvature_px=curvature, psf_sigma_px=psf, edge=edge, shape_values=basis)

@@ -6,8 +6,9 @@ integer DT adds a one-pixel ripple. After the DT-LM lock this module fits
 the image's own pixels in a strip along each vertex's normal with the
 profile's model (the kernels of :mod:`dtalign._kernels.profile`, specified
 by :mod:`dtalign.reference.profile`): free offset, gain, background and,
-when the profile does not give it, the PSF sigma; Gauss-Newton with Tukey
-weights. The rotation, when fitted by the DT-LM, is held at its value: the
+when the profile does not give it, the PSF sigma, with the amplitude of
+the profile's shape basis (a reflectance law's limb darkening) and a
+background slope (scattered light); Gauss-Newton with Tukey weights. The rotation, when fitted by the DT-LM, is held at its value: the
 refinement fits the offset only.
 
 The result, :class:`ProfileRefinement`, says whether the refinement was
@@ -26,7 +27,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..api import checks as check
 from ..api.profiles import EdgeProfile
 
 __all__ = [
@@ -63,6 +63,12 @@ TOLERANCE_PX = 1e-4
 #: Tukey cutoff of the refinement, in residual scales (the 95 %-efficient value).
 TUKEY_C = 4.685
 
+#: Fit a background slope along the normals: scattered light (a PSF's
+#: wings, a glow around a bright disc) is a ramp across the strip, which a
+#: flat background would hand to the edge's position.
+FIT_SLOPE = True
+
+
 #: Starting PSF sigma (pixels) when the profile does not give it.
 SIGMA_START_PX = 0.7
 
@@ -92,8 +98,13 @@ class ProfileRefinement:
         True when the fit's pose is this refinement's.
     reason : str
         Why it was discarded (empty when accepted).
-    gain, background : float
-        The fitted photometric scale and sky level (image units).
+    gain, background, background_slope : float
+        The fitted photometric scale, sky level (image units) and the sky's
+        slope along the normals (image units per pixel).
+    shape_amplitude : float
+        The fitted amplitude of the profile's shape basis (0 without one;
+        for :func:`~dtalign.sphere_edge_profile`, the change of Minnaert's
+        exponent from the law given, to first order).
     psf_sigma_px : float
         The PSF sigma used (given, or estimated).
     psf_estimated : bool
@@ -127,6 +138,8 @@ class ProfileRefinement:
     reason: str
     gain: float
     background: float
+    background_slope: float
+    shape_amplitude: float
     psf_sigma_px: float
     psf_estimated: bool
     iterations: int
@@ -148,7 +161,9 @@ class ProfileRefinement:
             "offset_vu": [num(x) for x in self.offset_vu],
             "dt_offset_vu": [num(x) for x in self.dt_offset_vu],
             "accepted": self.accepted, "reason": self.reason, "gain": num(self.gain),
-            "background": num(self.background), "psf_sigma_px": num(self.psf_sigma_px),
+            "background": num(self.background),
+            "background_slope": num(self.background_slope), "shape_amplitude": num(self.shape_amplitude),
+            "psf_sigma_px": num(self.psf_sigma_px),
             "psf_estimated": self.psf_estimated, "iterations": self.iterations,
             "converged": self.converged, "walk_px": num(self.walk_px),
             "n_pixels": self.n_pixels, "residual_scale": num(self.residual_scale),
@@ -244,6 +259,9 @@ def refine_with_profile(
         normals = _rotated(normals, rotation_rad, None)
     curv = np.ascontiguousarray(profile.curvature_px)
     values = np.ascontiguousarray(profile.values)
+    shape = (np.ascontiguousarray(profile.shape_values) if profile.shape_values is not None
+             else np.zeros((values.shape[0], 0)))
+    use_shape = profile.shape_values is not None
     h = profile.step_px
     o0 = float(profile.offsets_px[0])
     reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
@@ -254,7 +272,7 @@ def refine_with_profile(
     tau = _tau_max(verts)
     hgt, wid = image.shape
     known = profile.psf_sigma_px is not None
-    sigma = float(profile.psf_sigma_px) if known else SIGMA_START_PX
+    sigma = SIGMA_START_PX if profile.psf_sigma_px is None else float(profile.psf_sigma_px)
 
     # contrast-weighted step fraction: is there an edge at all?
     contrast = np.ptp(values[:, j0 : j1 + 1], axis=1)
@@ -263,10 +281,10 @@ def refine_with_profile(
 
     def run(idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool) -> Any:
         if idx is None:
-            v, nrm, cv, val, tm = verts, normals, curv, values, tau
+            v, nrm, cv, val, shp, tm = verts, normals, curv, values, shape, tau
         else:
-            v, nrm, cv, val, tm = (np.ascontiguousarray(a[idx])
-                                   for a in (verts, normals, curv, values, tau))
+            v, nrm, cv, val, shp, tm = (np.ascontiguousarray(a[idx])
+                                        for a in (verts, normals, curv, values, shape, tau))
         kk, ii, jj = kernels.select_pixels(hgt, wid, np.ascontiguousarray(v + np.asarray(d0)),
                                            nrm, tm, HALF_WIDTH_PX)
         obs = np.ascontiguousarray(image[ii, jj])
@@ -274,25 +292,31 @@ def refine_with_profile(
         pu = jj.astype(np.float64)
         if params[2] == 0.0:  # the linear gain and background at the start
             b, c, d = kernels.tables(val, j0, nb, params[4], h)
-            r, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, o0 + j0 * h, h,
-                                    np.array([d0[0], d0[1], 1.0, 0.0, params[4]]), 4)
+            r, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False,
+                                    o0 + j0 * h, h,
+                                    np.array([d0[0], d0[1], 1.0, 0.0, params[4], 0.0, 0.0]))
             model = obs - r
             a = np.stack([model, np.ones_like(model)], axis=1)
             sol = np.linalg.lstsq(a, obs, rcond=None)[0]
             params = params.copy()
             params[2], params[3] = float(sol[0]), float(sol[1])
-        out = kernels.refine(obs, kk, pv, pu, v, nrm, cv, val, o0, h, j0, nb, params, fit_sigma,
-                             MAX_ITERATIONS, TOLERANCE_PX, TUKEY_C)
+        # the sigma is estimated with the shape free (a wrong law would bias it), then held
+        active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if use_shape else [])
+                  + ([6] if FIT_SLOPE else []))
+        out = kernels.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, o0, h, j0, nb, params,
+                             np.asarray(active, dtype=np.int64), MAX_ITERATIONS, TOLERANCE_PX,
+                             TUKEY_C)
         return (*out, obs.shape[0])
 
-    params = np.array([d0[0], d0[1], 0.0, 0.0, sigma])
+    params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
     iterations = 0
     if not known and verts.shape[0] > 0:
         stride = max(1, verts.shape[0] // SIGMA_VERTICES)
         idx = np.arange(0, verts.shape[0], stride, dtype=np.int64)
         p_a, it_a, _, _, _, _, _ = run(idx, params, True)
         iterations += int(it_a)
-        params = np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0)])
+        params = np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5],
+                           p_a[6]])
     p, it, conv, inv, scale, _, npx = run(None, params, False)
     iterations += int(it)
     off = (float(p[0]), float(p[1]))
@@ -309,7 +333,9 @@ def refine_with_profile(
         reason = f"fitted a non-positive gain ({p[2]:.3g}): the profile does not match the image"
     return ProfileRefinement(
         offset_vu=off, dt_offset_vu=d0, accepted=not reason, reason=reason,
-        gain=float(p[2]), background=float(p[3]), psf_sigma_px=float(p[4]),
+        gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
+        shape_amplitude=float(p[5]),
+        psf_sigma_px=float(p[4]),
         psf_estimated=not known, iterations=iterations, converged=bool(conv), walk_px=walk,
         n_pixels=int(npx), residual_scale=float(scale),
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),

@@ -12,7 +12,13 @@ import math
 import numpy as np
 from scipy.special import erf
 
-from .._kernels.profile import MAX_HALVINGS, MIN_BOX_WIDTH, SCALE_FLOOR, SCALE_ITERATIONS, TAPS_SIGMAS
+from .._kernels.profile import (
+    MAX_HALVINGS,
+    MIN_BOX_WIDTH,
+    SCALE_FLOOR,
+    SCALE_ITERATIONS,
+    TAPS_SIGMAS,
+)
 
 FloatArray = np.ndarray
 
@@ -105,9 +111,10 @@ def select_pixels(shape_h: int, shape_w: int, verts: FloatArray, normals: FloatA
 
 def evaluate(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatArray,
              verts: FloatArray, normals: FloatArray, curv: FloatArray, b: FloatArray,
-             c: FloatArray, d: FloatArray, t0: float, h: float, params: FloatArray,
-             n_par: int) -> tuple[FloatArray, FloatArray]:
-    dv0, du0, gain, bg, sigma = params
+             c: FloatArray, d: FloatArray, bs: FloatArray, cs: FloatArray, ds: FloatArray,
+             use_shape: bool, t0: float, h: float, params: FloatArray
+             ) -> tuple[FloatArray, FloatArray]:
+    dv0, du0, gain, bg, sigma, amp, slope = params
     nv, nu = normals[pix_k, 0], normals[pix_k, 1]
     ev = pix_v - verts[pix_k, 0] - dv0
     eu = pix_u - verts[pix_k, 1] - du0
@@ -116,11 +123,14 @@ def evaluate(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: Float
     kap = curv[pix_k]
     s_eff = s - 0.5 * kap * (tau * tau + sigma * sigma + 1.0 / 12.0)
     m0, m1, m2 = _box_model(b, c, d, pix_k, s_eff - t0, h, np.abs(nv), np.abs(nu))
-    r = obs - (bg + gain * m0)
-    cols = [gain * m1 * (-nv - kap * tau * nu), gain * m1 * (-nu + kap * tau * nv), m0,
-            np.ones_like(m0)]
-    if n_par > 4:
-        cols.append(gain * (sigma * m2 - kap * sigma * m1))
+    a0 = np.zeros_like(m0)
+    if use_shape:
+        a0, a1, a2 = _box_model(bs, cs, ds, pix_k, s_eff - t0, h, np.abs(nv), np.abs(nu))
+        m0, m1, m2 = m0 + amp * a0, m1 + amp * a1, m2 + amp * a2
+    r = obs - (bg + slope * s + gain * m0)
+    cols = [gain * m1 * (-nv - kap * tau * nu) - slope * nv,
+            gain * m1 * (-nu + kap * tau * nv) - slope * nu, m0, np.ones_like(m0),
+            gain * (sigma * m2 - kap * sigma * m1), gain * a0, s]
     return r, np.stack(cols, axis=1)
 
 
@@ -130,41 +140,50 @@ def _rho(x: FloatArray) -> FloatArray:
 
 def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatArray,
            verts: FloatArray, normals: FloatArray, curv: FloatArray, values: FloatArray,
-           o0: float, h: float, j0: int, nb: int, params0: FloatArray, fit_sigma: bool,
-           max_iterations: int, tolerance_px: float, tukey_c: float
+           shape: FloatArray, o0: float, h: float, j0: int, nb: int, params0: FloatArray,
+           active: np.ndarray, max_iterations: int, tolerance_px: float, tukey_c: float
            ) -> tuple[FloatArray, int, bool, FloatArray, float, float]:
-    n_par = 5 if fit_sigma else 4
+    use_shape = shape.shape[1] > 0
     t0 = o0 + j0 * h
+
+    def both(sigma: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+                                    FloatArray]:
+        t = tables(values, j0, nb, sigma, h)
+        return t + (tables(shape, j0, nb, sigma, h) if use_shape else t)
+
     params = params0.copy()
-    tab = tables(values, j0, nb, params[4], h)
-    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, *tab, t0, h, params, n_par)
+    tab = both(params[4])
+    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, tab[0], tab[1], tab[2],
+                      tab[3], tab[4], tab[5], use_shape, t0, h, params)
     converged, iterations, scale, cost = False, 0, 0.0, 0.0
-    info = np.zeros((n_par, n_par))
+    n_act = active.shape[0]
+    info = np.zeros((n_act, n_act))
     for it in range(max_iterations):
         iterations = it + 1
         if it < SCALE_ITERATIONS:
             scale = max(1.4826 * float(np.median(np.abs(r))),
                         SCALE_FLOOR * max(abs(params[2]), 1e-300))
-        cs = tukey_c * scale
-        cost = float(_rho(r / cs).sum())
-        x = r / cs
+        cut = tukey_c * scale
+        cost = float(_rho(r / cut).sum())
+        x = r / cut
         w = np.where(np.abs(x) >= 1.0, 0.0, (1.0 - x * x) ** 2)
-        info = (jac * w[:, None]).T @ jac
-        grad = (jac * w[:, None]).T @ r
+        ja = jac[:, active]
+        info = (ja * w[:, None]).T @ ja
+        grad = (ja * w[:, None]).T @ r
         try:
             step = np.linalg.solve(info, grad)
         except np.linalg.LinAlgError:
             break
-        full = max(abs(step[0]), abs(step[1]), abs(step[4]) if n_par > 4 else 0.0)
+        full = float(np.abs(step[np.isin(active, (0, 1, 4))]).max())
         accepted = False
         for _ in range(MAX_HALVINGS):
             trial = params.copy()
-            trial[:n_par] += step
+            trial[active] += step
             trial[4] = max(trial[4], 0.0)
-            tt = tables(values, j0, nb, trial[4], h) if trial[4] != params[4] else tab
-            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, *tt, t0, h,
-                              trial, n_par)
-            if float(_rho(rt / cs).sum()) <= cost:
+            tt = both(trial[4]) if trial[4] != params[4] else tab
+            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, tt[0], tt[1],
+                              tt[2], tt[3], tt[4], tt[5], use_shape, t0, h, trial)
+            if float(_rho(rt / cut).sum()) <= cost:
                 params, tab, r, jac = trial, tt, rt, jt
                 accepted = True
                 converged = full < tolerance_px
@@ -178,5 +197,5 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
     try:
         inv = np.linalg.inv(info)
     except np.linalg.LinAlgError:
-        inv = np.full((n_par, n_par), np.inf)
+        inv = np.full((n_act, n_act), np.inf)
     return params, iterations, converged, inv, scale, cost
