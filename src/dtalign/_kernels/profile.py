@@ -53,6 +53,10 @@ SCALE_ITERATIONS = 3
 #: slope along the normal (scattered light: a PSF's wings, a glow).
 N_PARAMS = 7
 
+#: The blur is computed on merged cells once its sigma spans this many of
+#: them (see :func:`tables`): the taps then stay few whatever the sigma.
+COARSEN_SIGMAS = 3.0
+
 #: Step halvings tried before an iteration is declared stuck.
 MAX_HALVINGS = 8
 
@@ -299,12 +303,40 @@ def solve_small(a: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, bool]:
 
 
 @kernel
-def tables(values: np.ndarray, j0: int, nb: int, sigma: float, h: float
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The blurred rows and their two antiderivatives over the table's columns."""
-    b = blur_rows(values, j0, nb, hat_gauss_taps(sigma, h))
-    c, d = cumulate(b, h)
-    return b, c, d
+def tables(values: np.ndarray, o0: float, h: float, j0: int, nb: int, sigma: float
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The blurred rows over the table's columns ``j0 .. j0 + nb - 1``, their two
+    antiderivatives, the table's first offset and its step.
+
+    A blur wider than :data:`COARSEN_SIGMAS` samples is computed on cells of
+    ``f`` samples merged (their means: the integral is kept), with the
+    sigma reduced by the variance the coarser piecewise-linear grid adds,
+    ``((f h)^2 - h^2) / 4``: the same blurred profile for a fraction of the taps.
+    """
+    f = 1
+    if sigma > 0.0:
+        f = max(1, int(sigma / (COARSEN_SIGMAS * h)))
+    if f == 1:
+        b = blur_rows(values, j0, nb, hat_gauss_taps(sigma, h))
+        c, d = cumulate(b, h)
+        return b, c, d, o0 + j0 * h, h
+    n, m = values.shape
+    mc = m // f
+    coarse = np.empty((n, mc))
+    for k in range(n):
+        for jc in range(mc):
+            acc = 0.0
+            for t in range(f):
+                acc += values[k, jc * f + t]
+            coarse[k, jc] = acc / f
+    hc = f * h
+    oc0 = o0 + 0.5 * (f - 1) * h
+    jc0 = j0 // f
+    jc1 = min(mc - 1, (j0 + nb - 1) // f + 1)
+    s2 = sigma * sigma - 0.25 * (hc * hc - h * h)
+    b = blur_rows(coarse, jc0, jc1 - jc0 + 1, hat_gauss_taps(math.sqrt(max(s2, 0.0)), hc))
+    c, d = cumulate(b, hc)
+    return b, c, d, oc0 + jc0 * hc, hc
 
 
 @kernel
@@ -325,15 +357,14 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
     """
     n_act = active.shape[0]
     use_shape = shape.shape[1] > 0
-    t0 = o0 + j0 * h
     params = params0.copy()
-    b, c, d = tables(values, j0, nb, params[4], h)
+    b, c, d, t0, ht = tables(values, o0, h, j0, nb, params[4])
     if use_shape:
-        bs, cs_, ds = tables(shape, j0, nb, params[4], h)
+        bs, cs_, ds, _, _ = tables(shape, o0, h, j0, nb, params[4])
     else:
         bs, cs_, ds = b, c, d
     r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, b, c, d, bs, cs_, ds,
-                      use_shape, t0, h, params)
+                      use_shape, t0, ht, params)
     converged = False
     iterations = 0
     info = np.zeros((n_act, n_act))
@@ -379,18 +410,19 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
             if trial[4] < 0.0:
                 trial[4] = 0.0
             if trial[4] != params[4]:
-                bt, ct, dt = tables(values, j0, nb, trial[4], h)
+                bt, ct, dt, t0t, htt = tables(values, o0, h, j0, nb, trial[4])
                 if use_shape:
-                    bst, cst, dst = tables(shape, j0, nb, trial[4], h)
+                    bst, cst, dst, _, _ = tables(shape, o0, h, j0, nb, trial[4])
                 else:
                     bst, cst, dst = bt, ct, dt
             else:
-                bt, ct, dt, bst, cst, dst = b, c, d, bs, cs_, ds
+                bt, ct, dt, bst, cst, dst, t0t, htt = b, c, d, bs, cs_, ds, t0, ht
             rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, bt, ct, dt,
-                              bst, cst, dst, use_shape, t0, h, trial)
+                              bst, cst, dst, use_shape, t0t, htt, trial)
             if robust_cost(rt, cut) <= cost:
                 params = trial
                 b, c, d, bs, cs_, ds, r, jac = bt, ct, dt, bst, cst, dst, rt, jt
+                t0, ht = t0t, htt
                 accepted = True
                 # judged on the full Gauss-Newton step: a halved one is short by construction
                 if full < tolerance_px:

@@ -291,9 +291,8 @@ def refine_with_profile(
         pv = ii.astype(np.float64)
         pu = jj.astype(np.float64)
         if params[2] == 0.0:  # the linear gain and background at the start
-            b, c, d = kernels.tables(val, j0, nb, params[4], h)
-            r, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False,
-                                    o0 + j0 * h, h,
+            b, c, d, t0, ht = kernels.tables(val, o0, h, j0, nb, params[4])
+            r, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False, t0, ht,
                                     np.array([d0[0], d0[1], 1.0, 0.0, params[4], 0.0, 0.0]))
             model = obs - r
             a = np.stack([model, np.ones_like(model)], axis=1)

@@ -8,11 +8,13 @@ kernels are held against these to 1e-9 by ``tests/test_profiles.py``.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from scipy.special import erf
 
 from .._kernels.profile import (
+    COARSEN_SIGMAS,
     MAX_HALVINGS,
     MIN_BOX_WIDTH,
     SCALE_FLOOR,
@@ -37,19 +39,33 @@ def hat_gauss_taps(sigma: float, h: float) -> FloatArray:
     return np.asarray((f2((m - 1) * h) - 2.0 * f2(m * h) + f2((m + 1) * h)) / h)
 
 
-def tables(values: FloatArray, j0: int, nb: int, sigma: float, h: float
-           ) -> tuple[FloatArray, FloatArray, FloatArray]:
+def _blur(values: FloatArray, j0: int, nb: int, sigma: float, h: float) -> FloatArray:
     taps = hat_gauss_taps(sigma, h)
     half = (taps.shape[0] - 1) // 2
     cols = j0 + np.arange(nb)[:, None] + half - np.arange(taps.shape[0])[None, :]
     cols = np.clip(cols, 0, values.shape[1] - 1)
-    b = (values[:, cols] * taps[None, None, :]).sum(axis=2)
+    return np.asarray((values[:, cols] * taps[None, None, :]).sum(axis=2))
+
+
+def tables(values: FloatArray, o0: float, h: float, j0: int, nb: int, sigma: float
+           ) -> tuple[FloatArray, FloatArray, FloatArray, float, float]:
+    f = max(1, int(sigma / (COARSEN_SIGMAS * h))) if sigma > 0.0 else 1
+    if f == 1:
+        b, t0, ht = _blur(values, j0, nb, sigma, h), o0 + j0 * h, h
+    else:
+        mc = values.shape[1] // f
+        coarse = values[:, : mc * f].reshape(values.shape[0], mc, f).mean(axis=2)
+        ht = f * h
+        jc0, jc1 = j0 // f, min(mc - 1, (j0 + nb - 1) // f + 1)
+        s2 = sigma * sigma - 0.25 * (ht * ht - h * h)
+        b = _blur(coarse, jc0, jc1 - jc0 + 1, math.sqrt(max(s2, 0.0)), ht)
+        t0 = o0 + 0.5 * (f - 1) * h + jc0 * ht
     slope = np.diff(b, axis=1)
     c = np.concatenate([np.zeros((b.shape[0], 1)),
-                        np.cumsum(h * (b[:, :-1] + b[:, 1:]) * 0.5, axis=1)], axis=1)
-    inc = c[:, :-1] * h + b[:, :-1] * h * h * 0.5 + slope * h * h / 6.0
+                        np.cumsum(ht * (b[:, :-1] + b[:, 1:]) * 0.5, axis=1)], axis=1)
+    inc = c[:, :-1] * ht + b[:, :-1] * ht * ht * 0.5 + slope * ht * ht / 6.0
     d = np.concatenate([np.zeros((b.shape[0], 1)), np.cumsum(inc, axis=1)], axis=1)
-    return b, c, d
+    return b, c, d, t0, ht
 
 
 def _antiderivs(b: FloatArray, c: FloatArray, d: FloatArray, k: FloatArray, x: FloatArray,
@@ -144,17 +160,16 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
            active: np.ndarray, max_iterations: int, tolerance_px: float, tukey_c: float
            ) -> tuple[FloatArray, int, bool, FloatArray, float, float]:
     use_shape = shape.shape[1] > 0
-    t0 = o0 + j0 * h
 
-    def both(sigma: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
-                                    FloatArray]:
-        t = tables(values, j0, nb, sigma, h)
-        return t + (tables(shape, j0, nb, sigma, h) if use_shape else t)
+    def both(sigma: float) -> tuple[Any, ...]:
+        t = tables(values, o0, h, j0, nb, sigma)
+        u = tables(shape, o0, h, j0, nb, sigma) if use_shape else t
+        return (t[0], t[1], t[2], u[0], u[1], u[2], t[3], t[4])
 
     params = params0.copy()
     tab = both(params[4])
     r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, tab[0], tab[1], tab[2],
-                      tab[3], tab[4], tab[5], use_shape, t0, h, params)
+                      tab[3], tab[4], tab[5], use_shape, tab[6], tab[7], params)
     converged, iterations, scale, cost = False, 0, 0.0, 0.0
     n_act = active.shape[0]
     info = np.zeros((n_act, n_act))
@@ -182,7 +197,7 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
             trial[4] = max(trial[4], 0.0)
             tt = both(trial[4]) if trial[4] != params[4] else tab
             rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, tt[0], tt[1],
-                              tt[2], tt[3], tt[4], tt[5], use_shape, t0, h, trial)
+                              tt[2], tt[3], tt[4], tt[5], use_shape, tt[6], tt[7], trial)
             if float(_rho(rt / cut).sum()) <= cost:
                 params, tab, r, jac = trial, tt, rt, jt
                 accepted = True
