@@ -82,27 +82,31 @@ def _measure(sc: Any, profile_psf: float | None) -> dict[str, Any]:
     }
 
 
-def _stats(rows: Sequence[dict[str, Any]]) -> str:
+COLUMNS = ("n", "plain median", "plain p95", "profile median", "profile p95", "profile max",
+           "accepted", "ok", "worse")
+
+
+def _stats(rows: Sequence[dict[str, Any]]) -> list[str]:
     p = np.array([r["plain"] for r in rows])
     q = np.array([r["profile"] for r in rows])
     worse = sum(r["profile"] > r["plain"] for r in rows)
-    return (f"{len(rows):4d}  {np.median(p):7.3f}  {np.percentile(p, 95):7.3f}  "
-            f"{np.median(q):7.4f}  {np.percentile(q, 95):7.4f}  {q.max():7.4f}  "
-            f"{sum(r['accepted'] for r in rows):4d}  {sum(r['ok'] for r in rows):4d}  {worse:4d}")
-
-
-HEAD = ("   n  plain50  plain95  prof50   prof95   profmax  acc.   ok   worse")
+    return [str(len(rows)), f"{np.median(p):.3f}", f"{np.percentile(p, 95):.3f}",
+            f"{np.median(q):.4f}", f"{np.percentile(q, 95):.4f}", f"{q.max():.4f}",
+            str(sum(r["accepted"] for r in rows)), str(sum(r["ok"] for r in rows)), str(worse)]
 
 
 def _table(title: str, groups: list[tuple[str, list[dict[str, Any]]]]) -> str:
-    w = max(len(g) for g, _ in groups) if groups else 10
-    line = "=" * w + "  " + "  ".join("=" * len(c) for c in HEAD.split())
-    out = [title, "", line, f"{'':{w}s}{HEAD}".rstrip(), line]
-    for name, rows in groups:
-        if rows:
-            out.append(f"{name:{w}s}  {_stats(rows)}")
-    out.append(line)
-    return "\n".join(out)
+    """An RST simple table: one row per group, errors in pixels."""
+    body = [[name, *_stats(rows)] for name, rows in groups if rows]
+    head = ["", *COLUMNS]
+    widths = [max(len(r[i]) for r in [head, *body]) for i in range(len(head))]
+    line = "  ".join("=" * w for w in widths)
+
+    def fmt(cells: list[str]) -> str:
+        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
+
+    return "\n".join([f"**{title}**", "", line, fmt(head), line, *map(fmt, body), line])
 
 
 def _bins(rows: list[dict[str, Any]], key: Callable[[dict[str, Any]], str]

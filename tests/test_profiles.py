@@ -106,3 +106,51 @@ def test_low_phase_never_confidently_wrong(phase):
     fit = fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas, search_window_vu=(6, 6),
                        edge_profile=_profile(sc))
     assert not (_err(fit, sc) > 0.5 and fit.status == "ok")
+
+
+def test_batch_paths_refine_like_the_one_call_fit():
+    from dtalign.pipeline import fit_polyline_products, prepare_image
+    from dtalign.pipeline.batch import fit_images, fit_many
+
+    sc = _scene(psf=0.7)
+    L = sc.limb
+    prof = _profile(sc, psf_sigma_px=0.7)
+    products = prepare_image(sc.image)
+    one = fit_polyline_products(products, L.vertices_vu, L.normals_vu, L.sigmas,
+                                search_window_vu=(6, 6), edge_profile=prof)
+    many = fit_many(products, [(L.vertices_vu, L.normals_vu, L.sigmas, prof), L],
+                    search_window_vu=(6, 6), workers=1)
+    assert many[0].offset_vu == one.offset_vu and many[0].profile.accepted
+    assert many[1].profile is None and many[1].offset_vu == one.dt_offset_vu
+    images = fit_images([(sc.image, None, [(L.vertices_vu, L.normals_vu, L.sigmas, prof)])],
+                        search_window_vu=(6, 6), workers=1)
+    assert images[0][0].offset_vu == one.offset_vu
+    with pytest.raises(TypeError, match=r"polylines\[0\]"):
+        fit_many(products, [(L.vertices_vu, L.normals_vu, L.sigmas, "nope")],
+                 search_window_vu=(6, 6), workers=1)
+
+
+def test_profile_with_wrong_vertex_count_is_refused():
+    sc = _scene()
+    L = sc.limb
+    prof = _profile(sc)
+    with pytest.raises(ValueError, match="edge_profile"):
+        fit_polyline(sc.image, L.vertices_vu[:-1], L.normals_vu[:-1], L.sigmas[:-1],
+                     search_window_vu=(6, 6), edge_profile=prof)
+    with pytest.raises(TypeError, match="edge_profile"):
+        fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas,
+                     search_window_vu=(6, 6), edge_profile=object())
+
+
+def test_far_model_is_discarded_and_said():
+    sc = _scene()
+    L = sc.limb
+    # a model sphere 3 px off the polyline's: the refinement walks away and is discarded
+    prof = sphere_edge_profile(L.vertices_vu, center_vu=np.add(sc.model_center_vu, (3.0, 0.0)),
+                               radius_px=85.0, phase_deg=35.0, illumination_deg=30.0)
+    fit = fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas, search_window_vu=(6, 6),
+                       edge_profile=prof)
+    assert not fit.profile.accepted and fit.profile.reason
+    assert "profile_rejected" in fit.reasons and fit.status == "suspect"
+    assert fit.offset_vu == fit.dt_offset_vu
+    assert "profile refinement rejected" in fit.status_message
