@@ -154,3 +154,33 @@ def test_far_model_is_discarded_and_said():
     assert "profile_rejected" in fit.reasons and fit.status == "suspect"
     assert fit.offset_vu == fit.dt_offset_vu
     assert "profile refinement rejected" in fit.status_message
+
+
+def test_cli_fit_with_a_sphere_model(tmp_path, capsys):
+    import json
+
+    from dtalign.cli import main
+    from dtalign.io import save_polyline_csv
+
+    sc = _scene()
+    np.save(tmp_path / "s.npy", sc.image)
+    save_polyline_csv(tmp_path / "s.csv", sc.limb)
+    v, u = sc.model_center_vu
+    sphere = f"{v},{u},85,35,30"
+    main(["fit", str(tmp_path / "s.npy"), str(tmp_path / "s.csv"), "--window", "6",
+          "--sphere", sphere, "--psf-sigma", "0", "--json"])
+    out, _ = capsys.readouterr()
+    d = json.loads(out)
+    assert d["profile"]["accepted"]
+    assert np.hypot(*(np.asarray(d["offset_vu"]) - sc.true_offset_vu)) < 0.03
+    assert d["dt_offset_vu"] != d["offset_vu"]
+    code = main(["fit", str(tmp_path / "s.npy"), str(tmp_path / "s.csv"), "--window", "6",
+                 "--sphere", sphere])
+    out, _ = capsys.readouterr()
+    assert code == 0 and "profile      : accepted" in out
+    code = main(["fit", str(tmp_path / "s.npy"), str(tmp_path / "s.csv"), "--sphere", "1,2,3"])
+    _, err = capsys.readouterr()
+    assert code != 0 and "--sphere" in err
+    code = main(["fit", str(tmp_path / "s.npy"), str(tmp_path / "s.csv"), "--law", "minnaert,0.7"])
+    _, err = capsys.readouterr()
+    assert code != 0 and "--law needs --sphere" in err

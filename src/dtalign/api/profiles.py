@@ -253,7 +253,7 @@ def sphere_edge_profile(
         The image's Gaussian PSF sigma, >= 0; None when unknown (the fit
         estimates it).
     fit_law : bool, optional
-        Give the profile a shape basis (:attr:`EdgeProfile.shape_values`):
+        Give the profile a shape basis (``EdgeProfile.shape_values``):
         the first-order change of the radiance with Minnaert's exponent,
         ``I ln(cos i cos e)``, so the fit adjusts the limb darkening when
         the law is not quite right (True, the default); False fits the law

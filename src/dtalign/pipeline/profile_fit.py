@@ -4,7 +4,7 @@ The edge DT localises each edge at its steepest gradient, which for a
 one-sided photometric edge (a limb) lies inside the geometric edge; the
 integer DT adds a one-pixel ripple. After the DT-LM lock this module fits
 the image's own pixels in a strip along each vertex's normal with the
-profile's model (the kernels of :mod:`dtalign._kernels.profile`, specified
+profile's model (the kernels of ``dtalign._kernels.profile``, specified
 by :mod:`dtalign.reference.profile`): free offset, gain, background and,
 when the profile does not give it, the PSF sigma, with the amplitude of
 the profile's shape basis (a reflectance law's limb darkening) and a
@@ -14,7 +14,7 @@ refinement fits the offset only.
 The result, :class:`ProfileRefinement`, says whether the refinement was
 accepted: it is discarded when it did not converge, walked farther than
 :data:`MAX_WALK_PX` from the DT lock, or fitted a non-positive gain; and
-it says when the profile has no usable edge (:attr:`ProfileRefinement.soft_edge`).
+it says when the profile has no usable edge (``soft_edge``).
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ SIGMA_START_PX = 0.7
 #: cost is then independent of the polyline's length.
 SIGMA_VERTICES = 48
 
-#: A profile whose contrast-weighted median :attr:`EdgeProfile.step_jump`
+#: A profile whose contrast-weighted median ``EdgeProfile.step_jump``
 #: is below this has no usable edge: its brightness rolls off to the edge
 #: (a Lambert limb below ~10-15 deg phase), so the edge's position rests on
 #: the roll-off's modelled shape alone.
@@ -242,7 +242,7 @@ def refine_with_profile(
     rotation_rad, pivot_vu
         The DT-LM rotation and its pivot: held fixed.
     kernels : module, optional
-        The implementation: :mod:`dtalign._kernels.profile` (default) or
+        The implementation: ``dtalign._kernels.profile`` (default) or
         :mod:`dtalign.reference.profile`.
 
     Returns

@@ -1,6 +1,6 @@
 """The NumPy specification of the edge-profile refinement kernels.
 
-Same names and arguments as :mod:`dtalign._kernels.profile` (whose module
+Same names and arguments as ``dtalign._kernels.profile`` (whose module
 docstring states the model), written with array operations: the compiled
 kernels are held against these to 1e-9 by ``tests/test_profiles.py``.
 """
