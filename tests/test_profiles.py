@@ -184,3 +184,35 @@ def test_cli_fit_with_a_sphere_model(tmp_path, capsys):
     code = main(["fit", str(tmp_path / "s.npy"), str(tmp_path / "s.csv"), "--law", "minnaert,0.7"])
     _, err = capsys.readouterr()
     assert code != 0 and "--law needs --sphere" in err
+
+
+def test_campaign_item_with_a_sphere_stores_both_offsets(tmp_path):
+    import json
+
+    from dtalign.archive import fit_item, read_manifest
+    from dtalign.io import save_polyline_csv
+
+    sc = _scene()
+    np.save(tmp_path / "s.npy", sc.image)
+    save_polyline_csv(tmp_path / "s.csv", sc.limb)
+    sphere = {"center_vu": list(sc.model_center_vu), "radius_px": 85.0, "phase_deg": 35.0,
+              "illumination_deg": 30.0, "psf_sigma_px": 0.0}
+    (tmp_path / "m.jsonl").write_text(
+        json.dumps({"image": "s.npy", "polylines": ["s.csv"], "window": 6, "spheres": [sphere]})
+        + "\n" + json.dumps({"id": "plain", "image": "s.npy", "polylines": ["s.csv"], "window": 6})
+        + "\n")
+    items = read_manifest(tmp_path / "m.jsonl")
+    assert items[0].spheres == (sphere,) and items[1].spheres == ()
+    row = fit_item(items[0])["results"][0]
+    assert row["profile_accepted"] is True
+    assert np.hypot(row["offset_v"] - sc.true_offset_vu[0],
+                    row["offset_u"] - sc.true_offset_vu[1]) < 0.03
+    assert (row["dt_offset_v"], row["dt_offset_u"]) != (row["offset_v"], row["offset_u"])
+    plain = fit_item(items[1])["results"][0]
+    assert plain["profile_accepted"] is None
+    assert (plain["dt_offset_v"], plain["dt_offset_u"]) == (plain["offset_v"], plain["offset_u"])
+    assert (plain["offset_v"], plain["offset_u"]) == (row["dt_offset_v"], row["dt_offset_u"])
+    (tmp_path / "bad.jsonl").write_text(json.dumps(
+        {"image": "s.npy", "polylines": ["s.csv"], "spheres": [{"radius_px": 3}]}) + "\n")
+    with pytest.raises(ValueError, match="spheres"):
+        read_manifest(tmp_path / "bad.jsonl")

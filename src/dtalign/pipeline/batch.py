@@ -139,11 +139,12 @@ def _usable_cpus() -> int:
 #: container or ``taskset`` limits them below ``os.cpu_count()``).
 DEFAULT_WORKERS = _usable_cpus()
 
-#: Keyword options :func:`fit_polyline_products` accepts besides the window.
+#: Keyword options :func:`fit_polyline_products` accepts besides the window
+#: (and the edge profile, which is each polyline's own: :func:`_polyline_profile`).
 _FIT_OPTIONS = frozenset(
     name
     for name, p in inspect.signature(fit_polyline_products).parameters.items()
-    if p.kind is inspect.Parameter.KEYWORD_ONLY and name != "search_window_vu"
+    if p.kind is inspect.Parameter.KEYWORD_ONLY and name not in ("search_window_vu", "edge_profile")
 )
 
 #: Their defaults (the options a call leaves out), read-only.

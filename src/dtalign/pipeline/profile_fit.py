@@ -174,7 +174,7 @@ class ProfileRefinement:
 
 
 def check_edge_profile(value: Any, normals_vu: FloatArray) -> EdgeProfile:
-    """``value`` as the :class:`EdgeProfile` of a polyline with these normals."""
+    """``value`` as the :class:`~dtalign.api.profiles.EdgeProfile` of a polyline with these normals."""
     if not isinstance(value, EdgeProfile):
         raise TypeError(f"edge_profile must be a dtalign.EdgeProfile, got {type(value).__name__}")
     n = normals_vu.shape[0]
