@@ -216,3 +216,25 @@ def test_campaign_item_with_a_sphere_stores_both_offsets(tmp_path):
         {"image": "s.npy", "polylines": ["s.csv"], "spheres": [{"radius_px": 3}]}) + "\n")
     with pytest.raises(ValueError, match="spheres"):
         read_manifest(tmp_path / "bad.jsonl")
+
+
+def test_plot_profile_fit(tmp_path):
+    pytest.importorskip("matplotlib")
+    from dtalign.plotting import plot_profile_fit
+
+    sc = _scene(psf=1.0)
+    L = sc.limb
+    prof = _profile(sc, psf_sigma_px=None)
+    fit = fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas, search_window_vu=(6, 6),
+                       edge_profile=prof)
+    fig = plot_profile_fit(fit, sc.image, prof, tmp_path / "p.png", n_normals=3)
+    assert (tmp_path / "p.png").stat().st_size > 0 and len(fig.axes) == 3
+    # the model runs through the pixels: residuals at the noise-free scene's level
+    from dtalign.pipeline.profile_fit import profile_samples
+
+    for smp in profile_samples(sc.image, prof, L.vertices_vu, fit.profile, [50, 100]):
+        assert np.abs(smp["residual"]).max() < 0.05 * fit.profile.gain
+        assert smp["dt_shift"] != 0.0
+    plain = fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas, search_window_vu=(6, 6))
+    with pytest.raises(ValueError, match="profile"):
+        plot_profile_fit(plain, sc.image, prof)

@@ -27,10 +27,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..api import checks as check
 from ..api.profiles import EdgeProfile
 
 __all__ = [
     "HALF_WIDTH_PX",
+    "profile_samples",
     "MAX_WALK_PX",
     "SOFT_EDGE_STEP_JUMP",
     "ProfileRefinement",
@@ -343,3 +345,76 @@ def refine_with_profile(
     )
 
 
+
+
+def profile_samples(
+    image: Any, profile: EdgeProfile, vertices_vu: Any, refinement: ProfileRefinement,
+    indices: Any, *, n_model: int = 200,
+) -> list[dict[str, FloatArray]]:
+    """The image pixels and the fitted model across some vertices (for plots).
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+    profile : EdgeProfile
+    vertices_vu : array_like, shape (N, 2)
+        The model vertices (before the pose; the rotation is not applied).
+    refinement : ProfileRefinement
+        The refinement whose parameters draw the model.
+    indices : sequence of int
+        The vertices.
+    n_model : int, optional
+        Samples of the model curve across the strip.
+
+    Returns
+    -------
+    list of dict
+        Per vertex: ``s`` (each strip pixel's distance past the edge at the
+        refined pose, along the normal, px), ``value`` (its image value),
+        ``model_s`` and ``model`` (the fitted model on the normal through
+        the vertex), ``dt_shift`` (where the DT-LM pose puts the edge on
+        that axis, px).
+    """
+    from .._kernels import profile as kernels
+
+    img = check.check_image(image)
+    verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
+    r = refinement
+    params = np.array([r.offset_vu[0], r.offset_vu[1], r.gain, r.background, r.psf_sigma_px,
+                       r.shape_amplitude, r.background_slope])
+    h = profile.step_px
+    o0 = float(profile.offsets_px[0])
+    reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
+    j0 = max(0, int(math.floor((-reach - o0) / h)))
+    j1 = min(profile.values.shape[1] - 1, int(math.ceil((reach - o0) / h)))
+    out = []
+    tau = _tau_max(verts)
+    for k in (int(i) for i in indices):
+        sel = np.array([k])
+        v = np.ascontiguousarray(verts[sel])
+        nrm = np.ascontiguousarray(profile.normals_vu[sel])
+        cv = np.ascontiguousarray(profile.curvature_px[sel])
+        val = np.ascontiguousarray(profile.values[sel])
+        shp = (np.ascontiguousarray(profile.shape_values[sel]) if profile.shape_values is not None
+               else np.zeros((1, 0)))
+        b, c, d, t0, ht = kernels.tables(val, o0, h, j0, j1 - j0 + 1, r.psf_sigma_px)
+        bs, cs, ds = kernels.tables(shp, o0, h, j0, j1 - j0 + 1, r.psf_sigma_px)[:3] if (
+            shp.shape[1]) else (b, c, d)
+        kk, ii, jj = kernels.select_pixels(img.shape[0], img.shape[1],
+                                           np.ascontiguousarray(v + np.asarray(r.offset_vu)),
+                                           nrm, np.ascontiguousarray(tau[sel]), HALF_WIDTH_PX)
+        pv, pu = ii.astype(np.float64), jj.astype(np.float64)
+        obs = np.ascontiguousarray(img[ii, jj])
+        rr, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, bs, cs, ds,
+                                 shp.shape[1] > 0, t0, ht, params)
+        s_px = (pv - v[0, 0] - r.offset_vu[0]) * nrm[0, 0] + (pu - v[0, 1] - r.offset_vu[1]) * nrm[0, 1]
+        ms = np.linspace(-HALF_WIDTH_PX, HALF_WIDTH_PX, n_model)
+        mv = v[0, 0] + r.offset_vu[0] + ms * nrm[0, 0]
+        mu = v[0, 1] + r.offset_vu[1] + ms * nrm[0, 1]
+        zeros = np.zeros(n_model)
+        model, _ = kernels.evaluate(zeros, np.zeros(n_model, dtype=np.int64), mv, mu, v, nrm, cv,
+                                    b, c, d, bs, cs, ds, shp.shape[1] > 0, t0, ht, params)
+        dt_shift = float((np.asarray(r.dt_offset_vu) - np.asarray(r.offset_vu)) @ nrm[0])
+        out.append({"s": s_px, "value": obs, "model_s": ms, "model": -model,
+                    "residual": rr, "dt_shift": np.asarray(dt_shift)})
+    return out
