@@ -410,7 +410,7 @@ def plot_profile_fit(
         ax.axvline(0.0, color="k", lw=1, label="geometric edge")
         ax.axvline(float(smp["dt_shift"]), color="tab:red", lw=1, ls="--", label="DT-LM edge")
         ax.set_title(f"vertex {int(k)}", fontsize=9)
-        ax.set_xlabel("distance past the edge along the normal (px)")
+        ax.set_xlabel("px past the edge, along the normal", fontsize=8)
         if i == 0:
             ax.set_ylabel("image value")
             ax.legend(fontsize=7)

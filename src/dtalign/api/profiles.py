@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from . import checks as check
 
@@ -202,7 +202,7 @@ def _sphere_radiance(pv: FloatArray, pu: FloatArray, center: tuple[float, float]
 
 
 def sphere_edge_profile(
-    vertices_vu: Any,
+    vertices_vu: ArrayLike,
     *,
     center_vu: Any,
     radius_px: float,

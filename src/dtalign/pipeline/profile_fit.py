@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..api import checks as check
 from ..api.profiles import EdgeProfile
@@ -348,7 +348,7 @@ def refine_with_profile(
 
 
 def profile_samples(
-    image: Any, profile: EdgeProfile, vertices_vu: Any, refinement: ProfileRefinement,
+    image: ArrayLike, profile: EdgeProfile, vertices_vu: ArrayLike, refinement: ProfileRefinement,
     indices: Any, *, n_model: int = 200,
 ) -> list[dict[str, FloatArray]]:
     """The image pixels and the fitted model across some vertices (for plots).
