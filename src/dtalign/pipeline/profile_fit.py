@@ -71,6 +71,10 @@ TUKEY_C = 4.685
 FIT_SLOPE = True
 
 
+#: Step tolerance (pixels, and pixels of sigma) of the sigma's estimate:
+#: the offset is fitted again, on every vertex, with the sigma held.
+SIGMA_TOLERANCE = 1e-3
+
 #: Starting PSF sigma (pixels) when the profile does not give it.
 SIGMA_START_PX = 0.7
 
@@ -281,7 +285,8 @@ def refine_with_profile(
     step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
     soft = step_jump < SOFT_EDGE_STEP_JUMP
 
-    def run(idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool) -> Any:
+    def run(idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool,
+            tolerance: float = TOLERANCE_PX) -> Any:
         if idx is None:
             v, nrm, cv, val, shp, tm = verts, normals, curv, values, shape, tau
         else:
@@ -305,7 +310,7 @@ def refine_with_profile(
         active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if use_shape else [])
                   + ([6] if FIT_SLOPE else []))
         out = kernels.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, o0, h, j0, nb, params,
-                             np.asarray(active, dtype=np.int64), MAX_ITERATIONS, TOLERANCE_PX,
+                             np.asarray(active, dtype=np.int64), MAX_ITERATIONS, tolerance,
                              TUKEY_C)
         return (*out, obs.shape[0])
 
@@ -314,7 +319,7 @@ def refine_with_profile(
     if not known and verts.shape[0] > 0:
         stride = max(1, verts.shape[0] // SIGMA_VERTICES)
         idx = np.arange(0, verts.shape[0], stride, dtype=np.int64)
-        p_a, it_a, _, _, _, _, _ = run(idx, params, True)
+        p_a, it_a, _, _, _, _, _ = run(idx, params, True, SIGMA_TOLERANCE)
         iterations += int(it_a)
         params = np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5],
                            p_a[6]])
