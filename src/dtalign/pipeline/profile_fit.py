@@ -83,7 +83,7 @@ SIGMA_START_PX = 0.7
 #: cost is then independent of the polyline's length.
 SIGMA_VERTICES = 48
 
-#: A profile whose contrast-weighted median ``EdgeProfile.step_jump``
+#: A limb profile whose contrast-weighted median ``EdgeProfile.step_jump``
 #: is below this has no usable edge: its brightness rolls off to the edge
 #: (a Lambert limb below ~10-15 deg phase), so the edge's position rests on
 #: the roll-off's modelled shape alone.
@@ -132,8 +132,8 @@ class ProfileRefinement:
     step_jump : float
         The profile's contrast-weighted median step fraction.
     soft_edge : bool
-        The profile has no usable edge (step fraction below
-        :data:`SOFT_EDGE_STEP_JUMP`).
+        A limb profile with no usable edge (step fraction below
+        :data:`SOFT_EDGE_STEP_JUMP`); never set for other edge kinds.
     time_s : float
         Wall time of the refinement.
     """
@@ -283,7 +283,9 @@ def refine_with_profile(
     # contrast-weighted step fraction: is there an edge at all?
     contrast = np.ptp(values[:, j0 : j1 + 1], axis=1)
     step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
-    soft = step_jump < SOFT_EDGE_STEP_JUMP
+    # only a limb is meant to step: a terminator is a kink (cos i through 0), a ring's
+    # profile whatever its model says, and neither is soft for lacking a step
+    soft = profile.edge == "limb" and step_jump < SOFT_EDGE_STEP_JUMP
 
     def run(idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool,
             tolerance: float = TOLERANCE_PX) -> Any:

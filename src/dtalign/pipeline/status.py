@@ -131,7 +131,7 @@ class FitReason(str, enum.Enum):
         carries the edge DT's photometric bias (tenths of a pixel on a
         limb) the profile was meant to remove.
     ``SOFT_EDGE`` (suspect)
-        The profile has no usable edge: its brightness rolls off to the
+        A limb profile has no usable edge: its brightness rolls off to the
         edge (a Lambert limb at low phase,
         :data:`~dtalign.pipeline.profile_fit.SOFT_EDGE_STEP_JUMP`), so the
         edge's position rests on the modelled roll-off alone and on the
