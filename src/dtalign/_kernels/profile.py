@@ -254,6 +254,7 @@ def evaluate(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.nd
 
 @inline_kernel
 def tukey_rho(x: float) -> float:
+    """Tukey's biweight loss of a residual in units of the cutoff (1/6 beyond it)."""
     if abs(x) >= 1.0:
         return 1.0 / 6.0
     u = 1.0 - x * x
@@ -262,6 +263,7 @@ def tukey_rho(x: float) -> float:
 
 @kernel
 def robust_cost(r: np.ndarray, cs: float) -> float:
+    """Sum of :func:`tukey_rho` of the residuals over the cutoff ``cs``."""
     acc = 0.0
     for q in range(r.shape[0]):
         acc += tukey_rho(r[q] / cs)
