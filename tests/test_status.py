@@ -165,6 +165,8 @@ def test_status_values_are_documented_strings():
     assert {r.value for r in FitReason} == {
         "degenerate", "all_polarity_rejected", "at_window_edge", "most_polarity_rejected",
         "ambiguous", "not_converged", "ambiguous_along_edge", "rank_deficient",
+        # the profile refinement's (issue 27)
+        "profile_rejected", "soft_edge",
     }
     assert str(FitReason.DEGENERATE) == "degenerate" and FitStatus.FAILED == "failed"
 

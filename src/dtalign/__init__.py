@@ -73,6 +73,10 @@ _LAZY: dict[str, str] = {
     "fit_polyline_products": ".pipeline.fit",
     "prepare_image": ".pipeline.products",
     "warm_up": ".warmup",
+    # photometric edge profiles
+    "EdgeProfile": ".api.profiles",
+    "sphere_edge_profile": ".api.profiles",
+    "ProfileRefinement": ".pipeline.profile_fit",
 }
 
 #: Private names today's techniques import (SPEC section 8.6): importable,
@@ -128,6 +132,7 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         compute_image_gradient_vu,
     )
     from .api.lm import lm_subpixel_refine
+    from .api.profiles import EdgeProfile, sphere_edge_profile
     from .api.results import (
         CoarseSearchResult,
         ImageDerivativesConfig,
@@ -156,3 +161,4 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
     )
     from .pipeline.products import ImageProducts, estimate_noise_sigma, prepare_image
     from .warmup import warm_up
+    from .pipeline.profile_fit import ProfileRefinement

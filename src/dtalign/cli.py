@@ -397,6 +397,23 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     fit.add_argument("--trust-region", type=float, metavar="PX", help="LM trust region (1.0 in production)")
     fit.add_argument("--tikhonov", type=float, default=0.0, metavar="ALPHA", help="pull toward the coarse seed")
     fit.add_argument("--no-polarity", action="store_true", help="do not reject vertices by polarity")
+    fit.add_argument(
+        "--sphere",
+        metavar="V,U,R,PHASE,LIGHT",
+        help="the polyline is a sphere's edge: model centre V,U, radius R px, phase and "
+        "light direction in degrees (0 = up, 90 = +u); refines the fit with its "
+        "photometric profile (see the docs' profiles page)",
+    )
+    fit.add_argument(
+        "--law",
+        default="lambert",
+        metavar="LAW",
+        help="with --sphere: lambert (default), minnaert,K or lommel-seeliger",
+    )
+    fit.add_argument("--edge", choices=("limb", "terminator"), default="limb",
+                     help="with --sphere: which edge the polyline is (default limb)")
+    fit.add_argument("--psf-sigma", type=float, metavar="PX",
+                     help="with --sphere: the PSF's Gaussian sigma (default: estimated)")
     fit.add_argument("--json", action="store_true", help="print JSON instead of a table")
     fit.add_argument("-o", "--output", metavar="FILE", help="write the table or JSON to FILE")
     _add_plot_options(
@@ -745,6 +762,7 @@ def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
     if colour is not None:  # the library's rule (dtalign.api.colour), said here
         messages.say(f"{PROG}: {'warning' if colour.luma else 'note'}: {colour.text}")
     poly = io.load_polyline_csv(job.polyline)
+    profile = _sphere_profile(args, poly.vertices_vu)
     fit = pipeline.fit_polyline(
         image,
         poly.vertices_vu,
@@ -757,8 +775,49 @@ def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
         trust_region_px=args.trust_region,
         tikhonov_alpha=args.tikhonov,
         final_gradient_ridge=args.ridge,
+        edge_profile=profile,
     )
     return image, poly, fit
+
+
+def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
+    """``--sphere``, ``--law``, ``--edge``, ``--psf-sigma`` as keywords of
+    :func:`dtalign.sphere_edge_profile` (None without ``--sphere``)."""
+    if args.sphere is None:
+        for option, given in (("--law", args.law != "lambert"), ("--edge", args.edge != "limb"),
+                              ("--psf-sigma", args.psf_sigma is not None)):
+            if given:
+                raise CLIError(f"{option} needs --sphere")
+        return None
+    parts = str(args.sphere).split(",")
+    try:
+        values = [float(x) for x in parts]
+    except ValueError:
+        raise CLIError(f"--sphere takes numbers V,U,R,PHASE,LIGHT, got {args.sphere!r}") from None
+    if len(values) != 5:
+        raise CLIError(f"--sphere takes five numbers V,U,R,PHASE,LIGHT, got {args.sphere!r}")
+    law, _, k = str(args.law).partition(",")
+    if law == "minnaert":
+        try:
+            minnaert_k: float | None = float(k)
+        except ValueError:
+            raise CLIError(f"--law minnaert needs its exponent (minnaert,K), got {args.law!r}") from None
+    elif k:
+        raise CLIError(f"--law takes lambert, minnaert,K or lommel-seeliger, got {args.law!r}")
+    else:
+        minnaert_k = None
+    return {"center_vu": (values[0], values[1]), "radius_px": values[2], "phase_deg": values[3],
+            "illumination_deg": values[4], "edge": args.edge, "law": law,
+            "minnaert_k": minnaert_k, "psf_sigma_px": args.psf_sigma}
+
+
+def _sphere_profile(args: argparse.Namespace, vertices_vu: Any) -> Any:
+    model = _sphere_model(args)
+    if model is None:
+        return None
+    from .api.profiles import sphere_edge_profile
+
+    return sphere_edge_profile(vertices_vu, **model)
 
 
 def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str:
@@ -787,6 +846,16 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
         f"LM           : {fit.lm.iterations} iterations, {_settled_text(fit)}, "
         f"degenerate={fit.degenerate}",
     ]
+    prof = fit.profile
+    if prof is not None:
+        lines.append(
+            f"profile      : {'accepted' if prof.accepted else 'discarded'}; DT-LM offset "
+            f"({prof.dt_offset_vu[0]:.4f}, {prof.dt_offset_vu[1]:.4f}), refined "
+            f"({prof.offset_vu[0]:.4f}, {prof.offset_vu[1]:.4f}) after a walk of "
+            f"{prof.walk_px:.3f} px; PSF sigma {prof.psf_sigma_px:.3f} px"
+            f"{' (estimated)' if prof.psf_estimated else ''}, gain {prof.gain:.4g}, "
+            f"{prof.n_pixels} pixels, {prof.iterations} iterations"
+        )
     lines.append(f"status       : {fit.status_message}")
     amb = fit.ambiguity
     if amb is not None:
@@ -801,7 +870,8 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
     lines.append(
         "wall time    : "
         + ", ".join(f"{k} {t[k] * 1e3:.1f} ms"
-                    for k in ("noise", "derivatives", "coarse", "lm", "hypotheses") if k in t)
+                    for k in ("noise", "derivatives", "coarse", "lm", "hypotheses", "profile")
+                    if k in t)
     )
     return "\n".join(lines)
 
@@ -847,6 +917,7 @@ def _offset_line(fit: Any) -> str:
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     window = _window(args.window)
+    _sphere_model(args)  # a malformed --sphere is the command's error, before any image
     jobs, batch = _jobs(args)
     zooms = _zoom_points(args)
     plot_path = None

@@ -24,7 +24,7 @@ from .api.constants import POLARITY_PENALTY_RESIDUAL
 if TYPE_CHECKING:
     from .pipeline.fit import PolylineFit
 
-__all__ = ["plot_fit", "plot_residual_histogram"]
+__all__ = ["plot_fit", "plot_profile_fit", "plot_residual_histogram"]
 
 _INSTALL_HINT = "plotting needs matplotlib: pip install matplotlib"
 
@@ -354,5 +354,84 @@ def plot_residual_histogram(
         fontsize=9,
     )
     ax.legend(fontsize=8)
+    _save(fig, path, dpi)
+    return fig
+
+
+def plot_profile_fit(
+    fit: Any,
+    image: ArrayLike,
+    edge_profile: Any,
+    path: str | Path | None = None,
+    *,
+    n_normals: int = 4,
+    figsize: tuple[float, float] | None = None,
+    dpi: int = 110,
+) -> Any:
+    """The profile refinement along a few normals: the image's pixels against the model.
+
+    For ``n_normals`` vertices spread along the polyline (among those with
+    the most contrast), each panel shows the pixels of the vertex's strip
+    against their distance past the edge at the refined pose, the fitted
+    model on the normal through the vertex, the geometric edge (0) and
+    where the DT-LM pose put it.
+
+    Parameters
+    ----------
+    fit : PolylineFit
+        A fit made with ``edge_profile`` (its :attr:`~dtalign.pipeline.PolylineFit.profile`
+        is set).
+    image : array_like, shape (H, W)
+        The image fitted.
+    edge_profile : EdgeProfile
+        The profile the fit used.
+    path : str or path-like, optional
+        Write the figure there.
+    n_normals : int, optional
+        Panels, >= 1.
+    figsize : tuple of float, optional
+        Figure size in inches (default: 3 inches per panel).
+    dpi : int, optional
+        Resolution when saving.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Raises
+    ------
+    ValueError
+        If the fit has no profile refinement, or ``n_normals < 1``.
+    """
+    from .pipeline.profile_fit import profile_samples
+
+    if getattr(fit, "profile", None) is None:
+        raise ValueError("fit has no profile refinement: fit it with edge_profile=...")
+    n = check.count(n_normals, "n_normals")
+    if n < 1:
+        raise ValueError("n_normals must be >= 1")
+    values = np.asarray(edge_profile.values)
+    contrast = np.ptp(values, axis=1)
+    order = np.flatnonzero(contrast >= 0.5 * contrast.max()) if contrast.max() > 0 else np.arange(
+        values.shape[0])
+    picks = order[np.linspace(0, order.size - 1, min(n, order.size)).round().astype(int)]
+    samples = profile_samples(image, edge_profile, fit.vertices_vu, fit.profile, picks)
+    fig = _figure(figsize or (3.0 * len(picks), 3.2))
+    for i, (k, smp) in enumerate(zip(picks, samples, strict=True)):
+        ax = fig.add_subplot(1, len(picks), i + 1)
+        ax.plot(smp["s"], smp["value"], ".", ms=4, color="tab:blue", label="pixels")
+        ax.plot(smp["model_s"], smp["model"], "-", color="tab:orange", label="model")
+        ax.axvline(0.0, color="k", lw=1, label="geometric edge")
+        ax.axvline(float(smp["dt_shift"]), color="tab:red", lw=1, ls="--", label="DT-LM edge")
+        ax.set_title(f"vertex {int(k)}", fontsize=9)
+        ax.set_xlabel("px past the edge, along the normal", fontsize=8)
+        if i == 0:
+            ax.set_ylabel("image value")
+            ax.legend(fontsize=7)
+    p = fit.profile
+    fig.suptitle(
+        f"profile fit {'accepted' if p.accepted else 'discarded'}: offset "
+        f"({p.offset_vu[0]:.3f}, {p.offset_vu[1]:.3f}), DT-LM ({p.dt_offset_vu[0]:.3f}, "
+        f"{p.dt_offset_vu[1]:.3f}), PSF sigma {p.psf_sigma_px:.2f} px", fontsize=9)
     _save(fig, path, dpi)
     return fig

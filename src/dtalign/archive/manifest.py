@@ -37,6 +37,13 @@ Fields (only ``image`` and ``polylines`` are required):
     the campaign's defaults.
 ``config``
     Fields of :class:`dtalign.ImageDerivativesConfig` for this image.
+``spheres``
+    Optional, one entry per polyline: null, or the sphere whose edge the
+    polyline is, as the keywords of :func:`dtalign.sphere_edge_profile`
+    (``center_vu``, ``radius_px``, ``phase_deg``, ``illumination_deg``
+    required; ``edge``, ``law``, ``minnaert_k``, ``psf_sigma_px``
+    optional): the fit is then refined with its photometric profile
+    (:ref:`profiles`). In a CSV manifest, a JSON list in the cell.
 
 Relative paths are relative to the manifest's folder. Blank lines, and
 lines starting with ``#``, are skipped. Reading checks the structure of
@@ -70,7 +77,12 @@ PathLike = str | os.PathLike[str]
 DEFAULT_WINDOW = (30, 30)
 
 #: The fields a manifest record may have.
-FIELDS = ("id", "image", "polylines", "noise_sigma", "window", "options", "config")
+FIELDS = ("id", "image", "polylines", "noise_sigma", "window", "options", "config", "spheres")
+
+#: Keys of a ``spheres`` entry: the keywords of :func:`dtalign.sphere_edge_profile`.
+SPHERE_KEYS = ("center_vu", "radius_px", "phase_deg", "illumination_deg", "edge", "law",
+               "minnaert_k", "psf_sigma_px")
+_SPHERE_REQUIRED = ("center_vu", "radius_px", "phase_deg", "illumination_deg")
 
 #: Suffixes read as JSON lines; ``.csv`` is read as CSV.
 _JSONL_SUFFIXES = (".jsonl", ".ndjson", ".json")
@@ -83,13 +95,15 @@ _CONFIG_FIELDS = ("image_gradient_sigma_px", "edge_threshold_k_sigma", "dt_half_
 
 
 def fit_option_names() -> frozenset[str]:
-    """Keyword options :func:`dtalign.pipeline.fit_polyline_products` accepts (not the window)."""
+    """Keyword options :func:`dtalign.pipeline.fit_polyline_products` accepts (not the
+    window, nor the edge profile: a polyline's comes from the item's ``spheres``)."""
     from ..pipeline.fit import fit_polyline_products
 
     return frozenset(
         name
         for name, p in inspect.signature(fit_polyline_products).parameters.items()
-        if p.kind is inspect.Parameter.KEYWORD_ONLY and name != "search_window_vu"
+        if p.kind is inspect.Parameter.KEYWORD_ONLY
+        and name not in ("search_window_vu", "edge_profile")
     )
 
 
@@ -117,6 +131,10 @@ class Item:
         Fit options (campaign defaults merged with the item's own).
     config : dict
         :class:`~dtalign.ImageDerivativesConfig` fields (empty: defaults).
+    spheres : tuple of (dict or None)
+        Per polyline, the sphere model whose photometric profile refines its
+        fit (the keywords of :func:`dtalign.sphere_edge_profile`), or None;
+        empty when the manifest gives none.
     line : int
         The manifest line the item came from (for messages).
     """
@@ -131,6 +149,7 @@ class Item:
     options: dict[str, Any] = field(default_factory=dict)
     config: dict[str, float] = field(default_factory=dict)
     line: int = 0
+    spheres: tuple[dict[str, Any] | None, ...] = ()
 
     @property
     def fingerprint(self) -> str:
@@ -139,11 +158,12 @@ class Item:
         The store records it with each result, so a re-run can tell that an
         item id now means something else.
         """
-        payload = json.dumps(
-            [self.image, list(self.polylines), self.noise_sigma, list(self.window),
-             sorted(self.options.items()), sorted(self.config.items())],
-            sort_keys=True, default=repr,
-        )
+        fields: list[Any] = [self.image, list(self.polylines), self.noise_sigma,
+                             list(self.window), sorted(self.options.items()),
+                             sorted(self.config.items())]
+        if self.spheres:  # an item without spheres keeps the fingerprint it always had
+            fields.append(list(self.spheres))
+        payload = json.dumps(fields, sort_keys=True, default=repr)
         return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
     def to_record(self) -> dict[str, Any]:
@@ -156,6 +176,8 @@ class Item:
             rec["options"] = dict(self.options)
         if self.config:
             rec["config"] = dict(self.config)
+        if self.spheres:
+            rec["spheres"] = list(self.spheres)
         return rec
 
 
@@ -207,6 +229,38 @@ def _mapping(value: Any, name: str, where: str) -> dict[str, Any]:
     if not isinstance(value, Mapping):
         raise ValueError(f"{where}: {name} must be an object, got {type(value).__name__}")
     return dict(value)
+
+
+def _spheres(value: Any, n: int, where: str) -> tuple[dict[str, Any] | None, ...]:
+    """``spheres``: a list (JSON text in a CSV cell) of one sphere model or null per polyline."""
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return ()
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{where}: spheres is not a JSON list: {exc.msg}") from None
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise ValueError(f"{where}: spheres must be a list of {n} entries (one per polyline, "
+                         "null for none)")
+    out: list[dict[str, Any] | None] = []
+    for k, entry in enumerate(value):
+        if entry is None:
+            out.append(None)
+            continue
+        if not isinstance(entry, Mapping):
+            raise ValueError(f"{where}: spheres[{k}] must be an object or null")
+        bad = sorted(set(entry) - set(SPHERE_KEYS))
+        missing = [key for key in _SPHERE_REQUIRED if key not in entry]
+        if bad or missing:
+            raise ValueError(
+                f"{where}: spheres[{k}]: "
+                + (f"unknown key(s) {', '.join(map(repr, bad))}; " if bad else "")
+                + (f"missing {', '.join(missing)}; " if missing else "")
+                + f"keys: {', '.join(SPHERE_KEYS)}"
+            )
+        out.append(dict(entry))
+    return tuple(out)
 
 
 def _polylines(value: Any, where: str) -> tuple[str, ...]:
@@ -278,6 +332,7 @@ def _item(
         options=options,
         config=config,
         line=line,
+        spheres=_spheres(record.get("spheres"), len(polylines), where),
     )
 
 

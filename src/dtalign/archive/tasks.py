@@ -60,6 +60,18 @@ def _ambiguity(fit: Any) -> dict[str, float | None]:
     }
 
 
+def _profile(fit: Any) -> dict[str, Any]:
+    """The DT-LM offset and the profile refinement's columns (null without a profile)."""
+    prof = getattr(fit, "profile", None)
+    dt = getattr(fit, "dt_offset_vu", fit.offset_vu)
+    return {
+        "dt_offset_v": float(dt[0]), "dt_offset_u": float(dt[1]),
+        "profile_accepted": None if prof is None else bool(prof.accepted),
+        "profile_psf_sigma_px": None if prof is None else float(prof.psf_sigma_px),
+        "profile_walk_px": None if prof is None else float(prof.walk_px),
+    }
+
+
 def _status(fit: Any) -> tuple[str | None, list[str] | None]:
     """The fit's status and reasons, if its result type has them.
 
@@ -152,6 +164,7 @@ def fit_rows(item: Item, fits: list[Any], timings: dict[str, Any], *, run_id: st
             "observable_rank": int(fit.observable_rank),
             "status": status, "reasons": reasons,
             **_ambiguity(fit),
+            **_profile(fit),
             "noise_sigma": _f(fit.noise_sigma),
             "noise_sigma_estimated": bool(timings.get("noise_sigma_estimated", False)),
             "fit_rotation": bool(fit.fit_rotation),
@@ -212,13 +225,19 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
         t2 = time.perf_counter()
         stage = "fit"
         fits, fit_s = [], []
-        for path, poly in zip(item.polylines, polylines, strict=True):
+        spheres = item.spheres or (None,) * len(polylines)
+        for path, poly, sphere in zip(item.polylines, polylines, spheres, strict=True):
             ta = time.perf_counter()
             try:
+                profile = None
+                if sphere is not None:
+                    from ..api.profiles import sphere_edge_profile
+
+                    profile = sphere_edge_profile(poly.vertices_vu, **sphere)
                 with _fits_not_logged():
                     fits.append(pipeline.fit_polyline_products(
                         products, poly.vertices_vu, poly.normals_vu, poly.sigmas,
-                        search_window_vu=item.window, **item.options,
+                        search_window_vu=item.window, edge_profile=profile, **item.options,
                     ))
             except (TypeError, ValueError) as exc:
                 raise type(exc)(f"polyline {path}: {exc}") from None

@@ -53,6 +53,7 @@ from .timing import (
     machine_info,
     measure_batch,
     measure_noise_overhead,
+    measure_profile_overhead,
     measure_workloads,
     replace_readme_table,
 )
@@ -140,6 +141,8 @@ def run(
             rows += measure_workloads(names, inputs, repeats, min_sample)
             if "noise_overhead" in wanted:
                 rows.append(measure_noise_overhead(inputs, repeats, min_sample))
+            if "profile_overhead" in wanted:
+                rows.append(measure_profile_overhead(repeats, min_sample))
             if "batch" in wanted:
                 rows += measure_batch(max(repeats, 9))
             memory = measure_memory() if "memory" in wanted else None

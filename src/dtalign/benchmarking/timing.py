@@ -29,6 +29,7 @@ from .workloads import (
     BATCH_TARGET,
     DESCRIPTIONS,
     NOISE_OVERHEAD_TARGET,
+    PROFILE_OVERHEAD_TARGET,
     TARGETS,
     Inputs,
     _same,
@@ -205,6 +206,58 @@ def measure_noise_overhead(inputs: Inputs, repeats: int, min_sample_s: float) ->
         "passed": agree and ratio <= NOISE_OVERHEAD_TARGET, "results_agree": agree,
         "reference_times_s": t_given, "dtalign_times_s": t_est,
         "pair_ratios": [e / g for g, e in zip(t_given, t_est, strict=True)],
+        "other_load_cores": load.cores,
+    }
+    _progress(_format_row(row))
+    return row
+
+
+def measure_profile_overhead(repeats: int, min_sample_s: float) -> dict[str, Any]:
+    """``fit_polyline`` with an edge profile against the plain call, same scene.
+
+    A rendered Lambert sphere (:func:`dtalign.scenes.render_sphere`: 300 x
+    300, radius 85 px, phase 35 deg, Gaussian PSF 1 px) and its sunlit
+    limb; the profile (:func:`dtalign.sphere_edge_profile`, PSF unknown:
+    estimated) is built once, outside the timing. Both calls alternate;
+    the ratio is with / without, and passes at or below
+    :data:`~dtalign.benchmarking.workloads.PROFILE_OVERHEAD_TARGET` when
+    the refinement is accepted and lands nearer the planted offset.
+    """
+    from ..api.profiles import sphere_edge_profile
+    from ..pipeline.fit import fit_polyline
+    from ..scenes import render_sphere
+
+    sc = render_sphere(shape=(300, 300), center_vu=(150.3, 149.7), radius_px=85.0,
+                       phase_deg=35.0, illumination_deg=30.0, offset_vu=(0.37, -0.21),
+                       background_dn=10.0, psf_sigma_px=1.0)
+    limb = sc.limb
+    profile = sphere_edge_profile(limb.vertices_vu, center_vu=sc.model_center_vu,
+                                  radius_px=sc.radius_px, phase_deg=sc.phase_deg,
+                                  illumination_deg=sc.illumination_deg)
+    args = (sc.image, limb.vertices_vu, limb.normals_vu, limb.sigmas)
+
+    def plain() -> Any:
+        return fit_polyline(*args, search_window_vu=(6, 6))
+
+    def profiled() -> Any:
+        return fit_polyline(*args, search_window_vu=(6, 6), edge_profile=profile)
+
+    truth = np.asarray(sc.true_offset_vu)
+    p, q = plain(), profiled()
+    better = bool(q.profile.accepted and np.hypot(*(np.asarray(q.offset_vu) - truth))
+                  < np.hypot(*(np.asarray(p.offset_vu) - truth)))
+    with _Load() as load:
+        t_plain, t_prof = alternate([plain, profiled], repeats, min_sample_s)
+    ratio = statistics.median(t_prof) / statistics.median(t_plain)
+    row = {
+        "name": "fit_polyline_profile_overhead", "kind": "overhead",
+        "description": "fit_polyline: with an edge profile / plain (sphere limb, same run)",
+        "reference_s": statistics.median(t_plain), "dtalign_s": statistics.median(t_prof),
+        "ratio": ratio, "ratio_of_minima": min(t_prof) / min(t_plain),
+        "target": PROFILE_OVERHEAD_TARGET,
+        "passed": better and ratio <= PROFILE_OVERHEAD_TARGET, "results_agree": better,
+        "reference_times_s": t_plain, "dtalign_times_s": t_prof,
+        "pair_ratios": [b / a for a, b in zip(t_plain, t_prof, strict=True)],
         "other_load_cores": load.cores,
     }
     _progress(_format_row(row))

@@ -53,11 +53,15 @@ DESCRIPTIONS = {
     "fit_polyline": "fit_polyline, noise estimated, disc N=200, +-30, tr=1",
 }
 #: Section names accepted by ``--only`` besides the workloads.
-SECTIONS = ("noise_overhead", "batch", "startup", "memory", "archive")
+SECTIONS = ("noise_overhead", "profile_overhead", "batch", "startup", "memory", "archive")
 #: ``fit_polyline`` with the noise estimated may take at most this many
 #: times the same call with the noise given (the estimate must be cheap
 #: beside the derivatives it feeds).
 NOISE_OVERHEAD_TARGET = 1.3
+#: ``fit_polyline`` with an edge profile (the photometric refinement, PSF
+#: estimated) may take at most this many times the plain one-call fit of
+#: the same scene (issue 27).
+PROFILE_OVERHEAD_TARGET = 2.0
 #: Batch rows, 2 workers against 1 in the same run (issue 14): fit_many of
 #: BATCH_FITS polylines on one image, fit_images of BATCH_IMAGES images.
 BATCH_TARGET = 1.5

@@ -140,11 +140,12 @@ def _usable_cpus() -> int:
 #: container or ``taskset`` limits them below ``os.cpu_count()``).
 DEFAULT_WORKERS = _usable_cpus()
 
-#: Keyword options :func:`fit_polyline_products` accepts besides the window.
+#: Keyword options :func:`fit_polyline_products` accepts besides the window
+#: (and the edge profile, which is each polyline's own: :func:`_polyline_profile`).
 _FIT_OPTIONS = frozenset(
     name
     for name, p in inspect.signature(fit_polyline_products).parameters.items()
-    if p.kind is inspect.Parameter.KEYWORD_ONLY and name != "search_window_vu"
+    if p.kind is inspect.Parameter.KEYWORD_ONLY and name not in ("search_window_vu", "edge_profile")
 )
 
 #: Their defaults (the options a call leaves out), read-only.
@@ -432,8 +433,9 @@ def _run_ordered(
 
 
 def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
-    """``(vertices, normals, sigmas)`` of a polyline given as an object or a 3-sequence."""
-    if type(item) in (tuple, list) and len(item) == 3:  # plain: no such attributes
+    """``(vertices, normals, sigmas)`` of a polyline given as an object or a 3-sequence
+    (or a 4-sequence whose last item is its edge profile, :func:`_polyline_profile`)."""
+    if type(item) in (tuple, list) and len(item) in (3, 4):  # plain: no such attributes
         return item[0], item[1], _jobs.broadcast_sigmas(item[0], item[2])
     try:  # one attempt for the three attributes, not three hasattr() calls
         return item.vertices_vu, item.normals_vu, _jobs.broadcast_sigmas(item.vertices_vu,
@@ -446,6 +448,39 @@ def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
         f"polylines[{index}] must have vertices_vu, normals_vu and sigmas attributes "
         f"or be a (vertices_vu, normals_vu, sigmas) sequence, got {type(item).__name__}"
     )
+
+
+def _polyline_profile(item: Any) -> Any:
+    """The :class:`~dtalign.EdgeProfile` a polyline carries: the 4th item of a
+    ``(vertices_vu, normals_vu, sigmas, edge_profile)`` sequence or an
+    ``edge_profile`` attribute; None when it has none."""
+    if type(item) in (tuple, list):
+        return item[3] if len(item) == 4 else None
+    return getattr(item, "edge_profile", None)
+
+
+def _profiled(products: ImageProducts, fits: list[Any], profiles: list[Any], collect: bool,
+              label: str) -> list[Any]:
+    """``fits`` refined with their polylines' edge profiles
+    (:func:`dtalign.pipeline.fit.with_profile`), as
+    :func:`~dtalign.pipeline.fit_polyline_products` does; a bad profile is
+    the polyline's error (raised, or collected in its place)."""
+    if all(p is None for p in profiles):
+        return fits
+    from .fit import with_profile
+    from .profile_fit import check_edge_profile
+
+    out = list(fits)
+    for i, (fit, profile) in enumerate(zip(fits, profiles, strict=True)):
+        if profile is None or isinstance(fit, Exception):
+            continue
+        try:
+            out[i] = with_profile(fit, products, check_edge_profile(profile, fit.normals_vu))
+        except (TypeError, ValueError) as exc:
+            if not collect:
+                raise _named(exc, f"{label}[{i}]", i) from exc
+            out[i] = _named(exc, f"{label}[{i}]", i)
+    return out
 
 
 def map_ordered(
@@ -561,7 +596,11 @@ def fit_many(
     polylines : iterable
         Each item has ``vertices_vu``, ``normals_vu`` and ``sigmas``
         attributes (like :class:`dtalign.scenes.Polyline`) or is a
-        ``(vertices_vu, normals_vu, sigmas)`` sequence.
+        ``(vertices_vu, normals_vu, sigmas)`` sequence. A polyline with an
+        ``edge_profile`` attribute, or a ``(vertices_vu, normals_vu, sigmas,
+        edge_profile)`` sequence, is refined with its
+        :class:`~dtalign.EdgeProfile` as
+        :func:`~dtalign.pipeline.fit_polyline_products` does.
     search_window_vu : tuple of int, optional
         Coarse-search margin ``(mv, mu)`` for every polyline; default
         ``(30, 30)`` (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
@@ -608,10 +647,13 @@ def fit_many(
     collect = _check_errors(errors)
     progress = _check_progress(progress)
     _check_options(options)
-    parts = [_polyline_parts(item, i) for i, item in enumerate(polylines)]
+    items = list(polylines)
+    parts = [_polyline_parts(item, i) for i, item in enumerate(items)]
+    profiles = [_polyline_profile(item) for item in items]
 
     def body(abort: threading.Event) -> list[Any]:
         out = _fit_parts(products, parts, search_window_vu, options, n, collect, abort, tick)
+        out = _profiled(products, out, profiles, collect, "polylines")
         # logged here, in the batch's thread: logging drops an exception raised
         # inside a handler's emit, a timeout's landing in the calling thread too
         _log(out, "polylines")
@@ -793,7 +835,8 @@ def _fit_batch(
     return ([], errors) if errors and stop_early else (fits, errors)
 
 
-def _image_parts(item: Any, index: int) -> tuple[Any, float | None, list[tuple[Any, Any, Any]]]:
+def _image_parts(item: Any, index: int
+                 ) -> tuple[Any, float | None, list[tuple[Any, Any, Any, Any]]]:
     if isinstance(item, Sequence) and not isinstance(item, (str, bytes)) and len(item) == 3:
         image, noise, polys = item
     elif all(hasattr(item, a) for a in ("image", "noise_sigma", "polylines")):
@@ -806,7 +849,9 @@ def _image_parts(item: Any, index: int) -> tuple[Any, float | None, list[tuple[A
         )
     if isinstance(polys, (str, bytes)) or not isinstance(polys, Iterable):
         raise TypeError(f"items[{index}] polylines must be an iterable of polylines")
-    return image, noise, [_polyline_parts(p, j) for j, p in enumerate(polys)]
+    # each polyline's parts and its edge profile (None without one)
+    return image, noise, [(*_polyline_parts(p, j), _polyline_profile(p))
+                          for j, p in enumerate(polys)]
 
 
 def _is_path(image: Any) -> bool:
@@ -814,7 +859,8 @@ def _is_path(image: Any) -> bool:
 
 
 def _fit_image(
-    job: tuple[Any, float | None, list[tuple[Any, Any, Any]], Any, Any, dict[str, Any], bool],
+    job: tuple[Any, float | None, list[tuple[Any, Any, Any, Any]], Any, Any, dict[str, Any],
+               bool],
     abort: threading.Event | None = None,
 ) -> list[Any]:
     """One image: loaded if a path, its products, then its polylines serially
@@ -825,8 +871,9 @@ def _fit_image(
 
         image = load_image(image)
     products = prepare_image(image, noise, config=config)
-    return _fit_parts(products, parts, window, options, 1, collect,
+    fits = _fit_parts(products, [p[:3] for p in parts], window, options, 1, collect,
                       threading.Event() if abort is None else abort)
+    return _profiled(products, fits, [p[3] for p in parts], collect, "polylines")
 
 
 @overload

@@ -61,6 +61,7 @@ from .observability import (
     observable_rank,
 )
 from .products import ImageProducts, _readonly, prepare_image
+from .profile_fit import ProfileRefinement, check_edge_profile, refine_with_profile
 from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
 
 __all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
@@ -126,6 +127,12 @@ class PolylineFit:
         :attr:`~dtalign.pipeline.status.FitReason.NOT_CONVERGED`
         (:func:`~dtalign.pipeline.fit.settle`); None when the LM converged or was not
         examined.
+    profile : ProfileRefinement or None
+        The photometric refinement against an
+        :class:`~dtalign.EdgeProfile` (:mod:`dtalign.pipeline.profile_fit`);
+        None when no profile was given. When it is accepted,
+        :attr:`offset_vu` is its offset and :attr:`dt_offset_vu` keeps
+        the DT-LM one.
 
     Whether to trust the fit is read from these fields by :attr:`status`,
     :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.pipeline.status`);
@@ -155,6 +162,12 @@ class PolylineFit:
     ambiguity: Ambiguity | None = None
     # not printed: the status and reasons say what it decided
     settling: Settling | None = field(default=None, repr=False)
+    profile: ProfileRefinement | None = field(default=None, repr=False)
+
+    @property
+    def dt_offset_vu(self) -> tuple[float, float]:
+        """The DT-LM offset (equal to :attr:`offset_vu` unless a profile refinement was accepted)."""
+        return self.lm.offset_vu
 
     def __post_init__(self) -> None:
         for name in ("vertices_vu", "normals_vu"):
@@ -541,6 +554,8 @@ class PolylineFit:
             "tukey_c": self.tukey_c,
             "timings_s": dict(self.timings_s),
             **extra,
+            "dt_offset_vu": [num(x) for x in self.dt_offset_vu],
+            "profile": None if self.profile is None else self.profile.to_dict(),
         }
 
     @classmethod
@@ -622,7 +637,8 @@ class PolylineFit:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
 
     # Printing: field-generic (see dtalign.api.results), arrays summarised.
-    _SUMMARY_EXTRA = ("sigma_vu", "sigma_rotation_rad", "observable_rank", "status", "reasons")
+    _SUMMARY_EXTRA = ("sigma_vu", "sigma_rotation_rad", "observable_rank", "status", "reasons",
+                      "dt_offset_vu", "profile")
 
     def summary(self) -> str:
         """A short text summary: one line per field, the LM result nested,
@@ -661,6 +677,7 @@ def fit_polyline_products(
     pinvh_rcond: float = DEFAULT_PINVH_RCOND,
     seeds: int = _hypotheses.DEFAULT_SEEDS,
     ambiguity: bool = True,
+    edge_profile: Any = None,
 ) -> PolylineFit:
     """Fit one polyline against precomputed image products.
 
@@ -718,6 +735,18 @@ def fit_polyline_products(
         :attr:`~PolylineFit.ambiguity` and :attr:`~PolylineFit.hypotheses`,
         and the status ``ambiguous`` when a rival across the edge costs
         nearly as little. It costs a few LM fits (a few ms); False skips it.
+    edge_profile : EdgeProfile, optional
+        The predicted brightness across each vertex
+        (:func:`dtalign.sphere_edge_profile` for a sphere's limb or
+        terminator): after the DT-LM lock the offset is refined against the
+        image's pixels with it (:mod:`dtalign.pipeline.profile_fit`), which
+        removes the DT's photometric bias. The result's
+        :attr:`~PolylineFit.profile` reports it; a refinement that does not
+        converge or walks far from the DT lock is discarded (reason
+        ``profile_rejected``), and a profile without a usable edge (a limb
+        at low phase) gives the reason ``soft_edge``. The products must hold
+        the image (:func:`~dtalign.pipeline.products.prepare_image` keeps it).
+        The rotation, when fitted, stays the DT-LM's.
 
     Returns
     -------
@@ -745,6 +774,12 @@ def fit_polyline_products(
             "initial_rotation_rad": initial_rotation_rad,
         },
     )
+    profile = None
+    if edge_profile is not None:
+        profile = check_edge_profile(edge_profile, item.normals)
+        if products.image is None:
+            raise ValueError("edge_profile needs the image: these products were built "
+                             "without it (use prepare_image)")
     fit = fit_one(shared, item)
     if ambiguity or seeds > 1:
         fit = _hypotheses.examine(
@@ -752,6 +787,8 @@ def fit_polyline_products(
             refit=lambda seed: fit_from(shared, item, seed),
         )
     fit = settle(fit, shared, item)
+    if profile is not None:
+        fit = with_profile(fit, products, profile)
     _status.log_fit(fit)
     return fit
 
@@ -780,6 +817,7 @@ def fit_polyline(
     pinvh_rcond: float = DEFAULT_PINVH_RCOND,
     seeds: int = _hypotheses.DEFAULT_SEEDS,
     ambiguity: bool = True,
+    edge_profile: Any = None,
 ) -> PolylineFit:
     """Fit a model polyline to an image in one call.
 
@@ -814,6 +852,9 @@ def fit_polyline(
         Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
     seeds, ambiguity
         Multi-start and the rival-basin examination: see
+        :func:`fit_polyline_products`.
+    edge_profile : EdgeProfile, optional
+        Refine the pose against the image with this profile: see
         :func:`fit_polyline_products`.
 
     Returns
@@ -853,12 +894,31 @@ def fit_polyline(
         pinvh_rcond=pinvh_rcond,
         seeds=seeds,
         ambiguity=ambiguity,
+        edge_profile=edge_profile,
     )
 
 
 # ---------------------------------------------------------------------------
 # Building fits from the compiled work (:mod:`dtalign.pipeline.jobs`)
 # ---------------------------------------------------------------------------
+
+
+def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any) -> PolylineFit:
+    """``fit`` refined against ``products.image`` with ``profile``
+    (:func:`~dtalign.pipeline.profile_fit.refine_with_profile`): its
+    :attr:`~PolylineFit.profile` set and, when the refinement is accepted,
+    its offset replaced (the DT-LM one stays in ``fit.lm``)."""
+    assert products.image is not None
+    if fit.lm.degenerate:  # nothing locked: nothing to refine from
+        return fit
+    ref = refine_with_profile(
+        products.image, profile, np.asarray(fit.vertices_vu), fit.lm.offset_vu,
+        rotation_rad=fit.rotation_rad, pivot_vu=fit.pivot_vu,
+    )
+    return dataclasses.replace(
+        fit, offset_vu=ref.offset_vu if ref.accepted else fit.offset_vu, profile=ref,
+        timings_s={**fit.timings_s, "profile": ref.time_s},
+    )
 
 
 def fit_one(shared: jobs.Plan, it: jobs.Item) -> PolylineFit:

@@ -225,6 +225,11 @@ class ImageProducts:
         True when ``noise_sigma`` was estimated from the image.
     timings_s : dict
         Wall time of each step (``noise``, ``derivatives``), seconds.
+    image : ndarray, shape (H, W), or None
+        The image itself (float64, read-only), kept by
+        :func:`prepare_image` for the profile refinement
+        (:mod:`dtalign.pipeline.profile_fit`); None in products built
+        without it.
 
     Instances compare by identity (the arrays have no single truth value).
     """
@@ -238,8 +243,13 @@ class ImageProducts:
     config: ImageDerivativesConfig = field(default_factory=ImageDerivativesConfig)
     noise_sigma_estimated: bool = False
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
+    image: FloatArray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
+        if self.image is not None:
+            if not isinstance(self.image, np.ndarray) or self.image.shape != tuple(self.shape):
+                raise ValueError(f"image must be an ndarray of shape {tuple(self.shape)}")
+            object.__setattr__(self, "image", _readonly(self.image))
         for name in ("gradient_magnitude", "edge_dt", "gradient_vu", "edge_mask"):
             value = getattr(self, name)
             if not isinstance(value, np.ndarray):
@@ -327,4 +337,5 @@ def prepare_image(
         config=cfg,
         noise_sigma_estimated=estimated,
         timings_s=timings,
+        image=arr,
     )

@@ -142,6 +142,20 @@ class FitReason(str, enum.Enum):
         The rival basin lies along a direction the fit cannot observe (a
         straight edge's along-edge shift): the pose is ambiguous along the
         edge, which its ``inf`` sigma there already says, not across it.
+    ``PROFILE_REJECTED`` (suspect)
+        An :class:`~dtalign.EdgeProfile` was given but its refinement
+        (:mod:`dtalign.pipeline.profile_fit`) was discarded: it did not
+        converge, walked farther than
+        :data:`~dtalign.pipeline.profile_fit.MAX_WALK_PX` from the DT lock
+        or fitted a non-positive gain. The pose is the DT-LM's, which
+        carries the edge DT's photometric bias (tenths of a pixel on a
+        limb) the profile was meant to remove.
+    ``SOFT_EDGE`` (suspect)
+        A limb profile has no usable edge: its brightness rolls off to the
+        edge (a Lambert limb at low phase,
+        :data:`~dtalign.pipeline.profile_fit.SOFT_EDGE_STEP_JUMP`), so the
+        edge's position rests on the modelled roll-off alone and on the
+        reflectance law being right.
     ``RANK_DEFICIENT`` (note: the status stays ``OK``)
         The polyline's geometry leaves some pose direction unmeasured (a
         straight edge: the along-edge shift; a circle: its rotation). The
@@ -160,6 +174,8 @@ class FitReason(str, enum.Enum):
     NOT_CONVERGED = "not_converged"
     AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
     RANK_DEFICIENT = "rank_deficient"
+    PROFILE_REJECTED = "profile_rejected"
+    SOFT_EDGE = "soft_edge"
 
     def __str__(self) -> str:
         return self.value
@@ -175,6 +191,8 @@ SEVERITY: dict[FitReason, FitStatus] = {
     FitReason.NOT_CONVERGED: FitStatus.OK,
     FitReason.AMBIGUOUS_ALONG_EDGE: FitStatus.OK,
     FitReason.RANK_DEFICIENT: FitStatus.OK,
+    FitReason.PROFILE_REJECTED: FitStatus.SUSPECT,
+    FitReason.SOFT_EDGE: FitStatus.SUSPECT,
 }
 
 _ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.AMBIGUOUS, FitStatus.FAILED)
@@ -360,6 +378,12 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
         out.append(FitReason.NOT_CONVERGED)
     if ambiguity is not None and ambiguity.ambiguous and ambiguity.along_unobservable:
         out.append(FitReason.AMBIGUOUS_ALONG_EDGE)
+    profile = getattr(fit, "profile", None)
+    if profile is not None:
+        if not profile.accepted:
+            out.append(FitReason.PROFILE_REJECTED)
+        if profile.soft_edge:
+            out.append(FitReason.SOFT_EDGE)
     return tuple(out)
 
 
@@ -419,6 +443,17 @@ def _explain(fit: Any, reason: FitReason) -> str:
         return str(fit.ambiguity.reason)
     if reason is FitReason.NOT_CONVERGED:
         return _not_converged_text(fit)
+    if reason is FitReason.PROFILE_REJECTED:
+        return (
+            f"profile refinement rejected: {fit.profile.reason}; the pose is the DT-LM's "
+            "(biased by the edge DT's photometric offset)"
+        )
+    if reason is FitReason.SOFT_EDGE:
+        return (
+            f"soft edge: the profile's step at the edge is {fit.profile.step_jump:.2f} of its "
+            "contrast (the brightness rolls off to the edge, as a limb at low phase): the "
+            "position rests on the modelled roll-off and the reflectance law"
+        )
     p = 3 if fit.fit_rotation else 2
     dirs = "; ".join(
         "(" + ", ".join(f"{round(float(x), 4) + 0.0:g}" for x in e) + ")"
@@ -497,5 +532,6 @@ def log_fits(fits: Sequence[Any], label: str = "polylines") -> None:
         # what fit_problems needs for a status worse than OK, read first: a
         # clean fit (most of a batch) costs a few reads here, not the full check
         if (info or lm.degenerate or fit.at_window_edge
-                or 2 * lm.inlier_count < lm.residuals_px.shape[0]):
+                or 2 * lm.inlier_count < lm.residuals_px.shape[0]
+                or getattr(fit, "profile", None) is not None):
             log_fit(fit, f"{label}[{i}]")

@@ -1,0 +1,450 @@
+"""The photometric edge-profile refinement, compiled.
+
+Its specification is :mod:`dtalign.reference.profile` (same arithmetic, in
+NumPy). The model of one pixel ``p`` near vertex ``k`` (see the profiles
+page of the docs): the vertex's 1-D radiance profile ``P_k`` along its unit
+normal ``n_k``, blurred by a Gaussian PSF of sigma ``sigma``, averaged over
+the square pixel (along ``n_k`` the unit square projects to the trapezoid
+``box(|n_v|) * box(|n_u|)``), and read at the pixel's signed distance past
+the edge, corrected for the edge's curvature ``kappa_k``::
+
+    s     = (p - x_k - d) . n_k            (distance along the normal)
+    tau   = (p - x_k - d) . t_k            (distance along the edge)
+    s_eff = s - kappa_k (tau^2 + sigma^2 + 1/12) / 2
+    value = b + g * M_k(s_eff; sigma)
+
+``M_k = P_k * G_sigma * box * box``. The curvature term is the mean shift of
+a curved edge over the tangential spread of the pixel's own offset, the PSF
+(variance ``sigma^2``) and the pixel box (variance 1/12 along any
+direction). The profile ``P_k`` is piecewise linear between its samples;
+the Gaussian blur of a piecewise-linear function is exact at the samples
+(:func:`hat_gauss_taps`), the box average is exact through the second
+antiderivative (:func:`cumulate`, :func:`box_model`). The pose ``d``, the
+gain ``g``, the background ``b`` and, when unknown, ``sigma`` are fitted by
+Gauss-Newton with Tukey weights (:func:`refine`). Kernels assume valid
+C-contiguous float64 input and never validate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jit import inline_kernel, kernel
+
+#: Below this projected width (pixels) the second box of the pixel
+#: trapezoid is dropped: the normal is within ~1 deg of an axis, and the
+#: dropped box's variance (at most 1e-4 px^2) moves no edge measurably.
+MIN_BOX_WIDTH = 0.02
+
+#: Gaussian taps reach this many sigmas (the mass beyond is < 7e-5 of the
+#: total on each side, far below the edge-position budget).
+TAPS_SIGMAS = 4.0
+
+#: The residual scale follows the first iterations (the start, off by the
+#: DT's bias, has inflated residuals) and is then held: a scale that keeps
+#: moving changes the cost under the step test, and the weights of pixels
+#: near the cutoff then chase it for tens of iterations.
+SCALE_ITERATIONS = 3
+
+#: Parameters of the refinement: dv, du, gain, background, PSF sigma, the
+#: amplitude of the profile's optional shape basis, and the background's
+#: slope along the normal (scattered light: a PSF's wings, a glow).
+N_PARAMS = 7
+
+#: The blur is computed on merged cells once its sigma spans this many of
+#: them (see :func:`tables`): the taps then stay few whatever the sigma.
+COARSEN_SIGMAS = 3.0
+
+#: Step halvings tried before an iteration is declared stuck.
+MAX_HALVINGS = 8
+
+#: The Tukey scale is floored at this fraction of the fitted gain, the
+#: profile model's own accuracy (pixel sampling, the law, the PSF's shape
+#: are good to about a percent of the contrast): on a clean image the
+#: residuals are that model error, not outliers, and an unfloored scale
+#: would reject exactly the pixels across the edge (whose model error is
+#: largest), making the cost depend on where the fit started.
+SCALE_FLOOR = 0.01
+
+
+@kernel
+def hat_gauss_taps(sigma: float, h: float) -> np.ndarray:
+    """Taps ``k_m = (hat_h * G_sigma)(m h)``: exact Gaussian blur of a piecewise-linear profile."""
+    if sigma <= 0.0:
+        out = np.ones(1)
+        return out
+    half = int(math.ceil(TAPS_SIGMAS * sigma / h)) + 1
+    out = np.empty(2 * half + 1)
+    inv = 1.0 / (sigma * math.sqrt(2.0))
+    c = sigma / math.sqrt(2.0 * math.pi)
+    for m in range(-half, half + 1):
+        acc = 0.0
+        for d, wgt in ((-1.0, 1.0), (0.0, -2.0), (1.0, 1.0)):
+            x = (m + d) * h
+            acc += wgt * (x * 0.5 * (1.0 + math.erf(x * inv)) + c * math.exp(-(x * inv) ** 2))
+        out[m + half] = acc / h
+    return out
+
+
+@kernel
+def blur_rows(values: np.ndarray, j0: int, nb: int, taps: np.ndarray) -> np.ndarray:
+    """Rows of ``values`` convolved with ``taps`` at columns ``j0 .. j0 + nb - 1`` (ends held)."""
+    n, m = values.shape
+    half = (taps.shape[0] - 1) // 2
+    out = np.empty((n, nb))
+    for k in range(n):
+        for i in range(nb):
+            acc = 0.0
+            for t in range(taps.shape[0]):
+                j = j0 + i + half - t
+                if j < 0:
+                    j = 0
+                elif j > m - 1:
+                    j = m - 1
+                acc += values[k, j] * taps[t]
+            out[k, i] = acc
+    return out
+
+
+@kernel
+def cumulate(b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """First and second antiderivatives of each piecewise-linear row, 0 at its first sample."""
+    n, nb = b.shape
+    c = np.zeros((n, nb))
+    d = np.zeros((n, nb))
+    for k in range(n):
+        for i in range(nb - 1):
+            slope = b[k, i + 1] - b[k, i]
+            c[k, i + 1] = c[k, i] + h * (b[k, i] + b[k, i + 1]) * 0.5
+            d[k, i + 1] = d[k, i] + c[k, i] * h + b[k, i] * h * h * 0.5 + slope * h * h / 6.0
+    return c, d
+
+
+@inline_kernel
+def antiderivs(b: np.ndarray, c: np.ndarray, d: np.ndarray, k: int, x: float, h: float
+               ) -> tuple[float, float, float, float]:
+    """``(D, C, B, B')`` of row ``k`` at ``x`` samples from its start (held flat beyond)."""
+    nb = b.shape[1]
+    end = (nb - 1) * h
+    if x <= 0.0:
+        v = b[k, 0]
+        return v * x * x * 0.5, v * x, v, 0.0
+    if x >= end:
+        v = b[k, nb - 1]
+        t = x - end
+        return d[k, nb - 1] + c[k, nb - 1] * t + v * t * t * 0.5, c[k, nb - 1] + v * t, v, 0.0
+    i = int(x / h)
+    if i > nb - 2:
+        i = nb - 2
+    t = x - i * h
+    slope = (b[k, i + 1] - b[k, i]) / h
+    bv = b[k, i] + slope * t
+    cv = c[k, i] + b[k, i] * t + slope * t * t * 0.5
+    dv = d[k, i] + c[k, i] * t + b[k, i] * t * t * 0.5 + slope * t * t * t / 6.0
+    return dv, cv, bv, slope
+
+
+@inline_kernel
+def box_model(b: np.ndarray, c: np.ndarray, d: np.ndarray, k: int, x: float, h: float,
+              wa: float, wb: float) -> tuple[float, float, float]:
+    """``M, M', M''`` of row ``k`` averaged over ``box(wa) * box(wb)``, at ``x`` samples from its start."""
+    if wb >= MIN_BOX_WIDTH:
+        c1 = 0.5 * (wa + wb)
+        c2 = 0.5 * (wa - wb)
+        d1, e1, f1, _ = antiderivs(b, c, d, k, x + c1, h)
+        d2, e2, f2, _ = antiderivs(b, c, d, k, x + c2, h)
+        d3, e3, f3, _ = antiderivs(b, c, d, k, x - c2, h)
+        d4, e4, f4, _ = antiderivs(b, c, d, k, x - c1, h)
+        inv = 1.0 / (wa * wb)
+        return ((d1 - d2 - d3 + d4) * inv, (e1 - e2 - e3 + e4) * inv, (f1 - f2 - f3 + f4) * inv)
+    _, e1, f1, g1 = antiderivs(b, c, d, k, x + 0.5 * wa, h)
+    _, e2, f2, g2 = antiderivs(b, c, d, k, x - 0.5 * wa, h)
+    inv = 1.0 / wa
+    return (e1 - e2) * inv, (f1 - f2) * inv, (g1 - g2) * inv
+
+
+@kernel
+def select_pixels(shape_h: int, shape_w: int, verts: np.ndarray, normals: np.ndarray,
+                  tau_max: np.ndarray, half_width: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels ``(i, j)`` within ``half_width`` along and ``tau_max[k]`` across each vertex's normal.
+
+    Returns the vertex index and the two pixel indices of each pick, vertex by vertex.
+    """
+    n = verts.shape[0]
+    cap = 0
+    for k in range(n):
+        r = math.sqrt(half_width * half_width + tau_max[k] * tau_max[k]) + 1.0
+        cap += int((2.0 * r + 1.0) ** 2)
+    kk = np.empty(cap, dtype=np.int64)
+    ii = np.empty(cap, dtype=np.int64)
+    jj = np.empty(cap, dtype=np.int64)
+    m = 0
+    for k in range(n):
+        pv, pu = verts[k, 0], verts[k, 1]
+        nv, nu = normals[k, 0], normals[k, 1]
+        r = math.sqrt(half_width * half_width + tau_max[k] * tau_max[k]) + 1.0
+        i0 = max(0, int(math.floor(pv - r)))
+        i1 = min(shape_h - 1, int(math.ceil(pv + r)))
+        j0 = max(0, int(math.floor(pu - r)))
+        j1 = min(shape_w - 1, int(math.ceil(pu + r)))
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                dv = i - pv
+                du = j - pu
+                s = dv * nv + du * nu
+                t = -dv * nu + du * nv
+                if abs(s) <= half_width and abs(t) <= tau_max[k]:
+                    kk[m] = k
+                    ii[m] = i
+                    jj[m] = j
+                    m += 1
+    return kk[:m].copy(), ii[:m].copy(), jj[:m].copy()
+
+
+@kernel
+def evaluate(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndarray,
+             verts: np.ndarray, normals: np.ndarray, curv: np.ndarray,
+             b: np.ndarray, c: np.ndarray, d: np.ndarray,
+             bs: np.ndarray, cs: np.ndarray, ds: np.ndarray, use_shape: bool,
+             t0: float, h: float, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals ``obs - model`` and the model's Jacobian.
+
+    Columns: dv, du, gain, background, sigma, shape amplitude. The profile
+    is ``P + a S`` (``S`` the optional shape basis, tables ``bs, cs, ds``).
+    """
+    npx = obs.shape[0]
+    r = np.empty(npx)
+    jac = np.zeros((npx, N_PARAMS))
+    dv0, du0, gain, bg, sigma, amp, slope = (params[0], params[1], params[2], params[3],
+                                             params[4], params[5], params[6])
+    spread = sigma * sigma + 1.0 / 12.0
+    for q in range(npx):
+        k = pix_k[q]
+        nv, nu = normals[k, 0], normals[k, 1]
+        ev = pix_v[q] - verts[k, 0] - dv0
+        eu = pix_u[q] - verts[k, 1] - du0
+        s = ev * nv + eu * nu
+        tau = -ev * nu + eu * nv
+        kap = curv[k]
+        s_eff = s - 0.5 * kap * (tau * tau + spread)
+        m0, m1, m2 = box_model(b, c, d, k, s_eff - t0, h, abs(nv), abs(nu))
+        a0 = 0.0
+        if use_shape:
+            a0, a1, a2 = box_model(bs, cs, ds, k, s_eff - t0, h, abs(nv), abs(nu))
+            m0 += amp * a0
+            m1 += amp * a1
+            m2 += amp * a2
+        r[q] = obs[q] - (bg + slope * s + gain * m0)
+        # d s_eff / d(dv, du) = -n + kappa tau t, with t = (-nu, nv)
+        gv = -nv - kap * tau * nu
+        gu = -nu + kap * tau * nv
+        jac[q, 0] = gain * m1 * gv - slope * nv
+        jac[q, 1] = gain * m1 * gu - slope * nu
+        jac[q, 2] = m0
+        jac[q, 3] = 1.0
+        # heat equation: dM/dsigma = sigma M''; the curvature shift moves with sigma^2
+        jac[q, 4] = gain * (sigma * m2 - kap * sigma * m1)
+        jac[q, 5] = gain * a0
+        jac[q, 6] = s
+    return r, jac
+
+
+@inline_kernel
+def tukey_rho(x: float) -> float:
+    """Tukey's biweight loss of a residual in units of the cutoff (1/6 beyond it)."""
+    if abs(x) >= 1.0:
+        return 1.0 / 6.0
+    u = 1.0 - x * x
+    return (1.0 - u * u * u) / 6.0
+
+
+@kernel
+def robust_cost(r: np.ndarray, cs: float) -> float:
+    """Sum of :func:`tukey_rho` of the residuals over the cutoff ``cs``."""
+    acc = 0.0
+    for q in range(r.shape[0]):
+        acc += tukey_rho(r[q] / cs)
+    return acc
+
+
+@kernel
+def solve_small(a: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Gaussian elimination with partial pivoting of a small system; False when singular."""
+    n = rhs.shape[0]
+    m = a.copy()
+    x = rhs.copy()
+    for col in range(n):
+        p = col
+        for row in range(col + 1, n):
+            if abs(m[row, col]) > abs(m[p, col]):
+                p = row
+        if not abs(m[p, col]) > 0.0:
+            return x, False
+        if p != col:
+            for j in range(n):
+                tmp = m[col, j]
+                m[col, j] = m[p, j]
+                m[p, j] = tmp
+            tmp = x[col]
+            x[col] = x[p]
+            x[p] = tmp
+        for row in range(col + 1, n):
+            f = m[row, col] / m[col, col]
+            for j in range(col, n):
+                m[row, j] -= f * m[col, j]
+            x[row] -= f * x[col]
+    for col in range(n - 1, -1, -1):
+        acc = x[col]
+        for j in range(col + 1, n):
+            acc -= m[col, j] * x[j]
+        x[col] = acc / m[col, col]
+    return x, True
+
+
+@kernel
+def tables(values: np.ndarray, o0: float, h: float, j0: int, nb: int, sigma: float
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The blurred rows over the table's columns ``j0 .. j0 + nb - 1``, their two
+    antiderivatives, the table's first offset and its step.
+
+    A blur wider than :data:`COARSEN_SIGMAS` samples is computed on cells of
+    ``f`` samples merged (their means: the integral is kept), with the
+    sigma reduced by the variance the coarser piecewise-linear grid adds,
+    ``((f h)^2 - h^2) / 4``: the same blurred profile for a fraction of the taps.
+    """
+    f = 1
+    if sigma > 0.0:
+        f = max(1, int(sigma / (COARSEN_SIGMAS * h)))
+    if f == 1:
+        b = blur_rows(values, j0, nb, hat_gauss_taps(sigma, h))
+        c, d = cumulate(b, h)
+        return b, c, d, o0 + j0 * h, h
+    n, m = values.shape
+    mc = m // f
+    coarse = np.empty((n, mc))
+    for k in range(n):
+        for jc in range(mc):
+            acc = 0.0
+            for t in range(f):
+                acc += values[k, jc * f + t]
+            coarse[k, jc] = acc / f
+    hc = f * h
+    oc0 = o0 + 0.5 * (f - 1) * h
+    jc0 = j0 // f
+    jc1 = min(mc - 1, (j0 + nb - 1) // f + 1)
+    s2 = sigma * sigma - 0.25 * (hc * hc - h * h)
+    b = blur_rows(coarse, jc0, jc1 - jc0 + 1, hat_gauss_taps(math.sqrt(max(s2, 0.0)), hc))
+    c, d = cumulate(b, hc)
+    return b, c, d, oc0 + jc0 * hc, hc
+
+
+@kernel
+def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndarray,
+           verts: np.ndarray, normals: np.ndarray, curv: np.ndarray, values: np.ndarray,
+           shape: np.ndarray, o0: float, h: float, j0: int, nb: int, params0: np.ndarray,
+           active: np.ndarray, max_iterations: int, tolerance_px: float, tukey_c: float
+           ) -> tuple[np.ndarray, int, bool, np.ndarray, float, float]:
+    """Gauss-Newton with Tukey weights on the ``active`` parameters.
+
+    Parameters are ``(dv, du, gain, background, sigma, shape amplitude)``;
+    ``active`` lists the fitted ones (the others are held). ``shape`` is
+    the shape basis, or an empty ``(N, 0)`` array for none. Returns the
+    parameters, the iterations, whether the last full step fell below
+    ``tolerance_px``, the inverse information matrix of the active
+    parameters, the residual scale (1.4826 MAD, floored) and the final
+    robust cost.
+    """
+    n_act = active.shape[0]
+    use_shape = shape.shape[1] > 0
+    params = params0.copy()
+    b, c, d, t0, ht = tables(values, o0, h, j0, nb, params[4])
+    if use_shape:
+        bs, cs_, ds, _, _ = tables(shape, o0, h, j0, nb, params[4])
+    else:
+        bs, cs_, ds = b, c, d
+    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, b, c, d, bs, cs_, ds,
+                      use_shape, t0, ht, params)
+    converged = False
+    iterations = 0
+    info = np.zeros((n_act, n_act))
+    scale = 0.0
+    cost = 0.0
+    for it in range(max_iterations):
+        iterations = it + 1
+        if it < SCALE_ITERATIONS:
+            scale = 1.4826 * np.median(np.abs(r))
+            floor = SCALE_FLOOR * max(abs(params[2]), 1e-300)
+            if scale < floor:
+                scale = floor
+        cut = tukey_c * scale
+        cost = robust_cost(r, cut)
+        info[:, :] = 0.0
+        grad = np.zeros(n_act)
+        for q in range(r.shape[0]):
+            x = r[q] / cut
+            if abs(x) >= 1.0:
+                continue
+            w = (1.0 - x * x) ** 2
+            for a in range(n_act):
+                ja = jac[q, active[a]] * w
+                grad[a] += ja * r[q]
+                for e in range(a, n_act):
+                    info[a, e] += ja * jac[q, active[e]]
+        for a in range(n_act):
+            for e in range(a):
+                info[a, e] = info[e, a]
+        step, ok = solve_small(info, grad)
+        if not ok:
+            break
+        full = 0.0
+        for a in range(n_act):
+            ia = active[a]
+            if ia == 0 or ia == 1 or ia == 4:
+                full = max(full, abs(step[a]))
+        accepted = False
+        for _ in range(MAX_HALVINGS):
+            trial = params.copy()
+            for a in range(n_act):
+                trial[active[a]] += step[a]
+            if trial[4] < 0.0:
+                trial[4] = 0.0
+            if trial[4] != params[4]:
+                bt, ct, dt, t0t, htt = tables(values, o0, h, j0, nb, trial[4])
+                if use_shape:
+                    bst, cst, dst, _, _ = tables(shape, o0, h, j0, nb, trial[4])
+                else:
+                    bst, cst, dst = bt, ct, dt
+            else:
+                bt, ct, dt, bst, cst, dst, t0t, htt = b, c, d, bs, cs_, ds, t0, ht
+            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, bt, ct, dt,
+                              bst, cst, dst, use_shape, t0t, htt, trial)
+            if robust_cost(rt, cut) <= cost:
+                params = trial
+                b, c, d, bs, cs_, ds, r, jac = bt, ct, dt, bst, cst, dst, rt, jt
+                t0, ht = t0t, htt
+                accepted = True
+                # judged on the full Gauss-Newton step: a halved one is short by construction
+                if full < tolerance_px:
+                    converged = True
+                break
+            for a in range(n_act):
+                step[a] *= 0.5
+        if not accepted:
+            # no step lowers the cost: a minimum when the step has shrunk to nothing
+            converged = max(abs(step[0]), abs(step[1])) < tolerance_px
+            break
+        if converged:
+            break
+    ident = np.eye(n_act)
+    inv = np.zeros((n_act, n_act))
+    ok = True
+    for a in range(n_act):
+        col, good = solve_small(info, ident[:, a].copy())
+        ok = ok and good
+        inv[:, a] = col
+    if not ok:
+        inv[:, :] = np.inf
+    return params, iterations, converged, inv, scale, cost

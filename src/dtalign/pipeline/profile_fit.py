@@ -1,0 +1,427 @@
+"""Refine a DT-LM pose against the image intensity with an :class:`~dtalign.api.profiles.EdgeProfile`.
+
+The edge DT localises each edge at its steepest gradient, which for a
+one-sided photometric edge (a limb) lies inside the geometric edge; the
+integer DT adds a one-pixel ripple. After the DT-LM lock this module fits
+the image's own pixels in a strip along each vertex's normal with the
+profile's model (the kernels of ``dtalign._kernels.profile``, specified
+by :mod:`dtalign.reference.profile`): free offset, gain, background and,
+when the profile does not give it, the PSF sigma, with the amplitude of
+the profile's shape basis (a reflectance law's limb darkening) and a
+background slope (scattered light); Gauss-Newton with Tukey weights. The rotation, when fitted by the DT-LM, is held at its value: the
+refinement fits the offset only.
+
+The result, :class:`ProfileRefinement`, says whether the refinement was
+accepted: it is discarded when it did not converge, walked farther than
+:data:`MAX_WALK_PX` from the DT lock, or fitted a non-positive gain; and
+it says when the profile has no usable edge (``soft_edge``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..api import checks as check
+from ..api.profiles import EdgeProfile
+
+__all__ = [
+    "HALF_WIDTH_PX",
+    "profile_samples",
+    "MAX_WALK_PX",
+    "SOFT_EDGE_STEP_JUMP",
+    "ProfileRefinement",
+    "refine_with_profile",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Half-width of each vertex's strip along its normal, pixels: the pixel
+#: box, a blur of up to 1.5 px and the walk from the DT lock fit inside,
+#: and the far interior (where a wrong law would weigh most) stays out.
+HALF_WIDTH_PX = 3.5
+
+#: A refinement that moves the offset farther than this from the DT-LM
+#: lock is discarded: the DT's photometric bias reaches ~0.75 px at
+#: moderate phase and ~1.2 px at low phase, so a longer walk means the
+#: model does not describe the image.
+MAX_WALK_PX = 2.0
+
+#: Table margin beyond the strip, pixels: the walk the table still models
+#: exactly (beyond it the profile is held flat).
+TABLE_MARGIN_PX = 2.5
+
+#: Gauss-Newton iteration cap and step tolerance (pixels): a tenth of the
+#: accuracy the refinement is for (0.01 px median); the Tukey weights of a
+#: renderer's sampled pixels settle slowly below that.
+MAX_ITERATIONS = 50
+TOLERANCE_PX = 1e-4
+
+#: Tukey cutoff of the refinement, in residual scales (the 95 %-efficient value).
+TUKEY_C = 4.685
+
+#: Fit a background slope along the normals: scattered light (a PSF's
+#: wings, a glow around a bright disc) is a ramp across the strip, which a
+#: flat background would hand to the edge's position.
+FIT_SLOPE = True
+
+
+#: Step tolerance (pixels, and pixels of sigma) of the sigma's estimate:
+#: the offset is fitted again, on every vertex, with the sigma held.
+SIGMA_TOLERANCE = 1e-3
+
+#: Starting PSF sigma (pixels) when the profile does not give it.
+SIGMA_START_PX = 0.7
+
+#: The PSF sigma is estimated on about this many vertices (every k-th),
+#: then held while the offset is fitted on all of them: the estimate's
+#: cost is then independent of the polyline's length.
+SIGMA_VERTICES = 48
+
+#: A limb profile whose contrast-weighted median ``EdgeProfile.step_jump``
+#: is below this has no usable edge: its brightness rolls off to the edge
+#: (a Lambert limb below ~10-15 deg phase), so the edge's position rests on
+#: the roll-off's modelled shape alone.
+SOFT_EDGE_STEP_JUMP = 0.25
+
+
+@dataclass(frozen=True)
+class ProfileRefinement:
+    """Outcome of the profile refinement of one polyline fit.
+
+    Attributes
+    ----------
+    offset_vu : tuple of float
+        The refined offset (whether accepted or not).
+    dt_offset_vu : tuple of float
+        The DT-LM offset it started from.
+    accepted : bool
+        True when the fit's pose is this refinement's.
+    reason : str
+        Why it was discarded (empty when accepted).
+    gain, background, background_slope : float
+        The fitted photometric scale, sky level (image units) and the sky's
+        slope along the normals (image units per pixel).
+    shape_amplitude : float
+        The fitted amplitude of the profile's shape basis (0 without one;
+        for :func:`~dtalign.sphere_edge_profile`, the change of Minnaert's
+        exponent from the law given, to first order).
+    psf_sigma_px : float
+        The PSF sigma used (given, or estimated).
+    psf_estimated : bool
+        True when ``psf_sigma_px`` was estimated.
+    iterations : int
+        Gauss-Newton iterations (both stages when the sigma was estimated).
+    converged : bool
+        The last step fell below the tolerance.
+    walk_px : float
+        Distance from the DT-LM offset to the refined one.
+    n_pixels : int
+        Pixels fitted.
+    residual_scale : float
+        1.4826 MAD of the final residuals (image units).
+    covariance : tuple of tuple of float
+        2 x 2 covariance of the offset from the weighted information and
+        the residual scale (pixels^2); it does not include the model's
+        own error.
+    step_jump : float
+        The profile's contrast-weighted median step fraction.
+    soft_edge : bool
+        A limb profile with no usable edge (step fraction below
+        :data:`SOFT_EDGE_STEP_JUMP`); never set for other edge kinds.
+    time_s : float
+        Wall time of the refinement.
+    """
+
+    offset_vu: tuple[float, float]
+    dt_offset_vu: tuple[float, float]
+    accepted: bool
+    reason: str
+    gain: float
+    background: float
+    background_slope: float
+    shape_amplitude: float
+    psf_sigma_px: float
+    psf_estimated: bool
+    iterations: int
+    converged: bool
+    walk_px: float
+    n_pixels: int
+    residual_scale: float
+    covariance: tuple[tuple[float, float], tuple[float, float]]
+    step_jump: float
+    soft_edge: bool
+    time_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict."""
+        def num(x: float) -> float | str:
+            return x if math.isfinite(x) else ("inf" if x > 0 else "nan" if x != x else "-inf")
+
+        return {
+            "offset_vu": [num(x) for x in self.offset_vu],
+            "dt_offset_vu": [num(x) for x in self.dt_offset_vu],
+            "accepted": self.accepted, "reason": self.reason, "gain": num(self.gain),
+            "background": num(self.background),
+            "background_slope": num(self.background_slope), "shape_amplitude": num(self.shape_amplitude),
+            "psf_sigma_px": num(self.psf_sigma_px),
+            "psf_estimated": self.psf_estimated, "iterations": self.iterations,
+            "converged": self.converged, "walk_px": num(self.walk_px),
+            "n_pixels": self.n_pixels, "residual_scale": num(self.residual_scale),
+            "covariance": [[num(x) for x in row] for row in self.covariance],
+            "step_jump": num(self.step_jump), "soft_edge": self.soft_edge,
+            "time_s": self.time_s,
+        }
+
+
+def check_edge_profile(value: Any, normals_vu: FloatArray) -> EdgeProfile:
+    """``value`` as the :class:`~dtalign.api.profiles.EdgeProfile` of a polyline with these normals."""
+    if not isinstance(value, EdgeProfile):
+        raise TypeError(f"edge_profile must be a dtalign.EdgeProfile, got {type(value).__name__}")
+    n = normals_vu.shape[0]
+    if value.n_vertices != n:
+        raise ValueError(f"edge_profile has {value.n_vertices} vertices, the polyline {n}")
+    dots = (value.normals_vu * normals_vu).sum(axis=1)
+    if (dots < 0.5).any():
+        k = int(np.argmin(dots))
+        raise ValueError(
+            f"edge_profile normal {k} points away from the polyline's normal (cosine "
+            f"{dots[k]:.3g}): the profile must run along the polyline's normals"
+        )
+    return value
+
+
+def _tau_max(verts: FloatArray) -> FloatArray:
+    n = verts.shape[0]
+    if n == 1:
+        return np.full(1, 0.5)
+    seg = np.hypot(*np.diff(verts, axis=0).T)
+    left = np.concatenate(([seg[0]], seg))
+    right = np.concatenate((seg, [seg[-1]]))
+    return np.asarray(0.25 * (left + right), dtype=np.float64)
+
+
+def _rotated(points: FloatArray, angle: float, pivot: tuple[float, float] | None) -> FloatArray:
+    c, s = math.cos(angle), math.sin(angle)
+    rot = np.array([[c, -s], [s, c]])
+    if pivot is None:
+        return np.ascontiguousarray(points @ rot.T)
+    p = np.asarray(pivot)
+    return np.ascontiguousarray((points - p) @ rot.T + p)
+
+
+def _weighted_median(x: FloatArray, w: FloatArray) -> float:
+    if w.sum() <= 0.0:
+        return float(np.median(x))
+    order = np.argsort(x)
+    cw = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(cw, 0.5 * cw[-1])])
+
+
+def refine_with_profile(
+    image: FloatArray,
+    profile: EdgeProfile,
+    vertices_vu: FloatArray,
+    dt_offset_vu: tuple[float, float],
+    *,
+    rotation_rad: float = 0.0,
+    pivot_vu: tuple[float, float] | None = None,
+    kernels: Any = None,
+) -> ProfileRefinement:
+    """Refine a DT-LM offset against ``image`` with ``profile`` (see the module).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        The checked float64 image.
+    profile : EdgeProfile
+        Checked against the polyline by :func:`check_edge_profile`.
+    vertices_vu : ndarray, shape (N, 2)
+        The model vertices (before the pose).
+    dt_offset_vu : tuple of float
+        The DT-LM offset, the start.
+    rotation_rad, pivot_vu
+        The DT-LM rotation and its pivot: held fixed.
+    kernels : module, optional
+        The implementation: ``dtalign._kernels.profile`` (default) or
+        :mod:`dtalign.reference.profile`.
+
+    Returns
+    -------
+    ProfileRefinement
+    """
+    if kernels is None:
+        from .._kernels import profile as kernels
+    t_start = time.perf_counter()
+    verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
+    normals = np.ascontiguousarray(profile.normals_vu, dtype=np.float64)
+    if rotation_rad != 0.0:
+        verts = _rotated(verts, rotation_rad, pivot_vu)
+        normals = _rotated(normals, rotation_rad, None)
+    curv = np.ascontiguousarray(profile.curvature_px)
+    values = np.ascontiguousarray(profile.values)
+    shape = (np.ascontiguousarray(profile.shape_values) if profile.shape_values is not None
+             else np.zeros((values.shape[0], 0)))
+    use_shape = profile.shape_values is not None
+    h = profile.step_px
+    o0 = float(profile.offsets_px[0])
+    reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
+    j0 = max(0, int(math.floor((-reach - o0) / h)))
+    j1 = min(values.shape[1] - 1, int(math.ceil((reach - o0) / h)))
+    nb = j1 - j0 + 1
+    d0 = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
+    tau = _tau_max(verts)
+    hgt, wid = image.shape
+    known = profile.psf_sigma_px is not None
+    sigma = SIGMA_START_PX if profile.psf_sigma_px is None else float(profile.psf_sigma_px)
+
+    # contrast-weighted step fraction: is there an edge at all?
+    contrast = np.ptp(values[:, j0 : j1 + 1], axis=1)
+    step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
+    # only a limb is meant to step: a terminator is a kink (cos i through 0), a ring's
+    # profile whatever its model says, and neither is soft for lacking a step
+    soft = profile.edge == "limb" and step_jump < SOFT_EDGE_STEP_JUMP
+
+    def run(idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool,
+            tolerance: float = TOLERANCE_PX) -> Any:
+        if idx is None:
+            v, nrm, cv, val, shp, tm = verts, normals, curv, values, shape, tau
+        else:
+            v, nrm, cv, val, shp, tm = (np.ascontiguousarray(a[idx])
+                                        for a in (verts, normals, curv, values, shape, tau))
+        kk, ii, jj = kernels.select_pixels(hgt, wid, np.ascontiguousarray(v + np.asarray(d0)),
+                                           nrm, tm, HALF_WIDTH_PX)
+        obs = np.ascontiguousarray(image[ii, jj])
+        pv = ii.astype(np.float64)
+        pu = jj.astype(np.float64)
+        if params[2] == 0.0:  # the linear gain and background at the start
+            b, c, d, t0, ht = kernels.tables(val, o0, h, j0, nb, params[4])
+            r, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False, t0, ht,
+                                    np.array([d0[0], d0[1], 1.0, 0.0, params[4], 0.0, 0.0]))
+            model = obs - r
+            a = np.stack([model, np.ones_like(model)], axis=1)
+            sol = np.linalg.lstsq(a, obs, rcond=None)[0]
+            params = params.copy()
+            params[2], params[3] = float(sol[0]), float(sol[1])
+        # the sigma is estimated with the shape free (a wrong law would bias it), then held
+        active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if use_shape else [])
+                  + ([6] if FIT_SLOPE else []))
+        out = kernels.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, o0, h, j0, nb, params,
+                             np.asarray(active, dtype=np.int64), MAX_ITERATIONS, tolerance,
+                             TUKEY_C)
+        return (*out, obs.shape[0])
+
+    params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
+    iterations = 0
+    if not known and verts.shape[0] > 0:
+        stride = max(1, verts.shape[0] // SIGMA_VERTICES)
+        idx = np.arange(0, verts.shape[0], stride, dtype=np.int64)
+        p_a, it_a, _, _, _, _, _ = run(idx, params, True, SIGMA_TOLERANCE)
+        iterations += int(it_a)
+        params = np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5],
+                           p_a[6]])
+    p, it, conv, inv, scale, _, npx = run(None, params, False)
+    iterations += int(it)
+    off = (float(p[0]), float(p[1]))
+    walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
+    cov = np.asarray(inv)[:2, :2] * float(scale) ** 2
+    reason = ""
+    if npx == 0:
+        reason = "no pixels in the strips along the normals (is the polyline in the image?)"
+    elif not bool(conv):
+        reason = f"did not converge in {iterations} Gauss-Newton iterations"
+    elif not walk <= MAX_WALK_PX:
+        reason = f"walked {walk:.3g} px from the DT lock (more than {MAX_WALK_PX:g} px)"
+    elif not p[2] > 0.0:
+        reason = f"fitted a non-positive gain ({p[2]:.3g}): the profile does not match the image"
+    return ProfileRefinement(
+        offset_vu=off, dt_offset_vu=d0, accepted=not reason, reason=reason,
+        gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
+        shape_amplitude=float(p[5]),
+        psf_sigma_px=float(p[4]),
+        psf_estimated=not known, iterations=iterations, converged=bool(conv), walk_px=walk,
+        n_pixels=int(npx), residual_scale=float(scale),
+        covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
+        step_jump=float(step_jump), soft_edge=bool(soft),
+        time_s=time.perf_counter() - t_start,
+    )
+
+
+
+
+def profile_samples(
+    image: ArrayLike, profile: EdgeProfile, vertices_vu: ArrayLike, refinement: ProfileRefinement,
+    indices: Any, *, n_model: int = 200,
+) -> list[dict[str, FloatArray]]:
+    """The image pixels and the fitted model across some vertices (for plots).
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+    profile : EdgeProfile
+    vertices_vu : array_like, shape (N, 2)
+        The model vertices (before the pose; the rotation is not applied).
+    refinement : ProfileRefinement
+        The refinement whose parameters draw the model.
+    indices : sequence of int
+        The vertices.
+    n_model : int, optional
+        Samples of the model curve across the strip.
+
+    Returns
+    -------
+    list of dict
+        Per vertex: ``s`` (each strip pixel's distance past the edge at the
+        refined pose, along the normal, px), ``value`` (its image value),
+        ``model_s`` and ``model`` (the fitted model on the normal through
+        the vertex), ``dt_shift`` (where the DT-LM pose puts the edge on
+        that axis, px).
+    """
+    from .._kernels import profile as kernels
+
+    img = check.check_image(image)
+    verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
+    r = refinement
+    params = np.array([r.offset_vu[0], r.offset_vu[1], r.gain, r.background, r.psf_sigma_px,
+                       r.shape_amplitude, r.background_slope])
+    h = profile.step_px
+    o0 = float(profile.offsets_px[0])
+    reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
+    j0 = max(0, int(math.floor((-reach - o0) / h)))
+    j1 = min(profile.values.shape[1] - 1, int(math.ceil((reach - o0) / h)))
+    out = []
+    tau = _tau_max(verts)
+    for k in (int(i) for i in indices):
+        sel = np.array([k])
+        v = np.ascontiguousarray(verts[sel])
+        nrm = np.ascontiguousarray(profile.normals_vu[sel])
+        cv = np.ascontiguousarray(profile.curvature_px[sel])
+        val = np.ascontiguousarray(profile.values[sel])
+        shp = (np.ascontiguousarray(profile.shape_values[sel]) if profile.shape_values is not None
+               else np.zeros((1, 0)))
+        b, c, d, t0, ht = kernels.tables(val, o0, h, j0, j1 - j0 + 1, r.psf_sigma_px)
+        bs, cs, ds = kernels.tables(shp, o0, h, j0, j1 - j0 + 1, r.psf_sigma_px)[:3] if (
+            shp.shape[1]) else (b, c, d)
+        kk, ii, jj = kernels.select_pixels(img.shape[0], img.shape[1],
+                                           np.ascontiguousarray(v + np.asarray(r.offset_vu)),
+                                           nrm, np.ascontiguousarray(tau[sel]), HALF_WIDTH_PX)
+        pv, pu = ii.astype(np.float64), jj.astype(np.float64)
+        obs = np.ascontiguousarray(img[ii, jj])
+        rr, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, bs, cs, ds,
+                                 shp.shape[1] > 0, t0, ht, params)
+        s_px = (pv - v[0, 0] - r.offset_vu[0]) * nrm[0, 0] + (pu - v[0, 1] - r.offset_vu[1]) * nrm[0, 1]
+        ms = np.linspace(-HALF_WIDTH_PX, HALF_WIDTH_PX, n_model)
+        mv = v[0, 0] + r.offset_vu[0] + ms * nrm[0, 0]
+        mu = v[0, 1] + r.offset_vu[1] + ms * nrm[0, 1]
+        zeros = np.zeros(n_model)
+        model, _ = kernels.evaluate(zeros, np.zeros(n_model, dtype=np.int64), mv, mu, v, nrm, cv,
+                                    b, c, d, bs, cs, ds, shp.shape[1] > 0, t0, ht, params)
+        dt_shift = float((np.asarray(r.dt_offset_vu) - np.asarray(r.offset_vu)) @ nrm[0])
+        out.append({"s": s_px, "value": obs, "model_s": ms, "model": -model,
+                    "residual": rr, "dt_shift": np.asarray(dt_shift)})
+    return out
