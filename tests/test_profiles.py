@@ -246,3 +246,22 @@ def test_plot_profile_fit(tmp_path):
     plain = fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas, search_window_vu=(6, 6))
     with pytest.raises(ValueError, match="profile"):
         plot_profile_fit(plain, sc.image, prof)
+
+
+def test_a_refined_fit_round_trips_through_its_dict():
+    """``from_dict`` keeps the refined offset, the DT-LM one and the refinement."""
+    import json
+
+    from dtalign.pipeline import PolylineFit
+
+    sc = _scene()
+    L = sc.limb
+    fit = fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas, search_window_vu=(6, 6),
+                       edge_profile=_profile(sc))
+    assert fit.profile is not None and fit.profile.accepted
+    assert fit.offset_vu != fit.dt_offset_vu
+    d = fit.to_dict(arrays=True)
+    back = PolylineFit.from_dict(json.loads(json.dumps(d, allow_nan=False)))
+    assert back.offset_vu == fit.offset_vu and back.dt_offset_vu == fit.dt_offset_vu
+    assert back.profile == fit.profile
+    assert back.to_dict(arrays=True) == d

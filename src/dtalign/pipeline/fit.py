@@ -378,16 +378,16 @@ class PolylineFit:
 
     @property
     def status(self) -> FitStatus:
-        """``"ok"``, ``"ambiguous"`` or ``"failed"`` (:class:`~dtalign.pipeline.status.FitStatus`).
+        """``"ok"``, ``"suspect"``, ``"ambiguous"`` or ``"failed"`` (:class:`~dtalign.pipeline.status.FitStatus`).
 
         The worst severity among :attr:`reasons`: ``failed`` when the pose is
         not a measurement (most or all vertices polarity-rejected, degenerate,
         seed on the window edge); ``ambiguous`` when a rival basin across
         the edge fits about as well; ``ok`` otherwise, with notes in
         :attr:`reasons` for a pose that has not settled or that is
-        rank-deficient (its unobservable sigmas are ``inf``). (``suspect``
-        remains a :class:`~dtalign.pipeline.status.FitStatus` value for
-        older stores; no reason implies it now.)
+        rank-deficient (its unobservable sigmas are ``inf``); ``suspect``
+        when an edge profile's refinement was discarded or a limb has no
+        usable edge (the pose is then the DT-LM's, or rests on the law).
         """
         return _status.fit_status(_status.fit_problems(self))
 
@@ -599,8 +599,10 @@ class PolylineFit:
             vertices = np.asarray(d["vertices_vu"], dtype=np.float64).reshape(-1, 2)
             normals = np.asarray(d["normals_vu"], dtype=np.float64).reshape(-1, 2)
             cov = np.array([[inf(x) for x in row] for row in d["covariance"]], dtype=np.float64)
+            # the LM's own offset: the DT-LM one when a profile refinement moved the fit's
+            dt = d.get("dt_offset_vu", d["offset_vu"])
             lm = LMRefineResult(
-                offset_vu=(float(d["offset_vu"][0]), float(d["offset_vu"][1])),
+                offset_vu=(float(dt[0]), float(dt[1])),
                 rotation_rad=float(d["rotation_rad"]), covariance=_readonly(cov),
                 residuals_px=_readonly(np.asarray(d["residuals_px"], dtype=np.float64)),
                 weights=_readonly(np.asarray(d["weights"], dtype=np.float64)),
@@ -619,8 +621,10 @@ class PolylineFit:
             settling = None if st is None else Settling(
                 int(st["iterations"]), inf(st["shift_px"]), inf(st["shift_sigmas"]),
                 bool(st["settled"]))
+            prof = d.get("profile")
             return cls(
-                offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad,
+                offset_vu=(float(d["offset_vu"][0]), float(d["offset_vu"][1])),
+                rotation_rad=lm.rotation_rad,
                 coarse_offset_vu=(int(d["coarse_offset_vu"][0]), int(d["coarse_offset_vu"][1])),
                 at_window_edge=bool(d["at_window_edge"]), lm=lm,
                 search_window_vu=(int(d["search_window_vu"][0]), int(d["search_window_vu"][1])),
@@ -632,6 +636,7 @@ class PolylineFit:
                 timings_s={str(k): float(v) for k, v in d["timings_s"].items()},
                 hypotheses=tuple(hyp(h) for h in d["hypotheses"]), ambiguity=ambiguity,
                 settling=settling,
+                profile=None if prof is None else ProfileRefinement.from_dict(prof),
             )
         except KeyError as exc:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None

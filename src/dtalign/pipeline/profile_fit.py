@@ -159,9 +159,10 @@ class ProfileRefinement:
     time_s: float
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict."""
-        def num(x: float) -> float | str:
-            return x if math.isfinite(x) else ("inf" if x > 0 else "nan" if x != x else "-inf")
+        """A JSON-ready dict (a value that is not finite is ``None``, as in
+        :meth:`dtalign.pipeline.PolylineFit.to_dict`); :meth:`from_dict` reads it back."""
+        def num(x: float) -> float | None:
+            return x if math.isfinite(x) else None
 
         return {
             "offset_vu": [num(x) for x in self.offset_vu],
@@ -177,6 +178,28 @@ class ProfileRefinement:
             "step_jump": num(self.step_jump), "soft_edge": self.soft_edge,
             "time_s": self.time_s,
         }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ProfileRefinement:
+        """The refinement :meth:`to_dict` wrote (``None`` reads as NaN)."""
+        def num(x: Any) -> float:
+            return math.nan if x is None else float(x)
+
+        def pair(x: Any) -> tuple[float, float]:
+            return num(x[0]), num(x[1])
+
+        cov = d["covariance"]
+        return cls(
+            offset_vu=pair(d["offset_vu"]), dt_offset_vu=pair(d["dt_offset_vu"]),
+            accepted=bool(d["accepted"]), reason=str(d["reason"]), gain=num(d["gain"]),
+            background=num(d["background"]), background_slope=num(d["background_slope"]),
+            shape_amplitude=num(d["shape_amplitude"]), psf_sigma_px=num(d["psf_sigma_px"]),
+            psf_estimated=bool(d["psf_estimated"]), iterations=int(d["iterations"]),
+            converged=bool(d["converged"]), walk_px=num(d["walk_px"]),
+            n_pixels=int(d["n_pixels"]), residual_scale=num(d["residual_scale"]),
+            covariance=(pair(cov[0]), pair(cov[1])), step_jump=num(d["step_jump"]),
+            soft_edge=bool(d["soft_edge"]), time_s=float(d["time_s"]),
+        )
 
 
 def check_edge_profile(value: Any, normals_vu: FloatArray) -> EdgeProfile:

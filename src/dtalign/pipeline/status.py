@@ -70,10 +70,9 @@ class FitStatus(str, enum.Enum):
         :attr:`FitReason.RANK_DEFICIENT`): the fit is sound along what the
         geometry observes.
     ``SUSPECT``
-        The pose is a measurement but should be checked. No reason of this
-        version implies it (``most_polarity_rejected``, which did, is now
-        ``failed``); it is kept so that filters and stores written for
-        earlier versions stay valid.
+        The pose is a measurement but should be checked: an edge profile's
+        refinement was discarded (:attr:`FitReason.PROFILE_REJECTED`) or a
+        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`).
     ``AMBIGUOUS``
         Another basin, across the edge, fits the image about as well
         (:attr:`FitReason.AMBIGUOUS`): the pose may be the wrong one of two.
@@ -120,6 +119,20 @@ class FitReason(str, enum.Enum):
     ``AT_WINDOW_EDGE`` (failed)
         The coarse seed lies on the boundary of the search window: the true
         offset may be outside it; widen ``search_window_vu``.
+    ``PROFILE_REJECTED`` (suspect)
+        An :class:`~dtalign.EdgeProfile` was given but its refinement
+        (:mod:`dtalign.pipeline.profile_fit`) was discarded: it did not
+        converge, walked farther than
+        :data:`~dtalign.pipeline.profile_fit.MAX_WALK_PX` from the DT lock
+        or fitted a non-positive gain. The pose is the DT-LM's, which
+        carries the edge DT's photometric bias (tenths of a pixel on a
+        limb) the profile was meant to remove.
+    ``SOFT_EDGE`` (suspect)
+        A limb profile has no usable edge: its brightness rolls off to the
+        edge (a Lambert limb at low phase,
+        :data:`~dtalign.pipeline.profile_fit.SOFT_EDGE_STEP_JUMP`), so the
+        edge's position rests on the modelled roll-off alone and on the
+        reflectance law being right.
     ``NOT_CONVERGED`` (note: the status stays ``OK``)
         The pose has not settled: the LM stopped (iteration cap or damping
         bound) before an accepted step fell below ``step_tolerance_px``,
@@ -142,20 +155,6 @@ class FitReason(str, enum.Enum):
         The rival basin lies along a direction the fit cannot observe (a
         straight edge's along-edge shift): the pose is ambiguous along the
         edge, which its ``inf`` sigma there already says, not across it.
-    ``PROFILE_REJECTED`` (suspect)
-        An :class:`~dtalign.EdgeProfile` was given but its refinement
-        (:mod:`dtalign.pipeline.profile_fit`) was discarded: it did not
-        converge, walked farther than
-        :data:`~dtalign.pipeline.profile_fit.MAX_WALK_PX` from the DT lock
-        or fitted a non-positive gain. The pose is the DT-LM's, which
-        carries the edge DT's photometric bias (tenths of a pixel on a
-        limb) the profile was meant to remove.
-    ``SOFT_EDGE`` (suspect)
-        A limb profile has no usable edge: its brightness rolls off to the
-        edge (a Lambert limb at low phase,
-        :data:`~dtalign.pipeline.profile_fit.SOFT_EDGE_STEP_JUMP`), so the
-        edge's position rests on the modelled roll-off alone and on the
-        reflectance law being right.
     ``RANK_DEFICIENT`` (note: the status stays ``OK``)
         The polyline's geometry leaves some pose direction unmeasured (a
         straight edge: the along-edge shift; a circle: its rotation). The
@@ -171,11 +170,11 @@ class FitReason(str, enum.Enum):
     DEGENERATE = "degenerate"
     AT_WINDOW_EDGE = "at_window_edge"
     AMBIGUOUS = "ambiguous"
+    PROFILE_REJECTED = "profile_rejected"
+    SOFT_EDGE = "soft_edge"
     NOT_CONVERGED = "not_converged"
     AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
     RANK_DEFICIENT = "rank_deficient"
-    PROFILE_REJECTED = "profile_rejected"
-    SOFT_EDGE = "soft_edge"
 
     def __str__(self) -> str:
         return self.value
@@ -202,9 +201,8 @@ _ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.AMBIGUOUS, FitStatus.FAILED
 STATUS_MEANING: dict[FitStatus, str] = {
     FitStatus.OK: "the pose is a measurement; the fit may carry notes (reasons whose "
     "status is ``ok``).",
-    FitStatus.SUSPECT: "the pose is a measurement that should be checked. No reason of "
-    "this version implies it (``most_polarity_rejected`` did, and is now ``failed``); "
-    "kept so that filters and stores of earlier versions stay valid.",
+    FitStatus.SUSPECT: "the pose is a measurement that should be checked: an edge "
+    "profile's refinement was discarded, or a limb has no usable edge.",
     FitStatus.AMBIGUOUS: "another basin across the edge fits the image about as well: "
     "the pose may be the wrong one of two.",
     FitStatus.FAILED: "the pose is not a measurement of the image: do not use it.",
@@ -228,6 +226,13 @@ REASON_MEANING: dict[FitReason, str] = {
     FitReason.AMBIGUOUS: "a rival basin across the edge (another coarse peak, or the DT "
     "cost's competing basin) costs less than 1.5 times this one: two parallel edges of "
     "one polarity, a decoy edge. See :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.",
+    FitReason.PROFILE_REJECTED: "an edge profile was given but its refinement was "
+    "discarded (it did not converge, walked more than 2 px from the DT lock, or fitted a "
+    "non-positive gain): the pose is the DT-LM's, with the edge DT's photometric bias "
+    "(tenths of a pixel on a limb). See :attr:`~dtalign.pipeline.PolylineFit.profile`.",
+    FitReason.SOFT_EDGE: "the limb profile has no usable edge (its brightness rolls off to "
+    "the limb, as a Lambert limb at low phase): the position rests on the modelled roll-off "
+    "and on the reflectance law being right.",
     FitReason.NOT_CONVERGED: "the pose has not settled: the LM stopped before its step "
     "tolerance and its pose still moved more than 0.25 sigma over its last 5 iterations. "
     "Raise ``max_iterations``. See `Converged, settled, and the iteration cap`_.",
@@ -374,16 +379,16 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
     ambiguity = getattr(fit, "ambiguity", None)
     if ambiguity is not None and ambiguity.ambiguous and not ambiguity.along_unobservable:
         out.append(FitReason.AMBIGUOUS)
-    if not settled(fit):
-        out.append(FitReason.NOT_CONVERGED)
-    if ambiguity is not None and ambiguity.ambiguous and ambiguity.along_unobservable:
-        out.append(FitReason.AMBIGUOUS_ALONG_EDGE)
     profile = getattr(fit, "profile", None)
     if profile is not None:
         if not profile.accepted:
             out.append(FitReason.PROFILE_REJECTED)
         if profile.soft_edge:
             out.append(FitReason.SOFT_EDGE)
+    if not settled(fit):
+        out.append(FitReason.NOT_CONVERGED)
+    if ambiguity is not None and ambiguity.ambiguous and ambiguity.along_unobservable:
+        out.append(FitReason.AMBIGUOUS_ALONG_EDGE)
     return tuple(out)
 
 
