@@ -160,5 +160,5 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         observable_rank,
     )
     from .pipeline.products import ImageProducts, estimate_noise_sigma, prepare_image
-    from .warmup import warm_up
     from .pipeline.profile_fit import ProfileRefinement
+    from .warmup import warm_up
