@@ -405,3 +405,27 @@ def test_huge_windows_over_far_flung_vertices_are_refused_not_run():
     assert dtalign.coarse_polarity_search_scored(
         dt <= 0.5, np.ones((32, 32, 2)), verts[:1], np.ones((1, 2)), (10**7, 10**7)
     ).offset_vu == (0, 0)
+
+
+def test_scan_cap_message_names_the_figure_over_its_cap():
+    """Issue 31.4: the refusal names what exceeded its cap (shifts, or
+    shift-vertex pairs), not a figure within it."""
+    from dtalign.api.checks import MAX_SCAN_SHIFTS, MAX_SCAN_TABLE
+
+    edge = np.zeros((64, 64), dtype=bool)
+    grad = np.ones((64, 64, 2))
+    # a million vertices, a +-30 window: 3721 shifts (fine), 122 x 1e6 pairs (not)
+    many = np.full((1_000_000, 2), 20.0)
+    with pytest.raises(ValueError) as info:
+        dtalign.coarse_polarity_search_scored(edge, grad, many, np.ones_like(many), (30, 30))
+    msg = str(info.value)
+    assert f"122000000 shift-vertex pairs per axis (122 shift rows and columns x 1000000 " \
+           f"vertices; at most {MAX_SCAN_TABLE})" in msg
+    assert "shifts (at most" not in msg and "3721" not in msg
+    # two far-flung vertices, a +-5000 window: 1e8 shifts (not), 40002 x 2 pairs (fine)
+    far = np.array([[5.0, 5.0], [-1e6, 1e6]])
+    with pytest.raises(ValueError) as info:
+        dtalign.coarse_polarity_search_scored(edge, grad, far, np.ones((2, 2)), (5000, 5000))
+    msg = str(info.value)
+    assert f"{10001 * 10001} shifts (at most {MAX_SCAN_SHIFTS})" in msg
+    assert "shift-vertex pairs" not in msg
