@@ -885,11 +885,24 @@ class _KeepRows:
     def __enter__(self) -> _KeepRows:
         return self
 
-    def __exit__(self, kind: type[BaseException] | None, *_: object) -> bool:
-        if kind is not None and issubclass(kind, KeyboardInterrupt) and self.batch:
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, _: object) -> bool:
+        if self.batch and _is_interrupt(exc):
             self.happened = True
             return True
         return False
+
+
+def _is_interrupt(exc: BaseException | None) -> bool:
+    """A KeyboardInterrupt, or an error it caused: a Ctrl-C that lands while
+    Numba unpickles a kernel's constants comes out as a SystemError chained
+    to it."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _table_batch(results: list[dict[str, Any]]) -> str:
