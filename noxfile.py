@@ -1,5 +1,5 @@
 """Developer sessions: ``nox -s tests``, ``lint``, ``typecheck``, ``docs``, ``bench``,
-``boundscheck`` and ``coverage``.
+``boundscheck``, ``coverage`` and ``floors``.
 
 Every session installs the package from this checkout into its own virtual
 environment, so a session that passes here passes on a fresh machine.
@@ -8,6 +8,7 @@ environment, so a session that passes here passes on a fresh machine.
 from __future__ import annotations
 
 import tempfile
+from pathlib import Path
 
 import nox
 
@@ -22,6 +23,32 @@ def tests(session: nox.Session) -> None:
     """The test suite, exactly as README and .ci/run run it."""
     session.install(".[test]")
     session.run("python", "-m", "pytest", *session.posargs)
+
+
+def _listed(path: str) -> list[str]:
+    """The non-comment lines of a file under .ci/."""
+    lines = Path(path).read_text(encoding="utf-8").splitlines()
+    return [line.strip() for line in lines if line.strip() and not line.startswith("#")]
+
+
+@nox.session(python=PYTHON)
+def floors(session: nox.Session) -> None:
+    """The declared floor of every runtime dependency, pinned (``.ci/floors.txt``;
+    llvmlite as numba resolves it), on the floor Python, with the tests of
+    ``.ci/floor-tests.txt``: every compiled path and the parity with the
+    reference (the whole suite with ``nox -s floors -- tests``). As .ci/run's
+    floor step; the Numba cache is compiled afresh in the session's install.
+    """
+    session.install(".[test]", "-c", ".ci/floors.txt")
+    session.run(
+        "python", "-c",
+        "import numba, llvmlite, numpy, scipy; print('floors: numba', numba.__version__, "
+        "'llvmlite', llvmlite.__version__, 'numpy', numpy.__version__, 'scipy', scipy.__version__)",
+    )
+    session.run(
+        "python", "-m", "pytest", "-q", "-p", "no:cacheprovider",
+        *(session.posargs or _listed(".ci/floor-tests.txt")),
+    )
 
 
 @nox.session(python=PYTHON)

@@ -258,3 +258,77 @@ def test_every_package_kernel_has_the_checked_cache() -> None:
                 found += 1
                 assert isinstance(value._cache, (CheckedFunctionCache, UncachedFunctionCache)), name
     assert found > 20
+
+
+# ---------------------------------------------------------------------------
+# Issue 31.2: a Numba without what the checked cache needs
+# ---------------------------------------------------------------------------
+
+
+def test_installed_numba_has_what_the_checked_cache_needs() -> None:
+    """The checked cache subclasses private numba.core.caching classes: a Numba
+    release that renames or drops one must be noticed here, not in the field."""
+    from dtalign import _numba_cache
+
+    assert not _numba_cache.MISSING, (
+        f"Numba {numba.__version__} lacks {', '.join(_numba_cache.MISSING)} of "
+        "numba.core.caching: dtalign's kernels fall back to Numba's plain cache=True "
+        "(no checksums, no read-only fallback). Adapt dtalign/_numba_cache.py to this "
+        "Numba, or cap numba in pyproject.toml."
+    )
+
+
+def _fresh_cache_module() -> object:
+    """A second copy of dtalign._numba_cache, resolved against numba.core.caching as it is now."""
+    import importlib.util
+
+    from dtalign import _numba_cache
+
+    spec = importlib.util.spec_from_file_location("_dtalign_numba_cache_probe", _numba_cache.__file__)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _probe_total(a):  # compiled by the fallback test, cached by plain Numba
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * a[i]
+    return s
+
+
+def _probe_twice(a):
+    return 2.0 * a.sum()
+
+
+def test_missing_numba_names_fall_back_to_plain_cache(monkeypatch, caplog, tmp_path) -> None:
+    """Names that an older or newer Numba lacks: the package still imports and
+    caches through Numba's own cache=True, with one WARNING for all kernels."""
+    import logging
+
+    import numpy as np
+    from numba.core import caching
+
+    with monkeypatch.context() as m:
+        # numba 0.59 had neither zip locator name; a method can go too.
+        for name in ("ZipCacheLocator", "_ZipCacheLocator"):
+            m.delattr(caching, name, raising=False)
+        m.delattr(caching.IndexDataCacheFile, "_open_for_write")
+        probe = _fresh_cache_module()
+    assert probe.MISSING == ("ZipCacheLocator or _ZipCacheLocator",
+                             "IndexDataCacheFile._open_for_write")
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    caplog.set_level(logging.DEBUG, logger="dtalign")
+    kernels = [probe.attach_cache(numba.njit(f)) for f in (_probe_total, _probe_twice)]
+    for k in kernels:
+        assert type(k._cache) is caching.FunctionCache  # Numba's own, as cache=True gives
+    a = np.arange(10.0)
+    assert kernels[0](a) == EXPECTED and kernels[1](a) == 90.0
+    assert sorted(p.suffix for p in tmp_path.rglob("*.nb?")) == [".nbc", ".nbc", ".nbi", ".nbi"]
+    warned = [r.getMessage() for r in caplog.records
+              if r.name == "dtalign" and r.levelno == logging.WARNING]
+    assert len(warned) == 1, warned
+    assert f"Numba {numba.__version__} lacks ZipCacheLocator or _ZipCacheLocator" in warned[0]
+    assert "plain cache=True" in warned[0]

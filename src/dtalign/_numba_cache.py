@@ -28,6 +28,13 @@ Each of these is reported once per folder and process with a WARNING on the
 ``dtalign`` logger (never :func:`warnings.warn`: callers run their tests
 with warnings as errors); repeats go to DEBUG. See ``docs/caching.rst`` for
 what the checksums do and do not protect.
+
+All this subclasses Numba's cache classes, which are not public API. A
+Numba release that renames or drops one of them (:data:`MISSING` lists
+what this one lacks) does not stop ``import dtalign``: the kernels then
+get Numba's plain ``cache=True``, without checksums or read-only
+fallbacks, logged once at WARNING (``tests/test_faults_cache.py`` fails on
+such a Numba, so an upgrade that loses the checked cache is noticed).
 """
 
 from __future__ import annotations
@@ -41,30 +48,65 @@ import threading
 from typing import Any
 
 import numba
-from numba.core import caching as _nc
+
+try:
+    from numba.core import caching as _nc
+except ImportError:  # a Numba without the module: every name below is missing
+    _nc = None  # type: ignore[assignment]
 
 logger = logging.getLogger("dtalign")
 
+#: What the checked cache needs of :mod:`numba.core.caching`: each class
+#: (under its current or, first, older names) and the methods and class
+#: attributes of it that the subclasses below override or call.
+REQUIRED: dict[tuple[str, ...], tuple[str, ...]] = {
+    ("UserProvidedCacheLocator", "_UserProvidedCacheLocator"): ("get_cache_path", "ensure_cache_path"),
+    ("InTreeCacheLocator", "_InTreeCacheLocator"): ("get_cache_path", "ensure_cache_path"),
+    ("UserWideCacheLocator", "_UserWideCacheLocator"): ("get_cache_path", "ensure_cache_path"),
+    ("IPythonCacheLocator", "_IPythonCacheLocator"): (),
+    ("ZipCacheLocator", "_ZipCacheLocator"): (),
+    ("CompileResultCacheImpl",): ("_locator_classes",),
+    ("IndexDataCacheFile",): (
+        "load", "save", "_load_index", "_save_index", "_load_data", "_save_data", "_dump",
+        "_open_for_write", "_data_name", "_data_path",
+    ),
+    ("FunctionCache",): ("_impl_class", "load_overload", "save_overload"),
+    ("NullCache",): ("save_overload",),
+}
 
-def _numba_class(*names: str) -> Any:
-    """A class of :mod:`numba.core.caching` under its current or older name."""
-    for name in names:
-        cls = getattr(_nc, name, None)
-        if cls is not None:
-            return cls
-    raise ImportError(f"numba.core.caching has none of {names}: unsupported Numba version")
+#: Missing pieces, as ``"Class"`` or ``"Class.attribute"``: empty on a
+#: supported Numba. Anything here means the plain ``cache=True`` fallback.
+MISSING: tuple[str, ...]
 
 
-# Older Numba releases name some of these with a leading underscore.
-_UserProvidedLocator = _numba_class("UserProvidedCacheLocator", "_UserProvidedCacheLocator")
-_InTreeLocator = _numba_class("InTreeCacheLocator", "_InTreeCacheLocator")
-_UserWideLocator = _numba_class("UserWideCacheLocator", "_UserWideCacheLocator")
-_IPythonLocator = _numba_class("IPythonCacheLocator", "_IPythonCacheLocator")
-_ZipLocator = _numba_class("ZipCacheLocator", "_ZipCacheLocator")
-_CompileResultCacheImpl = _numba_class("CompileResultCacheImpl")
-_IndexDataCacheFile = _numba_class("IndexDataCacheFile")
-_FunctionCache = _numba_class("FunctionCache")
-_NullCache = _numba_class("NullCache")
+def _resolve() -> tuple[dict[str, Any], tuple[str, ...]]:
+    """The needed classes by their first name, and what is missing."""
+    found: dict[str, Any] = {}
+    missing: list[str] = []
+    for names, attributes in REQUIRED.items():
+        cls = next((c for c in (getattr(_nc, n, None) for n in names) if c is not None), None)
+        if cls is None:
+            missing.append(" or ".join(names))
+            # A stand-in base, so the classes below can still be defined; they
+            # are never used (attach_cache falls back to Numba's plain cache).
+            cls = type(names[0], (), {})
+        else:
+            missing += [f"{names[0]}.{a}" for a in attributes if not hasattr(cls, a)]
+        found[names[0]] = cls
+    return found, tuple(missing)
+
+
+_found, MISSING = _resolve()
+_UserProvidedLocator = _found["UserProvidedCacheLocator"]
+_InTreeLocator = _found["InTreeCacheLocator"]
+_UserWideLocator = _found["UserWideCacheLocator"]
+_IPythonLocator = _found["IPythonCacheLocator"]
+_ZipLocator = _found["ZipCacheLocator"]
+_CompileResultCacheImpl = _found["CompileResultCacheImpl"]
+_IndexDataCacheFile = _found["IndexDataCacheFile"]
+_FunctionCache = _found["FunctionCache"]
+_NullCache = _found["NullCache"]
+del _found
 
 #: Format tag stored in each index beside Numba's version: an index without
 #: it (plain Numba, older dtalign) is another format, read as stale.
@@ -362,8 +404,30 @@ def attach_cache(dispatcher: Any) -> Any:
     """
     if not hasattr(dispatcher, "enable_caching"):
         return dispatcher  # NUMBA_DISABLE_JIT: njit returned the Python function
+    if MISSING:
+        return _plain_cache(dispatcher)
     try:
         dispatcher._cache = CheckedFunctionCache(dispatcher.py_func)
     except RuntimeError as exc:  # Numba: "cannot cache function ...: no locator available"
         dispatcher._cache = UncachedFunctionCache(dispatcher.py_func, str(exc))
+    return dispatcher
+
+
+def _plain_cache(dispatcher: Any) -> Any:
+    """Numba's own ``cache=True``, for a Numba that lacks what the checked cache needs."""
+    _report(
+        "fallback",
+        "numba",
+        f"Numba {numba.__version__} lacks {', '.join(MISSING)} of numba.core.caching, "
+        "which dtalign's checksummed kernel cache builds on; using Numba's plain "
+        "cache=True instead (no checksums, no read-only fallback; see docs/caching.rst)",
+    )
+    try:
+        dispatcher.enable_caching()
+    except RuntimeError as exc:  # "cannot cache function ...: no locator available"
+        _report(
+            "nolocator",
+            "numba",
+            f"no usable Numba cache folder ({exc}); compiling in memory without caching",
+        )
     return dispatcher

@@ -933,7 +933,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     _WARNINGS.messages = messages
     show_progress = batch and not args.no_progress and not args.json
     _compile_notice(messages)
-    with contextlib.closing(_progress(jobs, show_progress, messages)) as progress:
+    interrupt = _KeepRows(batch)
+    with interrupt, contextlib.closing(_progress(jobs, show_progress, messages)) as progress:
         for job in progress:
             _log_label(str(job.image))
             try:
@@ -966,6 +967,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     elif batch:
         stdout.emit(_table_batch(results))
     stdout.close(messages)
+    if interrupt.happened:
+        messages.say(
+            f"{PROG}: interrupted after {len(results)} of {len(jobs)} image(s); "
+            "the rows above are the ones finished"
+        )
+        return EXIT_INTERRUPTED
     if failures:
         messages.say(f"{PROG}: {failures} of {len(jobs)} image(s) failed")
         return 1
@@ -976,6 +983,41 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         messages.say(f"{PROG}: {doubtful_fits} of {len(jobs)} fit(s) suspect or ambiguous")
         return EXIT_FIT_DOUBTFUL
     return 0
+
+
+class _KeepRows:
+    """Around a batch's loop: a Ctrl-C ends the loop, not the command.
+
+    The rows finished before it are then printed (or written) as usual and
+    ``fit`` exits 130 (:data:`EXIT_INTERRUPTED`); the image being fitted is
+    dropped. A single fit's Ctrl-C propagates (main says "interrupted").
+    """
+
+    def __init__(self, batch: bool) -> None:
+        self.batch = batch
+        self.happened = False
+
+    def __enter__(self) -> _KeepRows:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, _: object) -> bool:
+        if self.batch and _is_interrupt(exc):
+            self.happened = True
+            return True
+        return False
+
+
+def _is_interrupt(exc: BaseException | None) -> bool:
+    """A KeyboardInterrupt, or an error it caused: a Ctrl-C that lands while
+    Numba unpickles a kernel's constants comes out as a SystemError chained
+    to it."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _table_batch(results: list[dict[str, Any]]) -> str:

@@ -130,6 +130,15 @@ def ridge_loop(
     ``half`` is ``round(half_width / sample_step)`` (Python's rounding, so
     computed by the caller). Whether the result is applied (moved less
     than the displacement cap) is decided by the caller too.
+
+    Each iteration is a function of the pose alone, so a pose that comes
+    back (bit for bit) means the loop cycles for ever; it is found with
+    Brent's cycle detection (:func:`same_pose`, one saved pose) and the
+    loop then runs only the ``(max_iterations - iterations) % period``
+    iterations that select the pose the full count would end on: the same
+    result, iterations (``max_iterations``) and ``converged`` (False) as
+    the plain loop, in a number of iterations bounded by the cycle, not by
+    ``max_iterations`` (:ref:`contract-ridge`).
     """
     n = pts.shape[0]
     n_params = 3 if fit_rotation else 2
@@ -149,7 +158,14 @@ def ridge_loop(
     pose = pose0.copy()
     iterations = 0
     converged = False
-    for _ in range(max_iterations):
+    # Brent's cycle detection: the pose saved when `since` reached `power`
+    # (doubling), compared with each new pose.
+    saved = pose0.copy()
+    power = 1
+    since = 0
+    cycling = False
+    limit = max_iterations
+    while iterations < limit:
         theta = pose[2]
         if not peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, pose[0],
                             pose[1], theta, pivot, t, sample_step, prof, r, valid, n_rot):
@@ -185,4 +201,25 @@ def ridge_loop(
         if step_norm(step, pivot_distance) < step_tolerance:
             converged = True
             break
+        if not cycling:
+            since += 1
+            if same_pose(pose, saved):
+                # `since` iterations lead from this pose back to itself.
+                cycling = True
+                limit = iterations + (max_iterations - iterations) % since
+            elif since == power:
+                saved[:] = pose
+                power *= 2
+                since = 0
+    if cycling:
+        iterations = max_iterations
     return pose, iterations, converged, RIDGE_OK
+
+
+@kernel
+def same_pose(a, b):
+    """Whether two poses are the same bit for bit (a NaN never is; +0 is not -0)."""
+    for i in range(a.shape[0]):
+        if a[i] != b[i] or math.copysign(1.0, a[i]) != math.copysign(1.0, b[i]):
+            return False
+    return True

@@ -580,12 +580,21 @@ MAX_SCAN_TABLE = 1 << 26
 
 def _check_scan_size(mv: int, mu: int, n_vertices: int) -> None:
     shifts = (2 * mv + 1) * (2 * mu + 1)
-    table = (2 * mv + 2 * mu + 2) * n_vertices
-    if shifts > MAX_SCAN_SHIFTS or table > MAX_SCAN_TABLE:
+    lines = 2 * mv + 2 * mu + 2
+    table = lines * n_vertices
+    # Name the figure over its cap (both, if both are): the other one is no
+    # help to a caller deciding what to shrink.
+    over = []
+    if shifts > MAX_SCAN_SHIFTS:
+        over.append(f"{shifts} shifts (at most {MAX_SCAN_SHIFTS})")
+    if table > MAX_SCAN_TABLE:
+        over.append(
+            f"{table} shift-vertex pairs per axis ({lines} shift rows and columns x "
+            f"{n_vertices} vertices; at most {MAX_SCAN_TABLE})"
+        )
+    if over:
         raise ValueError(
-            f"search_window_vu is too large for this polyline: {shifts} shifts of "
-            f"{n_vertices} vertices (at most {MAX_SCAN_SHIFTS} shifts and "
-            f"{MAX_SCAN_TABLE} shift-vertex pairs per axis)"
+            f"search_window_vu is too large for this polyline: {' and '.join(over)}"
         )
 
 

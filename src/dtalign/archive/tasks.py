@@ -46,7 +46,7 @@ def _worker_name() -> str:
 
 
 def _now() -> datetime.datetime:
-    return datetime.datetime.now(datetime.timezone.utc)
+    return datetime.datetime.now(datetime.UTC)
 
 
 def _ambiguity(fit: Any) -> dict[str, float | None]:

@@ -95,7 +95,7 @@ def _pillow_array(p: Path) -> np.ndarray:
             if frames == 1 and mode in _PILLOW_AS_IS | _PILLOW_CONVERT.keys():
                 img.load()
                 if mode in _PILLOW_CONVERT:
-                    img = img.convert(_PILLOW_CONVERT[mode])
+                    return np.asarray(img.convert(_PILLOW_CONVERT[mode]))
                 return np.asarray(img)
     except Exception as exc:  # OSError, DecompressionBombError, SyntaxError from a plugin...
         raise ValueError(f"cannot read image {p}: {_reason(exc)}") from None

@@ -99,6 +99,7 @@ import numbers
 import os
 import queue
 import sys
+import signal
 import threading
 import time
 from collections import deque
@@ -344,6 +345,18 @@ def _shielded(body: Callable[[threading.Event], _R], report: _Progress | None = 
 _POOL_START_WAIT_S = 5.0
 
 
+def _ignore_sigint() -> None:
+    """A pool worker's start: Ctrl-C is the parent's to act on.
+
+    A terminal's Ctrl-C goes to the whole process group, workers included;
+    each would die with a KeyboardInterrupt traceback on stderr (and break
+    the pool) while the parent stops the batch anyway. Ignoring it, the
+    workers finish the image they hold and the parent's interrupt
+    propagates alone (:func:`_process_pool` shuts the pool down).
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 @contextmanager
 def _process_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     """A ``ProcessPoolExecutor`` shut down at the end, whose exceptions are the caller's.
@@ -355,7 +368,7 @@ def _process_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     interrupt. Here the shutdown is tried again until the thread has started
     (it then stops the worker processes), and the interrupt propagates.
     """
-    pool = ProcessPoolExecutor(max_workers=workers)
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_sigint)
     try:
         yield pool
     except BaseException:

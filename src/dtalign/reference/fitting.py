@@ -609,14 +609,23 @@ def _ridge(
     pts: FloatArray, nrm: FloatArray, sig: FloatArray, magnitude: FloatArray, pose: FloatArray,
     fit_rotation: bool, pivot: tuple[float, float], pivot_distance: float, weight_mask: FloatArray, tukey_c: float,
     max_iterations: int, step_tolerance: float, half_width: float, sample_step: float,
-    max_total_displacement: float,
+    max_total_displacement: float, *, detect_cycles: bool = True,
 ) -> RidgeRefineResult:
+    """The polish loop; ``detect_cycles=False`` is the plain loop (tests compare the two)."""
     start = pose.copy()
     n = round(half_width / sample_step)
     t = np.arange(-n, n + 1) * sample_step
     iterations = 0
     converged = False
-    for _ in range(max_iterations):
+    # An iteration is a function of the pose alone: a pose that comes back
+    # bit for bit repeats for ever. Brent's cycle detection (one saved pose,
+    # saved again each time the count since it reaches a doubling power)
+    # finds the period; then only the iterations that select the pose the
+    # full count ends on are run (:ref:`contract-ridge`): the plain loop's
+    # result, in time bounded by the cycle rather than by max_iterations.
+    saved, power, since, cycling = pose.tobytes(), 1, 0, False
+    limit = max_iterations
+    while iterations < limit:
         r, valid, n_rot = _ridge_offsets(magnitude, pts, nrm, pose, pivot, t, sample_step)
         w = (1.0 / sig**2) * _tukey(r / sig, tukey_c) * valid * weight_mask
         if not (w > 0).any():
@@ -637,6 +646,15 @@ def _ridge(
         if _step_norm(step, pivot_distance) < step_tolerance:
             converged = True
             break
+        if detect_cycles and not cycling:
+            since += 1
+            if pose.tobytes() == saved:
+                cycling = True
+                limit = iterations + (max_iterations - iterations) % since
+            elif since == power:
+                saved, power, since = pose.tobytes(), power * 2, 0
+    if cycling:
+        iterations = max_iterations
     moved = np.hypot(pose[0] - start[0], pose[1] - start[1])
     applied = iterations > 0 and not moved > max_total_displacement
     final = pose if applied else start
