@@ -98,8 +98,8 @@ import math
 import numbers
 import os
 import queue
-import sys
 import signal
+import sys
 import threading
 import time
 from collections import deque
