@@ -20,14 +20,13 @@ import signal
 import subprocess
 import sys
 import textwrap
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import dtalign
+from _pipe_reader import PipeReader
 from dtalign import scenes
 from dtalign.cli import main
 from dtalign.io import save_polyline_csv
@@ -52,26 +51,7 @@ def _sigint_default() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-class _Reader:
-    """Collect a pipe's text in a thread, so the test can wait for a line."""
-
-    def __init__(self, pipe) -> None:
-        self.text = ""
-        self._thread = threading.Thread(target=self._run, args=(pipe,), daemon=True)
-        self._thread.start()
-
-    def _run(self, pipe) -> None:
-        for chunk in iter(lambda: pipe.read(1), ""):
-            self.text += chunk
-
-    def wait_for(self, fragment: str, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and fragment not in self.text:
-            time.sleep(0.05)
-        return fragment in self.text
-
-    def join(self) -> None:
-        self._thread.join(timeout=30)
+_Reader = PipeReader
 
 
 def _stop(proc: subprocess.Popen[str], readers: list[_Reader], *, group: bool = False) -> int:

@@ -15,8 +15,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import numba
@@ -24,6 +22,7 @@ import numpy as np
 import pytest
 
 import dtalign
+from _pipe_reader import PipeReader
 from dtalign import scenes
 from dtalign.cli import COMPILE_NOTICE, main
 from dtalign.io import save_polyline_csv
@@ -151,28 +150,7 @@ def test_output_file_receives_the_json(files, tmp_path):
 # --------------------------------------------------------------------------- Ctrl-C
 
 
-class _Reader:
-    """Collect a pipe's text in a thread, so the test can wait for a line."""
-
-    def __init__(self, pipe) -> None:
-        self.text = ""
-        self._thread = threading.Thread(target=self._run, args=(pipe,), daemon=True)
-        self._thread.start()
-
-    def _run(self, pipe) -> None:
-        for chunk in iter(lambda: pipe.read(1), ""):
-            self.text += chunk
-
-    def wait_for(self, fragment: str, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if fragment in self.text:
-                return True
-            time.sleep(0.05)
-        return fragment in self.text
-
-    def join(self) -> None:
-        self._thread.join(timeout=30)
+_Reader = PipeReader
 
 
 def _sigint_default() -> None:

@@ -196,17 +196,24 @@ def measure_noise_overhead(inputs: Inputs, repeats: int, min_sample_s: float) ->
     agree = _same(given().lm, estimated().lm)
     with _Load() as load:
         t_given, t_est = alternate([given, estimated], repeats, min_sample_s)
-    ratio = statistics.median(t_est) / statistics.median(t_given)
+    return _overhead_row("fit_polyline_noise_overhead",
+                         "fit_polyline: noise estimated / noise given (same run)",
+                         t_given, t_est, NOISE_OVERHEAD_TARGET, agree, load.cores)
+
+
+def _overhead_row(name: str, description: str, t_base: list[float], t_with: list[float],
+                  target: float, agree: bool, load_cores: float) -> dict[str, Any]:
+    """An overhead row: the ratio of the medians ``with / base`` of one run,
+    passed when the results agree and the ratio is at most ``target``."""
+    ratio = statistics.median(t_with) / statistics.median(t_base)
     row = {
-        "name": "fit_polyline_noise_overhead", "kind": "overhead",
-        "description": "fit_polyline: noise estimated / noise given (same run)",
-        "reference_s": statistics.median(t_given), "dtalign_s": statistics.median(t_est),
-        "ratio": ratio, "ratio_of_minima": min(t_est) / min(t_given),
-        "target": NOISE_OVERHEAD_TARGET,
-        "passed": agree and ratio <= NOISE_OVERHEAD_TARGET, "results_agree": agree,
-        "reference_times_s": t_given, "dtalign_times_s": t_est,
-        "pair_ratios": [e / g for g, e in zip(t_given, t_est, strict=True)],
-        "other_load_cores": load.cores,
+        "name": name, "kind": "overhead", "description": description,
+        "reference_s": statistics.median(t_base), "dtalign_s": statistics.median(t_with),
+        "ratio": ratio, "ratio_of_minima": min(t_with) / min(t_base), "target": target,
+        "passed": agree and ratio <= target, "results_agree": agree,
+        "reference_times_s": t_base, "dtalign_times_s": t_with,
+        "pair_ratios": [w / b for b, w in zip(t_base, t_with, strict=True)],
+        "other_load_cores": load_cores,
     }
     _progress(_format_row(row))
     return row
@@ -248,20 +255,9 @@ def measure_profile_overhead(repeats: int, min_sample_s: float) -> dict[str, Any
                   < np.hypot(*(np.asarray(p.offset_vu) - truth)))
     with _Load() as load:
         t_plain, t_prof = alternate([plain, profiled], repeats, min_sample_s)
-    ratio = statistics.median(t_prof) / statistics.median(t_plain)
-    row = {
-        "name": "fit_polyline_profile_overhead", "kind": "overhead",
-        "description": "fit_polyline: with an edge profile / plain (sphere limb, same run)",
-        "reference_s": statistics.median(t_plain), "dtalign_s": statistics.median(t_prof),
-        "ratio": ratio, "ratio_of_minima": min(t_prof) / min(t_plain),
-        "target": PROFILE_OVERHEAD_TARGET,
-        "passed": better and ratio <= PROFILE_OVERHEAD_TARGET, "results_agree": better,
-        "reference_times_s": t_plain, "dtalign_times_s": t_prof,
-        "pair_ratios": [b / a for a, b in zip(t_plain, t_prof, strict=True)],
-        "other_load_cores": load.cores,
-    }
-    _progress(_format_row(row))
-    return row
+    return _overhead_row("fit_polyline_profile_overhead",
+                         "fit_polyline: with an edge profile / plain (sphere limb, same run)",
+                         t_plain, t_prof, PROFILE_OVERHEAD_TARGET, better, load.cores)
 
 
 def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]:
