@@ -367,18 +367,27 @@ def test_image_products_names_reexported_from_pipeline():
     assert estimate_noise_sigma is products.estimate_noise_sigma
 
 
-def test_importing_pipeline_and_products_does_not_import_numba():
-    # The compiled functions are looked up on dtalign at call time.
+def test_importing_pipeline_compiles_nothing_and_the_root_stays_lazy():
+    # Issue 29: plain imports at the top of each module, lazy loading only at
+    # the package root. `import dtalign` imports no Numba; importing the
+    # pipeline imports the kernels' modules but compiles none of them
+    # (compilation is lazy: on a kernel's first call).
     script = (
-        "import sys, dtalign.pipeline, dtalign.pipeline.products; "
-        "print(sorted(m for m in sys.modules if m == 'numba' or m.startswith('dtalign._kernels')))"
+        "import sys, dtalign; root = 'numba' in sys.modules; "
+        "import dtalign.pipeline, dtalign.pipeline.products; "
+        "from numba.core.registry import CPUDispatcher; "
+        "kernels = [m for n, m in sys.modules.items() if n.startswith('dtalign._kernels')]; "
+        "compiled = sorted(f'{m.__name__}.{k}' for m in kernels for k, v in vars(m).items() "
+        "if isinstance(v, CPUDispatcher) and v.signatures); "
+        "print(root, len(kernels) > 0, compiled)"
     )
     src = os.path.abspath(os.path.join(os.path.dirname(pipeline.__file__), os.pardir))
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    env.pop("NUMBA_DISABLE_JIT", None)
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip() == "[]"
+    assert proc.stdout.strip() == "False True []"
 
 
 def test_results_compare_by_identity(disc_fit, small_products):

@@ -370,12 +370,18 @@ def search_support_scored(edge, pv, pu, mv, mu, min_support):
 def overlap_surface(edge, pv, pu, mv, mu, min_support):
     """Every shift's score ``overlap / n`` as :func:`best_scored` forms it,
     ``(2 mv + 1, 2 mu + 1)``; NaN where the shift is not a candidate."""
+    if pv.shape[0] == 0:
+        return np.full((2 * mv + 1, 2 * mu + 1), np.nan)
+    overlap, counts = overlap_tables(edge, pv, pu, mv, mu)
+    return scored_surface(overlap, counts, pv, mv, mu, min_support)
+
+
+@kernel
+def scored_surface(overlap, counts, pv, mv, mu, min_support):
+    """:func:`overlap_surface` of the tables :func:`overlap_tables` made."""
     nv = 2 * mv + 1
     nu = 2 * mu + 1
     surface = np.full((nv, nu), np.nan)
-    if pv.shape[0] == 0:
-        return surface
-    overlap, counts = overlap_tables(edge, pv, pu, mv, mu)
     uniform = counts.shape[0] == 0
     for a in range(nv):
         for b in range(nu):

@@ -14,6 +14,8 @@ per polyline. Results are bit-identical to fitting the polylines one by one.
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import numpy as np
 
 from .._jit import kernel
@@ -31,18 +33,46 @@ from .fit import OK, fit
 from .polarity_search import polarity_search
 
 
-@kernel
-def fit_polylines(
-    edge, mv, mu, dt, grad, pts, nrm, sig, starts, pivots, distances, rotation0, seed_support,
-    opts, lo, hi, errors, coarse, poses, iterations, converged, covs, rms, raw_rms, inliers,
-    degenerate, r_all, w_all,
-):
-    """Fit polylines ``j`` in ``lo:hi`` (rows ``starts[j]:starts[j+1]`` of the
-    concatenated ``pts, nrm, sig``), writing row ``j`` of the outputs.
+class LoopInputs(NamedTuple):
+    """What every polyline of one :func:`fit_polylines` call reads."""
 
-    ``opts`` is the LM's options record (:func:`dtalign._kernels.fit.fit`'s);
-    ``seed_support`` the seed's support fraction (the pipeline passes
-    ``DEFAULT_COARSE_MIN_SUPPORT_FRACTION``).
+    edge: np.ndarray  #: the edge mask, bool (H, W)
+    mv: int  #: the coarse margins, clipped to the image
+    mu: int
+    dt: np.ndarray  #: the edge DT
+    grad: np.ndarray  #: the gradient (or a stand-in when polarity and ridge are off)
+    pts: np.ndarray  #: every polyline's vertices, concatenated, (N, 2)
+    nrm: np.ndarray  #: their normals
+    sig: np.ndarray  #: their sigmas
+    starts: np.ndarray  #: polyline j is rows starts[j]:starts[j+1]
+    pivots: np.ndarray  #: (K, 2)
+    distances: np.ndarray  #: (K,)
+    rotation0: float  #: the initial rotation
+    seed_support: float  #: the seed's support fraction
+    opts: Any  #: the LM's options record (:func:`dtalign._kernels.fit.fit`'s)
+
+
+class LoopOutputs(NamedTuple):
+    """Row ``j`` of each array is polyline ``j``'s result (``r_all``, ``w_all``:
+    its rows ``starts[j]:starts[j+1]``)."""
+
+    coarse: np.ndarray  #: int64 (K, 2), the integer seed
+    poses: np.ndarray  #: (K, 3)
+    iterations: np.ndarray  #: int64 (K,)
+    converged: np.ndarray  #: bool (K,)
+    covs: np.ndarray  #: (K, P, P)
+    rms: np.ndarray
+    raw_rms: np.ndarray
+    inliers: np.ndarray  #: int64 (K,)
+    degenerate: np.ndarray  #: bool (K,)
+    r_all: np.ndarray  #: (N,) residuals
+    w_all: np.ndarray  #: (N,) weights
+
+
+@kernel
+def fit_polylines(inp, lo, hi, errors, out):
+    """Fit polylines ``j`` in ``lo:hi`` of ``inp`` (a :class:`LoopInputs`),
+    writing row ``j`` of ``out`` (a :class:`LoopOutputs`).
 
     The seed is the pipeline's (:func:`dtalign.pipeline.jobs.seed_of`): the
     polarity-weighted search with polarity, else the scored overlap search,
@@ -51,6 +81,8 @@ def fit_polylines(
     other rows are left as they were) and the loop goes on. Returns the first
     ``j`` that failed, ``hi`` if none did.
     """
+    edge, mv, mu, pts, nrm, sig, starts = inp.edge, inp.mv, inp.mu, inp.pts, inp.nrm, inp.sig, inp.starts
+    opts = inp.opts
     h, w = edge.shape
     edge_flat, _ = flat_words(edge)
     row_start = e_cols = np.zeros(0, dtype=np.int64)
@@ -61,10 +93,11 @@ def fit_polylines(
         b = starts[j + 1]
         p = pts[a:b]
         if opts.use_polarity:  # today's limb and terminator seed (issue 17)
-            dv, du, _ = polarity_search(edge, grad, p, nrm[a:b], mv, mu, seed_support * (b - a))
+            dv, du, _ = polarity_search(edge, inp.grad, p, nrm[a:b], mv, mu,
+                                        inp.seed_support * (b - a))
         else:
             sv, su = support_of_vertices(p, h, w)
-            floor = seed_support * sv.shape[0]
+            floor = inp.seed_support * sv.shape[0]
             if sv.shape[0] > 0 and dense_ok(sv.shape[0], mu):
                 overlap = overlap_dense(sv, su, edge_flat, h, w, mv, mu)
                 counts = in_image_counts(sv, su, h, w, mv, mu)
@@ -78,27 +111,27 @@ def fit_polylines(
         pose0 = np.empty(3)
         pose0[0] = float(dv)
         pose0[1] = float(du)
-        pose0[2] = rotation0
+        pose0[2] = inp.rotation0
         pivot = np.empty(2)
-        pivot[0] = pivots[j, 0]
-        pivot[1] = pivots[j, 1]
+        pivot[0] = inp.pivots[j, 0]
+        pivot[1] = inp.pivots[j, 1]
         (error, pose, n_iter, conv, r, wt, _jac, cov, rms_j, raw_j, inl, deg, _rej) = fit(
-            dt, grad, p, nrm[a:b], sig[a:b], pose0, pivot, distances[j], opts,
+            inp.dt, inp.grad, p, nrm[a:b], sig[a:b], pose0, pivot, inp.distances[j], opts,
         )
         errors[j] = error
         if error != OK:
             first_failed = min(first_failed, j)
             continue
-        coarse[j, 0] = dv
-        coarse[j, 1] = du
-        poses[j, :] = pose
-        iterations[j] = n_iter
-        converged[j] = conv
-        covs[j] = cov
-        rms[j] = rms_j
-        raw_rms[j] = raw_j
-        inliers[j] = inl
-        degenerate[j] = deg
-        r_all[a:b] = r
-        w_all[a:b] = wt
+        out.coarse[j, 0] = dv
+        out.coarse[j, 1] = du
+        out.poses[j, :] = pose
+        out.iterations[j] = n_iter
+        out.converged[j] = conv
+        out.covs[j] = cov
+        out.rms[j] = rms_j
+        out.raw_rms[j] = raw_j
+        out.inliers[j] = inl
+        out.degenerate[j] = deg
+        out.r_all[a:b] = r
+        out.w_all[a:b] = wt
     return first_failed

@@ -699,6 +699,8 @@ class LMArgs(NamedTuple):
 def check_lm_inputs(
     kw: Mapping[str, Any],
     checked: tuple[FloatArray, FloatArray, FloatArray, tuple[float, float]] | None = None,
+    *,
+    trusted_images: bool = False,
 ) -> LMArgs:
     """Check ``lm_subpixel_refine``'s keywords in the contract's order (:ref:`contract-errors`).
 
@@ -706,13 +708,16 @@ def check_lm_inputs(
     result for the three per-vertex keywords, which a caller has already
     checked (the pipeline checks them first, for its own messages): it
     stands for that check, which is then not run twice.
+    ``trusted_images``: the DT and gradient are an image's products, whose
+    arrays were checked when the products were made (the pipeline's
+    ``ImageProducts``); they are taken as they are.
     """
     if checked is None:
         checked = polyline(
             kw["vertices_vu"], kw["normals_vu"], kw["sigma_normal_per_vertex_px"]
         )
     verts, norms, sig, centroid = checked
-    dt = image2d(kw["image_edge_dt"], "image_edge_dt")
+    dt = kw["image_edge_dt"] if trusted_images else image2d(kw["image_edge_dt"], "image_edge_dt")
     fit_rotation = bool(kw["fit_rotation"])
     offset, rotation, pivot, distance = pose(
         verts,
@@ -728,7 +733,8 @@ def check_lm_inputs(
         raise ValueError("final_gradient_ridge=True requires image_gradient_vu")
     if kw["use_polarity"] and not has_gradient:
         raise ValueError("use_polarity=True requires image_gradient_vu")
-    grad = gradient(kw["image_gradient_vu"]) if has_gradient else None
+    grad = kw["image_gradient_vu"] if trusted_images or not has_gradient else gradient(
+        kw["image_gradient_vu"])
     trust = kw["trust_region_px"]
     return LMArgs(
         vertices=verts,
@@ -877,3 +883,15 @@ def check_noise_sigma(image_noise_sigma: Any) -> float:
     if not (math.isfinite(value) and value >= 0.0):
         raise ValueError(f"image_noise_sigma must be finite and >= 0; got {value!r}")
     return value
+
+
+def positive_int(value: Any, name: str) -> int:
+    """A positive int (bool refused); ValueError naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive int; got {value!r}")
+    return int(value)
+
+
+def check_seeds(seeds: Any) -> int:
+    """The number of starts of a multi-start fit: a positive int."""
+    return positive_int(seeds, "seeds")

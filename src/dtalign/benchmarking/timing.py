@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import gc
 import hashlib
-import inspect
 import math
 import os
 import platform
@@ -268,19 +267,14 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     a call per polyline, result objects)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from ..pipeline.fit import fit_polyline_products
     from ..pipeline.jobs import loop_inputs, plan, prepare, run_loop
+    from ..pipeline.options import FitOptions
 
     parts = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines]
-    # fit_many's defaults: fit_polyline_products' keyword options but the window
-    lm = {name: p.default
-          for name, p in inspect.signature(fit_polyline_products).parameters.items()
-          if p.kind is inspect.Parameter.KEYWORD_ONLY and name != "search_window_vu"}
-    lm["trust_region_px"] = 1.0
-    del lm["seeds"], lm["ambiguity"]  # the examination after the loop: not the loop
-    shared, first = plan(products, *parts[0], search_window_vu=(30, 30),
-                         fit_rotation=lm.pop("fit_rotation"), pivot_vu=lm.pop("pivot_vu"),
-                         pivot_distance_px=lm.pop("pivot_distance_px"), lm_options=lm)
+    # fit_many's defaults with the production trust region; the examination
+    # after the loop is not the loop
+    shared, first = plan(products, *parts[0], (30, 30),
+                         FitOptions(trust_region_px=1.0, ambiguity=False))
     batch, error = prepare(shared, parts, first)
     if error is not None:
         raise error

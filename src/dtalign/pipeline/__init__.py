@@ -1,5 +1,7 @@
 """The layer above the drop-in stages: one-call fits, image products and batches.
 
+* :mod:`dtalign.pipeline.options`: :class:`FitOptions`, every fit option
+  with its default, in one record;
 * :mod:`dtalign.pipeline.fit`: :func:`fit_polyline`,
   :func:`fit_polyline_products` and their result, :class:`PolylineFit`;
 * :mod:`dtalign.pipeline.products`: an image's products, computed once;
@@ -11,21 +13,23 @@
 * :mod:`dtalign.pipeline.jobs`: the checks and compiled-loop inputs those share.
 
 The one-call names are re-exported here (``dtalign.pipeline.fit_polyline``).
-Importing this package does not import Numba: the kernels load on the first fit.
+Importing this package imports the compiled layer (Numba); ``import
+dtalign`` alone does not (its names load on first use).
 """
 
 from .fit import PolylineFit, fit_polyline, fit_polyline_products
-from .jobs import DEFAULT_SEARCH_WINDOW_VU
 from .observability import (
     covariance_with_unobservable_inf,
     normal_information_covariance,
     null_directions,
     observable_rank,
 )
+from .options import DEFAULT_SEARCH_WINDOW_VU, FitOptions
 from .products import ImageProducts, estimate_noise_sigma, prepare_image
 
 __all__ = [
     "DEFAULT_SEARCH_WINDOW_VU",
+    "FitOptions",
     "ImageProducts",
     "PolylineFit",
     "covariance_with_unobservable_inf",

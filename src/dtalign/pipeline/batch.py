@@ -93,7 +93,6 @@ Examples
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import math
 import numbers
 import os
@@ -112,14 +111,14 @@ from concurrent.futures import (
     as_completed,
 )
 from contextlib import contextmanager
-from types import MappingProxyType
 from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
-from .fit import PolylineFit, fit_from, fit_polyline_products, needs_settling, settle, wrap
+from .fit import PolylineFit, finish, needs_settling, wrap
+from .options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from .products import ImageProducts, prepare_image
 from .status import log_fit, log_fits, logger
 
@@ -141,21 +140,6 @@ def _usable_cpus() -> int:
 #: container or ``taskset`` limits them below ``os.cpu_count()``).
 DEFAULT_WORKERS = _usable_cpus()
 
-#: Keyword options :func:`fit_polyline_products` accepts besides the window
-#: (and the edge profile, which is each polyline's own: :func:`_polyline_profile`).
-_FIT_OPTIONS = frozenset(
-    name
-    for name, p in inspect.signature(fit_polyline_products).parameters.items()
-    if p.kind is inspect.Parameter.KEYWORD_ONLY and name not in ("search_window_vu", "edge_profile")
-)
-
-#: Their defaults (the options a call leaves out), read-only.
-_FIT_DEFAULTS = MappingProxyType({
-    name: p.default
-    for name, p in inspect.signature(fit_polyline_products).parameters.items()
-    if name in _FIT_OPTIONS
-})
-
 _EXECUTORS = ("thread", "process")
 _ERROR_MODES = ("raise", "collect")
 
@@ -173,19 +157,6 @@ def _check_errors(errors: Any) -> bool:
     if not isinstance(errors, str) or errors not in _ERROR_MODES:
         raise ValueError(f"errors must be one of {_ERROR_MODES}, got {errors!r}")
     return errors == "collect"
-
-
-def _check_options(options: dict[str, Any]) -> None:
-    unknown = sorted(set(options) - _FIT_OPTIONS)
-    if unknown:
-        raise TypeError(
-            f"unexpected fit option(s) {', '.join(map(repr, unknown))}; "
-            f"accepted: {', '.join(sorted(_FIT_OPTIONS))}"
-        )
-    if "seeds" in options:  # checked first, as fit_polyline_products does
-        from .hypotheses import check_seeds
-
-        check_seeds(options["seeds"])
 
 
 def _check_progress(progress: Any) -> Callable[[int, int], Any] | bool | None:
@@ -580,24 +551,27 @@ def fit_many(
     products: ImageProducts, polylines: Iterable[Any], *,
     search_window_vu: tuple[int, int] = ...,
     workers: int = ..., errors: Literal["raise"] = ...,
-    progress: Callable[[int, int], Any] | bool | None = ..., **options: Any,
+    progress: Callable[[int, int], Any] | bool | None = ..., options: FitOptions | None = ...,
+    **overrides: Any,
 ) -> list[PolylineFit]: ...
 @overload
 def fit_many(
     products: ImageProducts, polylines: Iterable[Any], *,
     search_window_vu: tuple[int, int] = ...,
     workers: int = ..., errors: Literal["collect"],
-    progress: Callable[[int, int], Any] | bool | None = ..., **options: Any,
+    progress: Callable[[int, int], Any] | bool | None = ..., options: FitOptions | None = ...,
+    **overrides: Any,
 ) -> list[PolylineFit | Exception]: ...
 def fit_many(
     products: ImageProducts,
     polylines: Iterable[Any],
     *,
-    search_window_vu: tuple[int, int] = _jobs.DEFAULT_SEARCH_WINDOW_VU,
+    search_window_vu: tuple[int, int] = DEFAULT_SEARCH_WINDOW_VU,
     workers: int = DEFAULT_WORKERS,
     errors: str = "raise",
     progress: Callable[[int, int], Any] | bool | None = None,
-    **options: Any,
+    options: FitOptions | None = None,
+    **overrides: Any,
 ) -> list[Any]:
     """Fit many polylines against one image's products, on ``workers`` threads.
 
@@ -634,9 +608,14 @@ def fit_many(
         else starts) and its exception propagates unchanged. ``True``
         shows a tqdm progress bar (tqdm is needed); None or False (default):
         no report. See the module docstring's "Progress" section.
-    **options
-        Passed to :func:`dtalign.pipeline.fit_polyline_products` for every
-        polyline (``fit_rotation``, ``trust_region_px``, ...).
+    options : FitOptions, optional
+        The options of every polyline's fit
+        (:class:`~dtalign.pipeline.options.FitOptions`, as
+        :func:`~dtalign.pipeline.fit_polyline_products` takes them; the
+        edge profile is each polyline's own, above).
+    **overrides
+        Any field of ``options`` by name (``fit_rotation``,
+        ``trust_region_px``, ...), as :func:`~dtalign.pipeline.fit_polyline_products` takes them.
 
     Returns
     -------
@@ -659,13 +638,13 @@ def fit_many(
     n = _check_workers(workers)
     collect = _check_errors(errors)
     progress = _check_progress(progress)
-    _check_options(options)
+    opts = resolve(options, overrides, profile=False)
     items = list(polylines)
     parts = [_polyline_parts(item, i) for i, item in enumerate(items)]
     profiles = [_polyline_profile(item) for item in items]
 
     def body(abort: threading.Event) -> list[Any]:
-        out = _fit_parts(products, parts, search_window_vu, options, n, collect, abort, tick)
+        out = _fit_parts(products, parts, search_window_vu, opts, n, collect, abort, tick)
         out = _profiled(products, out, profiles, collect, "polylines")
         # logged here, in the batch's thread: logging drops an exception raised
         # inside a handler's emit, a timeout's landing in the calling thread too
@@ -692,7 +671,7 @@ def _log(results: list[Any], label: str) -> None:
 
 def _fit_parts(
     products: ImageProducts, parts: list[tuple[Any, Any, Any]], window: Any,
-    options: dict[str, Any], workers: int, collect: bool, abort: threading.Event,
+    options: FitOptions, workers: int, collect: bool, abort: threading.Event,
     tick: Callable[[int], Any] | None = None,
 ) -> list[Any]:
     """:func:`fit_many` of checked arguments; ``abort``: an enclosing batch's stop event;
@@ -710,36 +689,27 @@ def _fit_parts(
     """
     if not parts:
         return []
-    kw = {**_FIT_DEFAULTS, **options}
-    # the one-call pipeline's examination of rival basins follows the compiled loop
-    seeds, ambiguity = int(kw.pop("seeds")), kw.pop("ambiguity")
-    examine = seeds if ambiguity or seeds > 1 else None
-    plan_kw = {
-        "search_window_vu": window, "fit_rotation": kw.pop("fit_rotation"),
-        "pivot_vu": kw.pop("pivot_vu"), "pivot_distance_px": kw.pop("pivot_distance_px"),
-        "lm_options": kw,
-    }
     if not collect:
         try:
-            shared, first = _jobs.plan(products, *parts[0], **plan_kw)
+            shared, first = _jobs.plan(products, *parts[0], window, options)
         except (TypeError, ValueError) as exc:  # what a bad polyline or option raises
-            if _call_error(products, plan_kw, exc):
+            if _call_error(products, window, options, exc):
                 raise
             raise _named(exc, "polylines[0]", 0) from exc
         batch, error = _jobs.prepare(shared, parts, first)
-        fits, fit_errors = _fit_batch(shared, batch, workers, True, abort, examine, tick)
+        fits, fit_errors = _fit_batch(shared, batch, workers, True, abort, tick)
         if fit_errors:  # a kernel error, before the first bad polyline
             j = min(fit_errors)
             raise _named(fit_errors[j], f"polylines[{j}]", j)
         if error is not None:
             raise _named(error, f"polylines[{batch.n}]", batch.n)
         return fits
-    shared = _probe_plan(products, plan_kw)
+    shared = _probe_plan(products, window, options)
     out: list[Any] = []
     while len(out) < len(parts):
         s = len(out)
         batch, error = _jobs.prepare(shared, parts[s:])
-        fits, fit_errors = _fit_batch(shared, batch, workers, False, abort, examine, tick)
+        fits, fit_errors = _fit_batch(shared, batch, workers, False, abort, tick)
         for j, fit_error in fit_errors.items():
             fits[j] = _named(fit_error, f"polylines[{s + j}]", s + j)
         out += fits
@@ -750,19 +720,20 @@ def _fit_parts(
     return out
 
 
-def _probe_plan(products: ImageProducts, plan_kw: dict[str, Any]) -> Any:
+def _probe_plan(products: ImageProducts, window: Any, options: FitOptions) -> Any:
     """The shared plan of a call, checked with a probe polyline: one vertex at
     the image centre, which fails no check of its own."""
     h, w = products.shape
     probe = (np.array([[(h - 1) / 2.0, (w - 1) / 2.0]]), np.array([[1.0, 0.0]]), np.ones(1))
-    return _jobs.plan(products, *probe, **plan_kw)[0]
+    return _jobs.plan(products, *probe, window, options)[0]
 
 
-def _call_error(products: ImageProducts, plan_kw: dict[str, Any], exc: Exception) -> bool:
+def _call_error(products: ImageProducts, window: Any, options: FitOptions,
+                exc: Exception) -> bool:
     """Whether the first polyline's ``exc`` is the call's (a shared argument's)
     error: the probe polyline gets the same one."""
     try:
-        _probe_plan(products, plan_kw)
+        _probe_plan(products, window, options)
     except Exception as probe_exc:
         return type(probe_exc) is type(exc) and str(probe_exc) == str(exc)
     return False
@@ -770,7 +741,7 @@ def _call_error(products: ImageProducts, plan_kw: dict[str, Any], exc: Exception
 
 def _fit_batch(
     shared: Any, batch: Any, workers: int, stop_early: bool, abort: threading.Event,
-    examine: int | None = None, tick: Callable[[int], Any] | None = None,
+    tick: Callable[[int], Any] | None = None,
 ) -> tuple[list[Any], dict[int, Exception]]:
     """Fit the checked polylines of ``batch``, one call of the compiled loop per
     polyline on ``workers`` threads, then make their result objects.
@@ -781,27 +752,27 @@ def _fit_batch(
     (cheaper than one polyline at a time), so the threads hold the GIL only
     to call the loop.
     Each fit's ``timings_s`` has ``fit``: the compiled time of the call's
-    fits divided evenly among them. With ``examine`` (the number of starts)
-    each fit is then examined against rival basins as
+    fits divided evenly among them. When the options ask for it, each fit
+    is then examined against rival basins as
     :func:`~dtalign.pipeline.fit_polyline_products` does
     (:func:`dtalign.pipeline.hypotheses.examine`), on the same threads. ``tick(k)``
-    counts the polylines done: fitted (examined, with ``examine``) or failed.
+    counts the polylines done: fitted (and examined) or failed.
     """
     k = batch.n
     if k == 0:
         return [], {}
-    fit_polylines = _jobs._deps().fit_polylines
+    examine = shared.options.examined
     args, codes, out = _jobs.loop_inputs(shared, batch)
     busy = [0.0] * k
 
     def fit(j: int, _: threading.Event) -> None:
         t0 = time.perf_counter()
-        failed = fit_polylines(*args, j, j + 1, codes, *out) == j
+        failed = _jobs.run_loop(args, j, j + 1, codes, out) == j
         busy[j] = time.perf_counter() - t0
         if failed:
             _jobs.raise_for(int(codes[j]))
 
-    on_fit = None if tick is None or examine is not None else lambda: tick(1)
+    on_fit = None if tick is None or examine else lambda: tick(1)
     _, errors = _run_ordered(fit, k, workers, stop_early=stop_early, abort=abort,
                              on_done=on_fit)
     if errors and stop_early:
@@ -814,15 +785,13 @@ def _fit_batch(
         f.timings_s["fit"] = per_fit
         if j in errors:  # its rows were never written
             fits[j] = None
-    from . import hypotheses
-
     # Without the examination only the unconverged fits have work left: their
     # settling (dtalign.pipeline.fit.settle), one more LM each.
     good = [j for j, f in enumerate(fits)
-            if f is not None and (examine is not None or needs_settling(f))]
+            if f is not None and (examine or needs_settling(f))]
     if not good:
         return fits, errors
-    if tick is not None and errors and examine is not None:  # failed fits are not examined
+    if tick is not None and errors and examine:  # failed fits are not examined
         tick(len(errors))
     bounds = batch.starts.tolist()
 
@@ -832,15 +801,11 @@ def _fit_batch(
         item = _jobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
                              (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
                              float(batch.distances[j]))
-        fit = fits[j]
-        if examine is not None:
-            fit = hypotheses.examine(fit, shared, item, seeds=examine,
-                                     refit=lambda seed: fit_from(shared, item, seed))
-        return settle(fit, shared, item)
+        return finish(fits[j], shared, item)
 
     examined, failures = _run_ordered(
         one, len(good), workers, stop_early=stop_early, abort=abort,
-        on_done=None if tick is None or examine is None else lambda: tick(1))
+        on_done=None if tick is None or not examine else lambda: tick(1))
     for i, j in enumerate(good):
         fits[j] = examined[i]
         if i in failures:
@@ -872,8 +837,7 @@ def _is_path(image: Any) -> bool:
 
 
 def _fit_image(
-    job: tuple[Any, float | None, list[tuple[Any, Any, Any, Any]], Any, Any, dict[str, Any],
-               bool],
+    job: tuple[Any, float | None, list[tuple[Any, Any, Any, Any]], Any, Any, FitOptions, bool],
     abort: threading.Event | None = None,
 ) -> list[Any]:
     """One image: loaded if a path, its products, then its polylines serially
@@ -894,25 +858,26 @@ def fit_images(
     items: Iterable[Any], *, search_window_vu: tuple[int, int] = ..., workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
     errors: Literal["raise"] = ..., progress: Callable[[int, int], Any] | bool | None = ...,
-    **options: Any,
+    options: FitOptions | None = ..., **overrides: Any,
 ) -> list[list[PolylineFit]]: ...
 @overload
 def fit_images(
     items: Iterable[Any], *, search_window_vu: tuple[int, int] = ..., workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
     errors: Literal["collect"], progress: Callable[[int, int], Any] | bool | None = ...,
-    **options: Any,
+    options: FitOptions | None = ..., **overrides: Any,
 ) -> list[list[PolylineFit | Exception] | Exception]: ...
 def fit_images(
     items: Iterable[Any],
     *,
-    search_window_vu: tuple[int, int] = _jobs.DEFAULT_SEARCH_WINDOW_VU,
+    search_window_vu: tuple[int, int] = DEFAULT_SEARCH_WINDOW_VU,
     workers: int = DEFAULT_WORKERS,
     executor: str | Executor = "thread",
     config: ImageDerivativesConfig | None = None,
     errors: str = "raise",
     progress: Callable[[int, int], Any] | bool | None = None,
-    **options: Any,
+    options: FitOptions | None = None,
+    **overrides: Any,
 ) -> list[Any]:
     """Prepare and fit many images, one image per task.
 
@@ -958,8 +923,10 @@ def fit_images(
         caller's, the tasks it runs already finish there) and its exception
         propagates unchanged. ``True`` shows a tqdm progress bar (tqdm is
         needed); None or False (default): no report.
-    **options
-        Passed to :func:`dtalign.pipeline.fit_polyline_products`.
+    options : FitOptions, optional
+        The options of every polyline's fit, as in :func:`fit_many`.
+    **overrides
+        Any field of ``options`` by name, as in :func:`fit_many`.
 
     Returns
     -------
@@ -982,9 +949,9 @@ def fit_images(
     if config is not None and not isinstance(config, ImageDerivativesConfig):
         raise TypeError(f"config must be an ImageDerivativesConfig, got {type(config).__name__}")
     progress = _check_progress(progress)
-    _check_options(options)
+    opts = resolve(options, overrides, profile=False)
     jobs = [
-        (*_image_parts(item, i), search_window_vu, config, options, collect)
+        (*_image_parts(item, i), search_window_vu, config, opts, collect)
         for i, item in enumerate(items)
     ]
     with _reporter(progress, len(jobs), "image") as report:

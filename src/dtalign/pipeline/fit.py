@@ -39,14 +39,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..api import checks as check
-from ..api.constants import (
-    DEFAULT_LM_DAMPING,
-    DEFAULT_LM_MAX_ITERATIONS,
-    DEFAULT_LM_STEP_TOLERANCE,
-    DEFAULT_PINVH_RCOND,
-    DEFAULT_TUKEY_C,
-    POLARITY_PENALTY_RESIDUAL,
-)
+from ..api.constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C, POLARITY_PENALTY_RESIDUAL
+from ..api.lm import fit_checked
 from ..api.results import ImageDerivativesConfig, LMRefineResult, summary_text
 from . import hypotheses as _hypotheses
 from . import jobs
@@ -60,6 +54,7 @@ from .observability import (
     null_directions,
     observable_rank,
 )
+from .options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from .products import ImageProducts, _readonly, prepare_image
 from .profile_fit import ProfileRefinement, check_edge_profile, refine_with_profile
 from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
@@ -666,31 +661,20 @@ def fit_polyline_products(
     normals_vu: ArrayLike,
     sigmas: ArrayLike | float,
     *,
-    search_window_vu: tuple[int, int] = jobs.DEFAULT_SEARCH_WINDOW_VU,
-    fit_rotation: bool = False,
-    pivot_vu: tuple[float, float] | None = None,
-    pivot_distance_px: float | None = None,
-    use_polarity: bool = True,
-    trust_region_px: float | None = None,
-    tikhonov_alpha: float = 0.0,
-    final_gradient_ridge: bool = False,
-    initial_rotation_rad: float = 0.0,
-    max_iterations: int = DEFAULT_LM_MAX_ITERATIONS,
-    damping: float = DEFAULT_LM_DAMPING,
-    step_tolerance_px: float = DEFAULT_LM_STEP_TOLERANCE,
-    tukey_c: float = DEFAULT_TUKEY_C,
-    pinvh_rcond: float = DEFAULT_PINVH_RCOND,
-    seeds: int = _hypotheses.DEFAULT_SEEDS,
-    ambiguity: bool = True,
-    edge_profile: Any = None,
+    search_window_vu: tuple[int, int] = DEFAULT_SEARCH_WINDOW_VU,
+    options: FitOptions | None = None,
+    **overrides: Any,
 ) -> PolylineFit:
     """Fit one polyline against precomputed image products.
 
-    Steps: find the integer seed of the rasterised polyline against
-    ``products.edge_mask`` (:func:`dtalign.api.coarse.coarse_search_vertices`:
-    :func:`dtalign.coarse_ncc_search` of :func:`dtalign.build_polyline_mask`,
-    without building the mask), then refine from the seed with
-    :func:`dtalign.lm_subpixel_refine`.
+    The steps, each once: check the polyline and the options
+    (:func:`~dtalign.pipeline.jobs.plan`); find the integer seed of the
+    polyline against ``products.edge_mask`` (the polarity-weighted search,
+    or the overlap search when ``use_polarity=False``); refine from it with
+    the LM of :func:`dtalign.lm_subpixel_refine`; examine the fit against
+    its rival basins (:func:`dtalign.pipeline.hypotheses.examine`); judge
+    whether an unconverged fit has settled (:func:`settle`); refine against
+    the image with the edge profile, when one is given.
 
     Parameters
     ----------
@@ -710,48 +694,14 @@ def fit_polyline_products(
         ``[-mv, mv] x [-mu, mu]`` is scored. Default
         :data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`, ``(30, 30)``,
         the command line's default too.
-    fit_rotation : bool, optional
-        Also fit an in-plane rotation about ``pivot_vu``.
-    pivot_vu : tuple of float, optional
-        Rotation pivot; the vertex centroid when None.
-    pivot_distance_px : float, optional
-        Scales the rotation step into pixels for the convergence test.
-        When None and ``fit_rotation`` is True: the distance from the
-        pivot to the image centre ``((H-1)/2, (W-1)/2)``, floored at 1.
-    use_polarity : bool, optional
-        Reject vertices whose normal points down the gradient.
-    trust_region_px : float, optional
-        Refuse LM steps farther than this from the coarse seed (1.0 is the
-        production setting); no limit when None.
-    tikhonov_alpha : float, optional
-        Pull toward the coarse seed (0 disables it).
-    final_gradient_ridge : bool, optional
-        Run the gradient-ridge polish after the LM.
-    initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
-        Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
-    seeds : int, optional
-        Starts of a multi-start fit (:mod:`dtalign.pipeline.hypotheses`): the LM runs
-        from the ``seeds`` best distinct coarse peaks and from the competing
-        basin of the DT cost, and the cheapest pose on a common footing wins.
-        1 (the default) keeps the single start's pose.
-    ambiguity : bool, optional
-        Examine the fit against its best rival basin (the second coarse
-        peak and the competing basin, each fitted): the result's
-        :attr:`~PolylineFit.ambiguity` and :attr:`~PolylineFit.hypotheses`,
-        and the status ``ambiguous`` when a rival across the edge costs
-        nearly as little. It costs a few LM fits (a few ms); False skips it.
-    edge_profile : EdgeProfile, optional
-        The predicted brightness across each vertex
-        (:func:`dtalign.sphere_edge_profile` for a sphere's limb or
-        terminator): after the DT-LM lock the offset is refined against the
-        image's pixels with it (:mod:`dtalign.pipeline.profile_fit`), which
-        removes the DT's photometric bias. The result's
-        :attr:`~PolylineFit.profile` reports it; a refinement that does not
-        converge or walks far from the DT lock is discarded (reason
-        ``profile_rejected``), and a profile without a usable edge (a limb
-        at low phase) gives the reason ``soft_edge``. The products must hold
-        the image (:func:`~dtalign.pipeline.products.prepare_image` keeps it).
-        The rotation, when fitted, stays the DT-LM's.
+    options : FitOptions, optional
+        The fit's options (:class:`~dtalign.pipeline.options.FitOptions`:
+        rotation and pivot, the LM's, ``seeds``, ``ambiguity``,
+        ``edge_profile``); the defaults when None.
+    **overrides
+        Any field of :class:`~dtalign.pipeline.options.FitOptions` by name
+        (``fit_rotation=True``, ``trust_region_px=1.0``, ``edge_profile=...``):
+        it replaces the field of ``options``.
 
     Returns
     -------
@@ -761,37 +711,21 @@ def fit_polyline_products(
     ------
     TypeError
         If ``products`` is not an :class:`~dtalign.pipeline.products.ImageProducts`,
-        or a window entry is not an int.
+        an option is unknown, or a window entry is not an int.
     ValueError
         On malformed vertices, normals, sigmas, window, pivot or LM
         parameters; the message names the argument.
     """
-    seeds = _hypotheses.check_seeds(seeds)
-    shared, item = jobs.plan(
-        products, vertices_vu, normals_vu, jobs.broadcast_sigmas(vertices_vu, sigmas),
-        search_window_vu=search_window_vu,
-        fit_rotation=fit_rotation, pivot_vu=pivot_vu, pivot_distance_px=pivot_distance_px,
-        lm_options={
-            "use_polarity": use_polarity, "max_iterations": max_iterations, "damping": damping,
-            "step_tolerance_px": step_tolerance_px, "tukey_c": tukey_c,
-            "pinvh_rcond": pinvh_rcond, "trust_region_px": trust_region_px,
-            "tikhonov_alpha": tikhonov_alpha, "final_gradient_ridge": final_gradient_ridge,
-            "initial_rotation_rad": initial_rotation_rad,
-        },
-    )
+    opts = resolve(options, overrides)
+    shared, item = jobs.plan(products, vertices_vu, normals_vu,
+                             jobs.broadcast_sigmas(vertices_vu, sigmas), search_window_vu, opts)
     profile = None
-    if edge_profile is not None:
-        profile = check_edge_profile(edge_profile, item.normals)
+    if opts.edge_profile is not None:
+        profile = check_edge_profile(opts.edge_profile, item.normals)
         if products.image is None:
             raise ValueError("edge_profile needs the image: these products were built "
                              "without it (use prepare_image)")
     fit = fit_one(shared, item)
-    if ambiguity or seeds > 1:
-        fit = _hypotheses.examine(
-            fit, shared, item, seeds=seeds,
-            refit=lambda seed: fit_from(shared, item, seed),
-        )
-    fit = settle(fit, shared, item)
     if profile is not None:
         fit = with_profile(fit, products, profile)
     _status.log_fit(fit)
@@ -804,25 +738,11 @@ def fit_polyline(
     normals_vu: ArrayLike,
     sigmas: ArrayLike | float,
     *,
-    search_window_vu: tuple[int, int] = jobs.DEFAULT_SEARCH_WINDOW_VU,
+    search_window_vu: tuple[int, int] = DEFAULT_SEARCH_WINDOW_VU,
     noise_sigma: float | None = None,
-    fit_rotation: bool = False,
-    pivot_vu: tuple[float, float] | None = None,
-    pivot_distance_px: float | None = None,
     config: ImageDerivativesConfig | None = None,
-    use_polarity: bool = True,
-    trust_region_px: float | None = None,
-    tikhonov_alpha: float = 0.0,
-    final_gradient_ridge: bool = False,
-    initial_rotation_rad: float = 0.0,
-    max_iterations: int = DEFAULT_LM_MAX_ITERATIONS,
-    damping: float = DEFAULT_LM_DAMPING,
-    step_tolerance_px: float = DEFAULT_LM_STEP_TOLERANCE,
-    tukey_c: float = DEFAULT_TUKEY_C,
-    pinvh_rcond: float = DEFAULT_PINVH_RCOND,
-    seeds: int = _hypotheses.DEFAULT_SEEDS,
-    ambiguity: bool = True,
-    edge_profile: Any = None,
+    options: FitOptions | None = None,
+    **overrides: Any,
 ) -> PolylineFit:
     """Fit a model polyline to an image in one call.
 
@@ -845,22 +765,15 @@ def fit_polyline(
     noise_sigma : float, optional
         Image noise sigma; estimated by
         :func:`~dtalign.pipeline.products.estimate_noise_sigma` when None.
-    fit_rotation, pivot_vu, pivot_distance_px
-        Rotation options: see :func:`fit_polyline_products` (the pivot
-        defaults to the vertex centroid, the distance to the pivot-to-centre
-        distance floored at 1).
     config : ImageDerivativesConfig, optional
         Image-side tunables.
-    use_polarity, trust_region_px, tikhonov_alpha, final_gradient_ridge
-        LM options: see :func:`fit_polyline_products`.
-    initial_rotation_rad, max_iterations, damping, step_tolerance_px, tukey_c, pinvh_rcond
-        Passed to :func:`dtalign.lm_subpixel_refine` unchanged.
-    seeds, ambiguity
-        Multi-start and the rival-basin examination: see
-        :func:`fit_polyline_products`.
-    edge_profile : EdgeProfile, optional
-        Refine the pose against the image with this profile: see
-        :func:`fit_polyline_products`.
+    options : FitOptions, optional
+        The fit's options (:class:`~dtalign.pipeline.options.FitOptions`);
+        the defaults when None.
+    **overrides
+        Any field of :class:`~dtalign.pipeline.options.FitOptions` by name
+        (``fit_rotation``, ``use_polarity``, ``trust_region_px``,
+        ``max_iterations``, ``seeds``, ``ambiguity``, ``edge_profile``, ...).
 
     Returns
     -------
@@ -878,29 +791,8 @@ def fit_polyline(
     [7.3, -4.6]
     """
     products = prepare_image(image, noise_sigma, config=config)
-    return fit_polyline_products(
-        products,
-        vertices_vu,
-        normals_vu,
-        sigmas,
-        search_window_vu=search_window_vu,
-        fit_rotation=fit_rotation,
-        pivot_vu=pivot_vu,
-        pivot_distance_px=pivot_distance_px,
-        use_polarity=use_polarity,
-        trust_region_px=trust_region_px,
-        tikhonov_alpha=tikhonov_alpha,
-        final_gradient_ridge=final_gradient_ridge,
-        initial_rotation_rad=initial_rotation_rad,
-        max_iterations=max_iterations,
-        damping=damping,
-        step_tolerance_px=step_tolerance_px,
-        tukey_c=tukey_c,
-        pinvh_rcond=pinvh_rcond,
-        seeds=seeds,
-        ambiguity=ambiguity,
-        edge_profile=edge_profile,
-    )
+    return fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
+                                 search_window_vu=search_window_vu, options=options, **overrides)
 
 
 # ---------------------------------------------------------------------------
@@ -927,20 +819,22 @@ def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any) -> Pol
 
 
 def fit_one(shared: jobs.Plan, it: jobs.Item) -> PolylineFit:
-    """Coarse search, then LM, timed separately (``coarse`` and ``lm``)."""
+    """One polyline's fit: the coarse seed (with the score surface, when the
+    fit is to be examined), the LM from it (timed as ``coarse`` and ``lm``),
+    then :func:`finish`."""
     t1 = time.perf_counter()
-    dv, du = jobs.seed_of(shared, it)
-    return fit_from(shared, it, (dv, du), time.perf_counter() - t1)
+    seed, surface = jobs.seed_of(shared, it, surface=shared.options.examined)
+    fit = fit_from(shared, it, seed, time.perf_counter() - t1)
+    return finish(fit, shared, it, surface)
 
 
 def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],
              coarse_s: float = 0.0) -> PolylineFit:
     """The LM from the integer seed ``coarse`` (a multi-start's other starts
     too), as a :class:`PolylineFit`; ``coarse_s`` is the seed's search time."""
-    d = jobs._deps()
     p = shared.products
     t2 = time.perf_counter()
-    lm = d.fit_checked(shared.lm._replace(
+    lm = fit_checked(shared.lm._replace(
         vertices=it.vertices, normals=it.normals, sigmas=it.sigmas,
         offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
     ))
@@ -953,6 +847,18 @@ def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],
         vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
         tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": coarse_s, "lm": t3 - t2},
     )
+
+
+def finish(fit: PolylineFit, shared: jobs.Plan, it: jobs.Item,
+           surface: Any = None) -> PolylineFit:
+    """The steps after the LM that every fit takes, the batch's too: the
+    examination against rival basins (when the options ask for it; from
+    ``surface``, the coarse score surface of the fit's seed, when the caller
+    has it), then :func:`settle`."""
+    if shared.options.examined:
+        fit = _hypotheses.examine(fit, shared, it, surface=surface,
+                                  refit=lambda seed: fit_from(shared, it, seed))
+    return settle(fit, shared, it)
 
 
 def needs_settling(fit: PolylineFit) -> bool:
@@ -979,7 +885,7 @@ def settle(fit: PolylineFit, shared: jobs.Plan, it: jobs.Item) -> PolylineFit:
     start = (float(fit.coarse_offset_vu[0]), float(fit.coarse_offset_vu[1]))
     k = lm.iterations - SETTLE_ITERATIONS
     if k > 0:
-        earlier = jobs._deps().fit_checked(a._replace(
+        earlier = fit_checked(a._replace(
             vertices=it.vertices, normals=it.normals, sigmas=it.sigmas, offset=start,
             pivot=it.pivot, pivot_distance=it.distance, max_iterations=k,
         ))

@@ -16,14 +16,21 @@ supports two poses about equally well.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..api.basin import find_secondary_dt_minimum
 from ..api.constants import DEFAULT_TUKEY_C
+from ..api.sampling import rotate_directions, rotate_vertices, sample_dt_bilinear
+from ..api.weights import polarity_filter
+from .jobs import seed_of
+from .seeds import peaks_of
 
 __all__ = [
     "AMBIGUITY_THRESHOLD",
@@ -78,9 +85,6 @@ def robust_cost(
     loss's maximum ``c^2 / 6``, as a vertex far from any edge does. Returns
     ``(cost, inliers)``, inliers being the vertices below that maximum.
     """
-    from ..api.sampling import rotate_directions, rotate_vertices, sample_dt_bilinear
-    from ..api.weights import polarity_filter
-
     pts = rotate_vertices(vertices_vu, pivot_vu, rotation_rad)
     nrm = rotate_directions(normals_vu, rotation_rad)
     shifted = np.asarray(pts, dtype=np.float64) + np.asarray(offset_vu, dtype=np.float64)
@@ -243,12 +247,6 @@ def _translation_basis(unobservable: NDArray[np.float64]) -> NDArray[np.float64]
 #: the peaks of a parallel edge across it rank behind them.
 ALONG_EDGE_PEAKS = 12
 
-#: How many starts the one-call pipeline fits by default: 1, the coarse
-#: search's seed (multi-start is opt-in; ``seeds=3`` in
-#: :func:`dtalign.pipeline.fit_polyline_products`).
-DEFAULT_SEEDS = 1
-
-
 def _unobservable(fit: Any) -> NDArray[np.float64]:
     """The fit's unobservable directions as rows; none when they cannot be
     formed (an information matrix that overflows: the pose is then not
@@ -261,111 +259,112 @@ def _unobservable(fit: Any) -> NDArray[np.float64]:
         return np.zeros((0, 3 if fit.fit_rotation else 2))
 
 
-def check_seeds(seeds: Any) -> int:
-    """The number of starts: a positive int."""
-    if isinstance(seeds, bool) or not isinstance(seeds, (int, np.integer)) or seeds < 1:
-        raise ValueError(f"seeds must be a positive int; got {seeds!r}")
-    return int(seeds)
-
-
-def examine(fit: Any, shared: Any, item: Any, *, seeds: int, refit: Any) -> Any:
-    """The pipeline's fit, examined against rival basins (and, with ``seeds > 1``,
-    replaced by the cheapest of several starts).
+def examine(fit: Any, shared: Any, item: Any, *, refit: Any, surface: Any = None) -> Any:
+    """The pipeline's fit, examined against rival basins (and, with
+    ``seeds > 1`` in the call's options, replaced by the cheapest of several starts).
 
     The starts: the fit's own coarse seed; the next ``seeds - 1`` distinct
-    peaks of the coarse score surface (:func:`dtalign.pipeline.seeds.top_k_seeds`; at
-    least the second, for the ambiguity figure); and the competing basin of
-    the DT cost (:func:`dtalign.find_secondary_dt_minimum` outside
-    :data:`BASIN_RADIUS_PX`). Each is fitted by the same LM (``refit(seed)``
-    gives a :class:`~dtalign.pipeline.PolylineFit`) and costed by
-    :func:`robust_cost`. With one seed the fit itself is kept whatever the
-    costs (results stay those of the single start); with more, the cheapest
-    of the coarse starts and the basin start wins, ties to the earlier. The
-    returned fit carries every hypothesis and its :class:`Ambiguity`.
+    peaks of the coarse score surface (:func:`_coarse_starts`; at least the
+    second, for the ambiguity figure); and the competing basin of the DT
+    cost (:func:`_basin_starts`). Each is fitted by the same LM
+    (``refit(seed)`` gives a :class:`~dtalign.pipeline.PolylineFit`) and
+    costed by :func:`robust_cost`. With one seed the fit itself is kept
+    whatever the costs (results stay those of the single start); with more,
+    the cheapest of the coarse starts and the basin start wins, ties to the
+    earlier. The returned fit carries every hypothesis and its
+    :class:`Ambiguity`. ``surface`` is the coarse score surface the fit's
+    seed came from, when the caller has it (formed again when None).
     """
-    import dataclasses
-    import time
-
-    from ..api.basin import find_secondary_dt_minimum
-    from ..api.sampling import rotate_vertices
-    from .seeds import top_k_seeds
-
     t0 = time.perf_counter()
-    products = shared.products
-    lm = shared.lm
-    window = shared.window
-    dt, grad = products.edge_dt, products.gradient_vu
-    n = item.vertices.shape[0]
-
-    def cost_of(f: Any) -> tuple[float, int]:
-        return robust_cost(
-            dt, grad, item.vertices, item.normals, item.sigmas, offset_vu=f.offset_vu,
-            rotation_rad=f.rotation_rad, pivot_vu=item.pivot, use_polarity=lm.use_polarity,
-            tukey_c=lm.tukey_c,
-        )
-
+    seeds = shared.options.seeds
     fits = [("seed 1", fit.coarse_offset_vu, math.nan, fit)]
-
-    def start(source: str, seed: tuple[int, int], score: float) -> None:
+    for source, seed, score in (_coarse_starts(fit, shared, item, seeds, surface)
+                                + _basin_starts(fit, shared, item)):
         # A start that cannot be fitted (its LM diverged on an extreme input)
         # is no hypothesis: the examination never fails a fit that succeeded.
         try:
             fits.append((source, seed, score, refit(seed)))
         except (ValueError, FloatingPointError, OverflowError):
             pass
-
-    # the surface the pipeline's seed came from (dtalign.pipeline.jobs.seed_of)
-    clipped = (shared.mv, shared.mu)
-    polarity = {"normals_vu": item.normals, "image_gradient_vu": grad} if lm.use_polarity else {}
-    # Along an unobservable direction (a straight edge) the peaks of one edge
-    # repeat along it; the starts wanted are peaks across it, so more peaks
-    # are drawn and those that only slide along the first seed's edge skipped.
-    basis = _translation_basis(_unobservable(fit))
-    wanted = max(seeds, 2) - 1
-    peaks = top_k_seeds(shared.edge, item.vertices, clipped,
-                        k=wanted + 1 + (ALONG_EDGE_PEAKS if basis.shape[1] else 0), **polarity)
-    for j, peak in enumerate(peaks[1:], start=2):
-        d = np.subtract(peak.offset_vu, fit.coarse_offset_vu).astype(np.float64)
-        across = d - basis @ (basis.T @ d) if basis.shape[1] else d
-        if wanted == 0 or not np.hypot(across[0], across[1]) > BASIN_RADIUS_PX:
-            continue
-        start(f"seed {j}", peak.offset_vu, peak.score)
-        wanted -= 1
-    if not fit.lm.degenerate:
-        placed = rotate_vertices(item.vertices, item.pivot, fit.rotation_rad)
-        scans = [("basin", window)]
-        # Along an unobservable direction (a straight edge) every shift costs
-        # the same, so the best rival of the whole window lies there; the
-        # rival across the edge is sought with the window closed along the
-        # image axis nearest that direction.
-        for k, direction in enumerate(_unobservable(fit)[:, :2]):
-            if np.hypot(direction[0], direction[1]) > 0.5:
-                closed = (0, window[1]) if abs(direction[0]) > abs(direction[1]) else (window[0], 0)
-                scans.append((f"basin across {k + 1}", closed))
-        for source, scan_window in scans:
-            rival = find_secondary_dt_minimum(
-                dt, placed, converged_offset_vu=fit.offset_vu, search_window_vu=scan_window,
-                exclude_radius_px=BASIN_RADIUS_PX, min_support_fraction=0.5,
-            )
-            if rival is not None:
-                start(source, rival.offset_vu, math.nan)
-    hypotheses = []
-    for source, seed, score, f in fits:
-        cost, inliers = cost_of(f)
-        hypotheses.append(Hypothesis(
-            source=source, seed_vu=(int(seed[0]), int(seed[1])), coarse_score=float(score),
-            offset_vu=f.offset_vu, rotation_rad=f.rotation_rad, cost=cost, inliers=inliers,
-            converged=bool(f.lm.converged),
-        ))
+    hypotheses = [_hypothesis(shared, item, *start) for start in fits]
     best = 0
     if seeds > 1:
         for j, h in enumerate(hypotheses):
             if h.cost < hypotheses[best].cost:
                 best = j
     chosen = fits[best][3]
-    amb = ambiguity_of(hypotheses[best], tuple(hypotheses), _unobservable(chosen), n)
+    amb = ambiguity_of(hypotheses[best], tuple(hypotheses), _unobservable(chosen),
+                       item.vertices.shape[0])
     timings = dict(chosen.timings_s)
     timings["hypotheses"] = time.perf_counter() - t0
     return dataclasses.replace(
         chosen, hypotheses=tuple(hypotheses), ambiguity=amb, timings_s=timings
     )
+
+
+def _hypothesis(shared: Any, item: Any, source: str, seed: tuple[int, int], score: float,
+                f: Any) -> Hypothesis:
+    """The :class:`Hypothesis` of fit ``f`` from start ``seed``, costed by :func:`robust_cost`."""
+    products = shared.products
+    cost, inliers = robust_cost(
+        products.edge_dt, products.gradient_vu, item.vertices, item.normals, item.sigmas,
+        offset_vu=f.offset_vu, rotation_rad=f.rotation_rad, pivot_vu=item.pivot,
+        use_polarity=shared.lm.use_polarity, tukey_c=shared.lm.tukey_c,
+    )
+    return Hypothesis(
+        source=source, seed_vu=(int(seed[0]), int(seed[1])), coarse_score=float(score),
+        offset_vu=f.offset_vu, rotation_rad=f.rotation_rad, cost=cost, inliers=inliers,
+        converged=bool(f.lm.converged),
+    )
+
+
+def _coarse_starts(fit: Any, shared: Any, item: Any, seeds: int, surface: Any
+                   ) -> list[tuple[str, tuple[int, int], float]]:
+    """The coarse peaks to start from besides the fit's own seed, across its edge.
+
+    Along an unobservable direction (a straight edge) the peaks of one edge
+    repeat along it; the starts wanted are peaks across it, so more peaks
+    are drawn and those that only slide along the first seed's edge skipped.
+    """
+    if surface is None:  # the surface the pipeline's seed came from
+        _, surface = seed_of(shared, item, surface=True)
+    basis = _translation_basis(_unobservable(fit))
+    wanted = max(seeds, 2) - 1
+    peaks = peaks_of(surface, shared.mv, shared.mu,
+                     wanted + 1 + (ALONG_EDGE_PEAKS if basis.shape[1] else 0))
+    starts = []
+    for j, peak in enumerate(peaks[1:], start=2):
+        d = np.subtract(peak.offset_vu, fit.coarse_offset_vu).astype(np.float64)
+        across = d - basis @ (basis.T @ d) if basis.shape[1] else d
+        if wanted == 0 or not np.hypot(across[0], across[1]) > BASIN_RADIUS_PX:
+            continue
+        starts.append((f"seed {j}", peak.offset_vu, peak.score))
+        wanted -= 1
+    return starts
+
+
+def _basin_starts(fit: Any, shared: Any, item: Any) -> list[tuple[str, tuple[int, int], float]]:
+    """The competing basins of the DT cost outside :data:`BASIN_RADIUS_PX`
+    (:func:`dtalign.find_secondary_dt_minimum`): over the whole window and,
+    along each unobservable direction (a straight edge, where every shift
+    costs the same, so the best rival of the whole window lies there), with
+    the window closed along the image axis nearest that direction."""
+    if fit.lm.degenerate:
+        return []
+    window = shared.window
+    placed = rotate_vertices(item.vertices, item.pivot, fit.rotation_rad)
+    scans = [("basin", window)]
+    for k, direction in enumerate(_unobservable(fit)[:, :2]):
+        if np.hypot(direction[0], direction[1]) > 0.5:
+            closed = (0, window[1]) if abs(direction[0]) > abs(direction[1]) else (window[0], 0)
+            scans.append((f"basin across {k + 1}", closed))
+    starts = []
+    for source, scan_window in scans:
+        rival = find_secondary_dt_minimum(
+            shared.products.edge_dt, placed, converged_offset_vu=fit.offset_vu,
+            search_window_vu=scan_window, exclude_radius_px=BASIN_RADIUS_PX,
+            min_support_fraction=0.5,
+        )
+        if rival is not None:
+            starts.append((source, rival.offset_vu, math.nan))
+    return starts

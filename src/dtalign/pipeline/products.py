@@ -23,8 +23,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..api import checks as check
 from ..api.checks import check_image, check_noise_sigma, resolve_config
 from ..api.colour import grey_image, log_note
+from ..api.loop import noise_statistics
 from ..api.results import ImageDerivativesConfig
 
 __all__ = [
@@ -183,8 +185,6 @@ def _estimate_noise_sigma_checked(arr: FloatArray) -> float:
     """
     if arr.shape[0] < 3 or arr.shape[1] < 3:
         return 0.0
-    from .._kernels.noise import noise_statistics
-
     _, mad, mean_abs = noise_statistics(arr)
     if mad > 0.0:
         return _MAD_TO_SIGMA * mad / _NOISE_KERNEL_NORM
@@ -250,11 +250,14 @@ class ImageProducts:
             if not isinstance(self.image, np.ndarray) or self.image.shape != tuple(self.shape):
                 raise ValueError(f"image must be an ndarray of shape {tuple(self.shape)}")
             object.__setattr__(self, "image", _readonly(self.image))
-        for name in ("gradient_magnitude", "edge_dt", "gradient_vu", "edge_mask"):
+        # The arrays are checked here, once (as the LM checks its DT and
+        # gradient, scan threshold included): every fit then trusts them.
+        for name, checked in (("gradient_magnitude", check.image2d), ("edge_dt", check.image2d),
+                              ("gradient_vu", check.gradient), ("edge_mask", check.mask2d)):
             value = getattr(self, name)
             if not isinstance(value, np.ndarray):
                 raise TypeError(f"{name} must be a numpy.ndarray, got {type(value).__name__}")
-            object.__setattr__(self, name, _readonly(value))
+            object.__setattr__(self, name, _readonly(checked(value, name)))
         shape = tuple(int(s) for s in self.shape)
         if len(shape) != 2:
             raise ValueError(f"shape must be (H, W), got {self.shape!r}")

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..api import checks as check
+from ..api import loop
 from ..api.profiles import EdgeProfile
 
 __all__ = [
@@ -279,7 +280,7 @@ def refine_with_profile(
     ProfileRefinement
     """
     if kernels is None:
-        from .._kernels import profile as kernels
+        kernels = loop.profile_kernels
     t_start = time.perf_counter()
     verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
     normals = np.ascontiguousarray(profile.normals_vu, dtype=np.float64)
@@ -405,7 +406,7 @@ def profile_samples(
         the vertex), ``dt_shift`` (where the DT-LM pose puts the edge on
         that axis, px).
     """
-    from .._kernels import profile as kernels
+    kernels = loop.profile_kernels
 
     img = check.check_image(image)
     verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)

@@ -13,10 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .._kernels import coarse as _coarse
-from .._kernels import polarity_search as _ps
-from .._kernels import seeds as _k
 from ..api import checks as check
+from ..api import loop
 from ..api.checks import check_polarity_search_inputs, min_support_fraction_value
 from ..api.constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
 from ..api.results import CoarseSearchResult
@@ -24,7 +22,7 @@ from ..api.results import CoarseSearchResult
 __all__ = ["DEFAULT_SEED_SEPARATION_PX", "top_k_seeds"]
 
 #: Two seeds closer than this lead the LM into the same basin: its capture
-#: range on a DT is a few pixels either way (SPEC 7's trust region is 1 px,
+#: range on a DT is a few pixels either way (the production trust region is 1 px,
 #: the DT's slope is 1 px/px out to the truncation).
 DEFAULT_SEED_SEPARATION_PX = 3.0
 
@@ -69,8 +67,7 @@ def top_k_seeds(
         its 8 neighbours). The first equals the single search's result.
         An empty polyline gives ``(((0, 0), 0.0),)``.
     """
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise ValueError(f"k must be a positive int; got {k!r}")
+    k = check.positive_int(k, "k")
     separation = check.finite_real(min_separation_px, "min_separation_px")
     if (normals_vu is None) != (image_gradient_vu is None):
         raise ValueError("normals_vu and image_gradient_vu go together (the polarity-weighted surface)")
@@ -81,7 +78,7 @@ def top_k_seeds(
         )
         if a.vertices.shape[0] == 0 or a.edge.size == 0:
             return (CoarseSearchResult((0, 0), 0.0),)
-        surface = _ps.polarity_surface(
+        surface = loop.polarity_surface(
             a.edge, a.gradient, a.vertices, a.normals, a.mv, a.mu,
             a.fraction * a.vertices.shape[0],
         )
@@ -95,11 +92,18 @@ def top_k_seeds(
         mv, mu = min(mv, max(h - 1, 0)), min(mu, max(w - 1, 0))
         if h == 0 or w == 0:
             return (CoarseSearchResult((0, 0), 0.0),)
-        pv, pu = _coarse.support_of_vertices(pts, h, w)
+        pv, pu = loop.support_of_vertices(pts, h, w)
         if pv.shape[0] == 0:
             return (CoarseSearchResult((0, 0), 0.0),)
-        surface = _coarse.overlap_surface(edge, pv, pu, mv, mu, fraction * pv.shape[0])
-    count, dv, du, score = _k.top_k(surface, mv, mu, int(k), separation)
+        surface = loop.overlap_surface(edge, pv, pu, mv, mu, fraction * pv.shape[0])
+    return peaks_of(surface, mv, mu, k, separation)
+
+
+def peaks_of(surface: np.ndarray, mv: int, mu: int, k: int,
+             separation: float = DEFAULT_SEED_SEPARATION_PX) -> tuple[CoarseSearchResult, ...]:
+    """:func:`top_k_seeds` of a score surface already formed (rows ``dv + mv``,
+    columns ``du + mu``, NaN where a shift is no candidate)."""
+    count, dv, du, score = loop.top_k(surface, mv, mu, int(k), float(separation))
     if count == 0:  # no candidate shift at all (the polarity search's empty case)
         return (CoarseSearchResult((0, 0), 0.0),)
     return tuple(
