@@ -79,5 +79,6 @@ def test_the_compiled_fit_sees_one_options_type(scene):
     from dtalign.pipeline.batch import fit_many
 
     fit_many(products, [p, p], search_window_vu=(4, 4), workers=1)
-    loop_types = {sig[13] for sig in kpipeline.fit_polylines.signatures}
+    # (its inputs record LoopInputs ends with the options record)
+    loop_types = {sig[0].types[-1] for sig in kpipeline.fit_polylines.signatures}
     assert loop_types <= options_types

@@ -64,7 +64,7 @@ _LAZY: dict[str, str] = {
     # beyond the drop-in surface: the one-call pipeline
     "ImageProducts": ".pipeline.products",
     "PolylineFit": ".pipeline.fit",
-    "FitOptions": ".pipeline.options",
+    "FitOptions": ".api.options",
     "covariance_with_unobservable_inf": ".pipeline.observability",
     "normal_information_covariance": ".pipeline.observability",
     "null_directions": ".pipeline.observability",
@@ -133,6 +133,7 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         compute_image_gradient_vu,
     )
     from .api.lm import lm_subpixel_refine
+    from .api.options import FitOptions
     from .api.profiles import EdgeProfile, sphere_edge_profile
     from .api.results import (
         CoarseSearchResult,
@@ -160,7 +161,6 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         null_directions,
         observable_rank,
     )
-    from .pipeline.options import FitOptions
     from .pipeline.products import ImageProducts, estimate_noise_sigma, prepare_image
     from .pipeline.profile_fit import ProfileRefinement
     from .warmup import warm_up

@@ -201,7 +201,7 @@ def measure_noise_overhead(inputs: Inputs, repeats: int, min_sample_s: float) ->
 
 
 def _overhead_row(name: str, description: str, t_base: list[float], t_with: list[float],
-                  target: float, agree: bool, load_cores: float) -> dict[str, Any]:
+                  target: float, agree: bool, load_cores: float | None) -> dict[str, Any]:
     """An overhead row: the ratio of the medians ``with / base`` of one run,
     passed when the results agree and the ratio is at most ``target``."""
     ratio = statistics.median(t_with) / statistics.median(t_base)
@@ -267,8 +267,8 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     a call per polyline, result objects)."""
     from concurrent.futures import ThreadPoolExecutor
 
+    from ..api.options import FitOptions
     from ..pipeline.jobs import loop_inputs, plan, prepare, run_loop
-    from ..pipeline.options import FitOptions
 
     parts = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines]
     # fit_many's defaults with the production trust region; the examination

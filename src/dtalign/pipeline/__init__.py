@@ -1,6 +1,6 @@
 """The layer above the drop-in stages: one-call fits, image products and batches.
 
-* :mod:`dtalign.pipeline.options`: :class:`FitOptions`, every fit option
+* :class:`FitOptions` (from :mod:`dtalign.api.options`): every fit option
   with its default, in one record;
 * :mod:`dtalign.pipeline.fit`: :func:`fit_polyline`,
   :func:`fit_polyline_products` and their result, :class:`PolylineFit`;
@@ -17,6 +17,7 @@ Importing this package imports the compiled layer (Numba); ``import
 dtalign`` alone does not (its names load on first use).
 """
 
+from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions
 from .fit import PolylineFit, fit_polyline, fit_polyline_products
 from .observability import (
     covariance_with_unobservable_inf,
@@ -24,7 +25,6 @@ from .observability import (
     null_directions,
     observable_rank,
 )
-from .options import DEFAULT_SEARCH_WINDOW_VU, FitOptions
 from .products import ImageProducts, estimate_noise_sigma, prepare_image
 
 __all__ = [

@@ -115,10 +115,10 @@ from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
+from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
 from .fit import PolylineFit, finish, needs_settling, wrap
-from .options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from .products import ImageProducts, prepare_image
 from .status import log_fit, log_fits, logger
 
@@ -610,7 +610,7 @@ def fit_many(
         no report. See the module docstring's "Progress" section.
     options : FitOptions, optional
         The options of every polyline's fit
-        (:class:`~dtalign.pipeline.options.FitOptions`, as
+        (:class:`~dtalign.api.options.FitOptions`, as
         :func:`~dtalign.pipeline.fit_polyline_products` takes them; the
         edge profile is each polyline's own, above).
     **overrides

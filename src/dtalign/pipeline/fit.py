@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..api import checks as check
 from ..api.constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C, POLARITY_PENALTY_RESIDUAL
 from ..api.lm import fit_checked
+from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from ..api.results import ImageDerivativesConfig, LMRefineResult, summary_text
 from . import hypotheses as _hypotheses
 from . import jobs
@@ -54,7 +55,6 @@ from .observability import (
     null_directions,
     observable_rank,
 )
-from .options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from .products import ImageProducts, _readonly, prepare_image
 from .profile_fit import ProfileRefinement, check_edge_profile, refine_with_profile
 from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
@@ -695,11 +695,11 @@ def fit_polyline_products(
         :data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`, ``(30, 30)``,
         the command line's default too.
     options : FitOptions, optional
-        The fit's options (:class:`~dtalign.pipeline.options.FitOptions`:
+        The fit's options (:class:`~dtalign.api.options.FitOptions`:
         rotation and pivot, the LM's, ``seeds``, ``ambiguity``,
         ``edge_profile``); the defaults when None.
     **overrides
-        Any field of :class:`~dtalign.pipeline.options.FitOptions` by name
+        Any field of :class:`~dtalign.api.options.FitOptions` by name
         (``fit_rotation=True``, ``trust_region_px=1.0``, ``edge_profile=...``):
         it replaces the field of ``options``.
 
@@ -768,10 +768,10 @@ def fit_polyline(
     config : ImageDerivativesConfig, optional
         Image-side tunables.
     options : FitOptions, optional
-        The fit's options (:class:`~dtalign.pipeline.options.FitOptions`);
+        The fit's options (:class:`~dtalign.api.options.FitOptions`);
         the defaults when None.
     **overrides
-        Any field of :class:`~dtalign.pipeline.options.FitOptions` by name
+        Any field of :class:`~dtalign.api.options.FitOptions` by name
         (``fit_rotation``, ``use_polarity``, ``trust_region_px``,
         ``max_iterations``, ``seeds``, ``ambiguity``, ``edge_profile``, ...).
 

@@ -5,7 +5,7 @@
 first polyline of a call exactly as the step-by-step pipeline checks it
 (its own arrays, the window, the pivot, then every LM option, in that
 order: that fixes which error a bad call raises) with the call's
-:class:`~dtalign.pipeline.options.FitOptions`. What it validated holds for
+:class:`~dtalign.api.options.FitOptions`. What it validated holds for
 every further polyline of the call, which :func:`prepare` then checks only
 for its own arrays (one compiled pass) and, when rotating, its pivot
 spread. The polylines run in one compiled loop with the GIL released
@@ -30,8 +30,13 @@ from ..api import loop
 from ..api.checks import LMArgs
 from ..api.constants import DEFAULT_COARSE_MIN_SUPPORT_FRACTION
 from ..api.lm import raise_for_code
-from ..api.options import gradient_of, lm_kernel_options
-from .options import DEFAULT_SEARCH_WINDOW_VU, FitOptions
+from ..api.options import (
+    DEFAULT_SEARCH_WINDOW_VU,
+    FitOptions,
+    check_kernel_fields,
+    gradient_of,
+    lm_kernel_options,
+)
 from .products import ImageProducts
 
 __all__ = ["DEFAULT_SEARCH_WINDOW_VU", "Batch", "Item", "Plan", "plan", "prepare"]
@@ -130,7 +135,9 @@ def plan(products: Any, vertices_vu: Any, normals_vu: Any, sigmas: Any, window: 
         "image_edge_dt": products.edge_dt, "image_gradient_vu": products.gradient_vu,
         "initial_offset_vu": (0.0, 0.0), "fit_rotation": fit_rotation, "pivot_vu": pivot,
         "pivot_distance_px": distance, **options.lm_keywords(),
-    }, (verts, norms, sig, (c_v, c_u)) if status == loop.OK else None, trusted_images=True)
+    }, (verts, norms, sig, (c_v, c_u)) if status == loop.OK else None,
+        trusted_images=True)._replace(options=options)
+    check_kernel_fields(options)
     h, w = products.shape
     shared = Plan(products=products, window=window, mv=min(window[0], max(h - 1, 0)),
                   mu=min(window[1], max(w - 1, 0)), lm=lm, options=options)
