@@ -41,10 +41,10 @@ def _ridge(scene, grad, magnitude, patch_reach, pose, fit_rotation):
     else:
         patch, tiles, r0, c0 = rk.magnitude_patch(grad, pts, pose[0], pose[1], patch_reach)
     return rk.ridge_loop(
-        magnitude, patch, tiles, grad, r0, c0, _use_libm_hypot(), pts, s.normals_vu, s.sigmas,
-        np.ones(n), np.array(pose), np.array([96.0, 96.0]), fit_rotation,
-        60.0 if fit_rotation else 0.0, 10, DEFAULT_LM_STEP_TOLERANCE, 4.685, HALF,
-        DEFAULT_RIDGE_SAMPLE_STEP_PX,
+        rk.MagnitudeField(magnitude, patch, tiles, grad, r0, c0, _use_libm_hypot()), pts,
+        s.normals_vu, s.sigmas, np.ones(n), np.array(pose), np.array([96.0, 96.0]), fit_rotation,
+        60.0 if fit_rotation else 0.0,
+        rk.RidgeSettings(10, DEFAULT_LM_STEP_TOLERANCE, 4.685, HALF, DEFAULT_RIDGE_SAMPLE_STEP_PX),
     )
 
 

@@ -20,6 +20,8 @@ from .ridge import (
     RIDGE_BAD_FIELD,
     RIDGE_DIVERGED,
     magnitude_patch,
+    MagnitudeField,
+    RidgeSettings,
     ridge_loop,
 )
 from .robust import symmetric_pinvh
@@ -131,9 +133,10 @@ def fit_with_mask(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts, p
             grad, pts, pose[0], pose[1], ridge_half * ridge_sample_step + PATCH_MARGIN
         )
         new_pose, ridge_iterations, ridge_converged, ridge_status = ridge_loop(
-            _NO_MAGNITUDE, patch, tiles, grad, r0, c0, opts.use_libm, pts, nrm, sig, pol, pose,
-            pivot, fit_rotation, pivot_distance, opts.ridge_max_iterations,
-            opts.ridge_step_tolerance, tukey_c, ridge_half, ridge_sample_step,
+            MagnitudeField(_NO_MAGNITUDE, patch, tiles, grad, r0, c0, opts.use_libm), pts, nrm,
+            sig, pol, pose, pivot, fit_rotation, pivot_distance,
+            RidgeSettings(opts.ridge_max_iterations, opts.ridge_step_tolerance, tukey_c,
+                          ridge_half, ridge_sample_step),
         )
         if ridge_status == RIDGE_BAD_FIELD:
             return _failed(BAD_GRADIENT, pose0, n, n_params)

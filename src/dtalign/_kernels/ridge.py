@@ -9,6 +9,7 @@ box around the polyline (see :func:`magnitude_patch` and
 from __future__ import annotations
 
 import math
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -31,6 +32,30 @@ MAX_PATCH = 1 << 20
 #: Margin of the patch beyond the profiles at the starting pose, px: room
 #: for the polish to move (it is discarded beyond 1.5 px anyway).
 PATCH_MARGIN = 8
+
+
+class MagnitudeField(NamedTuple):
+    """Where the polish reads the gradient magnitude (:func:`sample_magnitude`):
+    a magnitude image (the public polish: empty patch and gradient), or the
+    gradient-vector image with its patch (the LM driver: empty magnitude)."""
+
+    magnitude: Any  #: (H, W) magnitude image, or (0, 0)
+    patch: Any  #: the patch of :func:`magnitude_patch`, or (0, 0)
+    tiles: Any  #: its filled-tile flags (uint8)
+    grad: Any  #: (H, W, 2) gradient vectors, or (0, 0, 2)
+    r0: int  #: the patch's first row and column in the image
+    c0: int
+    use_libm: bool  #: magnitudes through libm's ``hypot``
+
+
+class RidgeSettings(NamedTuple):
+    """The polish's iteration settings."""
+
+    max_iterations: int
+    step_tolerance: float
+    tukey_c: float
+    half: int  #: ``round(half_width / sample_step)`` (Python's rounding: the caller's)
+    sample_step: float
 
 
 @kernel
@@ -63,14 +88,16 @@ def magnitude_patch(grad, pts, dv, du, reach):
 
 
 @kernel
-def peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot):
+def peak_offsets(field, pts, nrm, dv, du, theta, pivot, t, step, prof, out, valid, n_rot):
     """Sub-pixel signed distance ``t*`` to the magnitude peak along each normal.
 
     Writes ``t*`` into ``out``, 1.0/0.0 validity into ``valid`` and the
     normals rotated by ``theta`` into ``n_rot``; ``prof`` is scratch of
-    length ``K``. The field is sampled by :func:`sample_magnitude` from
-    ``magnitude, patch, tiles, grad, r0, c0, use_libm``. Returns False if a sample read a NaN or inf.
+    length ``K``. The field (a :class:`MagnitudeField`) is sampled by
+    :func:`sample_magnitude`. Returns False if a sample read a NaN or inf.
     """
+    magnitude, patch, tiles, grad = field.magnitude, field.patch, field.tiles, field.grad
+    r0, c0, use_libm = field.r0, field.c0, field.use_libm
     k_count = t.shape[0]
     cos_t, sin_t = math.cos(theta), math.sin(theta)
     for i in range(pts.shape[0]):
@@ -120,16 +147,14 @@ def peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, dv, 
 
 
 @kernel
-def ridge_loop(
-    magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pivot_distance,
-    max_iterations, step_tolerance, tukey_c, half, sample_step,
-):
+def ridge_loop(field, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pivot_distance,
+               settings):
     """Gauss-Newton on ``t*``; returns the final pose, iterations, converged
     and a status (:data:`RIDGE_OK`, :data:`RIDGE_BAD_FIELD`, :data:`RIDGE_DIVERGED`).
 
-    ``half`` is ``round(half_width / sample_step)`` (Python's rounding, so
-    computed by the caller). Whether the result is applied (moved less
-    than the displacement cap) is decided by the caller too.
+    ``field`` is a :class:`MagnitudeField`, ``settings`` a
+    :class:`RidgeSettings`. Whether the result is applied (moved less than
+    the displacement cap) is decided by the caller.
 
     Each iteration is a function of the pose alone, so a pose that comes
     back (bit for bit) means the loop cycles for ever; it is found with
@@ -140,6 +165,8 @@ def ridge_loop(
     the plain loop, in a number of iterations bounded by the cycle, not by
     ``max_iterations`` (:ref:`contract-ridge`).
     """
+    max_iterations, step_tolerance = settings.max_iterations, settings.step_tolerance
+    tukey_c, half, sample_step = settings.tukey_c, settings.half, settings.sample_step
     n = pts.shape[0]
     n_params = 3 if fit_rotation else 2
     t = np.empty(2 * half + 1)
@@ -167,8 +194,8 @@ def ridge_loop(
     limit = max_iterations
     while iterations < limit:
         theta = pose[2]
-        if not peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, pose[0],
-                            pose[1], theta, pivot, t, sample_step, prof, r, valid, n_rot):
+        if not peak_offsets(field, pts, nrm, pose[0], pose[1], theta, pivot, t, sample_step,
+                            prof, r, valid, n_rot):
             return pose, iterations, converged, RIDGE_BAD_FIELD
         any_positive = False
         for i in range(n):
@@ -180,12 +207,10 @@ def ridge_loop(
         if not any_positive:
             break
         if fit_rotation:
-            ok_p = peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, pose[0],
-                                pose[1], theta + EPS_R, pivot, t, sample_step, prof, r_p,
-                                scratch_valid, scratch_n)
-            ok_m = peak_offsets(magnitude, patch, tiles, grad, r0, c0, use_libm, pts, nrm, pose[0],
-                                pose[1], theta - EPS_R, pivot, t, sample_step, prof, r_m,
-                                scratch_valid, scratch_n)
+            ok_p = peak_offsets(field, pts, nrm, pose[0], pose[1], theta + EPS_R, pivot, t,
+                                sample_step, prof, r_p, scratch_valid, scratch_n)
+            ok_m = peak_offsets(field, pts, nrm, pose[0], pose[1], theta - EPS_R, pivot, t,
+                                sample_step, prof, r_m, scratch_valid, scratch_n)
             if not (ok_p and ok_m):
                 return pose, iterations, converged, RIDGE_BAD_FIELD
             for i in range(n):

@@ -89,9 +89,11 @@ def gradient_ridge_refine(
     a = check_ridge_inputs(locals())
     pose0 = np.array([a.offset[0], a.offset[1], a.rotation])
     pose, iterations, converged, status = _k.ridge_loop(
-        a.magnitude, _NO_PATCH, _NO_TILES, _NO_GRADIENT, 0, 0, False, a.vertices, a.normals, a.sigmas, a.weight_mask, pose0,
-        np.array(a.pivot), a.fit_rotation, a.pivot_distance, a.max_iterations,
-        a.step_tolerance, a.tukey_c, round(a.half_width / a.sample_step), a.sample_step,
+        _k.MagnitudeField(a.magnitude, _NO_PATCH, _NO_TILES, _NO_GRADIENT, 0, 0, False),
+        a.vertices, a.normals, a.sigmas, a.weight_mask, pose0, np.array(a.pivot), a.fit_rotation,
+        a.pivot_distance,
+        _k.RidgeSettings(a.max_iterations, a.step_tolerance, a.tukey_c,
+                         round(a.half_width / a.sample_step), a.sample_step),
     )
     if status == _k.RIDGE_BAD_FIELD:
         raise nonfinite_read("gradient_magnitude")

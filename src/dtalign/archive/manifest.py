@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import inspect
 import json
 import math
 import numbers
@@ -95,16 +94,11 @@ _CONFIG_FIELDS = ("image_gradient_sigma_px", "edge_threshold_k_sigma", "dt_half_
 
 
 def fit_option_names() -> frozenset[str]:
-    """Keyword options :func:`dtalign.pipeline.fit_polyline_products` accepts (not the
-    window, nor the edge profile: a polyline's comes from the item's ``spheres``)."""
-    from ..pipeline.fit import fit_polyline_products
+    """The fields of :class:`dtalign.FitOptions` a record's ``options`` may set (not
+    the edge profile: a polyline's comes from the item's ``spheres``)."""
+    from ..api.options import NAMES
 
-    return frozenset(
-        name
-        for name, p in inspect.signature(fit_polyline_products).parameters.items()
-        if p.kind is inspect.Parameter.KEYWORD_ONLY
-        and name not in ("search_window_vu", "edge_profile")
-    )
+    return NAMES - {"edge_profile"}
 
 
 @dataclass(frozen=True)

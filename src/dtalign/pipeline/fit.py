@@ -480,16 +480,8 @@ class PolylineFit:
             computed again on loading.
         """
 
-        def num(x: float) -> float | None:
-            return x if math.isfinite(x) else None
-
-        def hyp(h: Hypothesis) -> dict[str, Any]:
-            return {"source": h.source, "seed_vu": list(h.seed_vu), "offset_vu": list(h.offset_vu),
-                    "rotation_rad": h.rotation_rad, "cost": num(h.cost), "inliers": h.inliers,
-                    "converged": h.converged, "coarse_score": num(h.coarse_score)}
-
+        num = _num
         cov = np.asarray(self.lm.covariance)
-        amb = self.ambiguity
         extra: dict[str, Any] = {}
         if arrays:
             extra = {name: np.asarray(getattr(src, name)).tolist() for src, name in (
@@ -513,17 +505,9 @@ class PolylineFit:
                 None if self.ambiguity is None or self.ambiguity.rival is None
                 else [num(x) for x in self.ambiguity.rival.offset_vu]
             ),
-            "ambiguity": None if amb is None else {
-                "ratio": num(amb.ratio), "rival": None if amb.rival is None else hyp(amb.rival),
-                "ambiguous": amb.ambiguous, "along_unobservable": amb.along_unobservable,
-                "reason": amb.reason,
-            },
-            "settling": None if self.settling is None else {
-                "iterations": self.settling.iterations, "shift_px": num(self.settling.shift_px),
-                "shift_sigmas": num(self.settling.shift_sigmas),
-                "settled": self.settling.settled,
-            },
-            "hypotheses": [hyp(h) for h in self.hypotheses],
+            "ambiguity": None if self.ambiguity is None else _ambiguity_dict(self.ambiguity),
+            "settling": None if self.settling is None else _settling_dict(self.settling),
+            "hypotheses": [_hypothesis_dict(h) for h in self.hypotheses],
             "covariance": [[num(float(x)) for x in row] for row in cov],
             "normal_covariance": [
                 [num(float(x)) for x in row] for row in np.asarray(self.normal_covariance)
@@ -578,18 +562,7 @@ class PolylineFit:
                 "with to_dict(arrays=True)"
             )
 
-        def inf(x: Any) -> float:
-            return math.inf if x is None else float(x)
-
-        def hyp(h: dict[str, Any]) -> Hypothesis:
-            return Hypothesis(
-                source=h["source"], seed_vu=(int(h["seed_vu"][0]), int(h["seed_vu"][1])),
-                coarse_score=math.nan if h["coarse_score"] is None else float(h["coarse_score"]),
-                offset_vu=(float(h["offset_vu"][0]), float(h["offset_vu"][1])),
-                rotation_rad=float(h["rotation_rad"]), cost=inf(h["cost"]),
-                inliers=int(h["inliers"]), converged=bool(h["converged"]),
-            )
-
+        inf = _inf
         try:
             vertices = np.asarray(d["vertices_vu"], dtype=np.float64).reshape(-1, 2)
             normals = np.asarray(d["normals_vu"], dtype=np.float64).reshape(-1, 2)
@@ -606,16 +579,6 @@ class PolylineFit:
                 inlier_count=int(d["inlier_count"]), degenerate=bool(d["degenerate"]),
                 polarity_rejected_count=int(d["polarity_rejected"]),
             )
-            a = d["ambiguity"]
-            ambiguity = None if a is None else Ambiguity(
-                ratio=inf(a["ratio"]), rival=None if a["rival"] is None else hyp(a["rival"]),
-                ambiguous=bool(a["ambiguous"]), along_unobservable=bool(a["along_unobservable"]),
-                reason=str(a["reason"]),
-            )
-            st = d["settling"]
-            settling = None if st is None else Settling(
-                int(st["iterations"]), inf(st["shift_px"]), inf(st["shift_sigmas"]),
-                bool(st["settled"]))
             prof = d.get("profile")
             return cls(
                 offset_vu=(float(d["offset_vu"][0]), float(d["offset_vu"][1])),
@@ -629,8 +592,9 @@ class PolylineFit:
                 noise_sigma=float(d["noise_sigma"]), vertices_vu=vertices, normals_vu=normals,
                 pinvh_rcond=float(d["pinvh_rcond"]), tukey_c=float(d["tukey_c"]),
                 timings_s={str(k): float(v) for k, v in d["timings_s"].items()},
-                hypotheses=tuple(hyp(h) for h in d["hypotheses"]), ambiguity=ambiguity,
-                settling=settling,
+                hypotheses=tuple(_hypothesis_from(h) for h in d["hypotheses"]),
+                ambiguity=None if d["ambiguity"] is None else _ambiguity_from(d["ambiguity"]),
+                settling=None if d["settling"] is None else _settling_from(d["settling"]),
                 profile=None if prof is None else ProfileRefinement.from_dict(prof),
             )
         except KeyError as exc:
@@ -648,6 +612,56 @@ class PolylineFit:
 
     def __repr__(self) -> str:
         return self.summary()
+
+
+def _num(x: float) -> float | None:
+    """A finite value, or None (JSON ``null``) for ``inf`` and ``nan``."""
+    return x if math.isfinite(x) else None
+
+
+def _inf(x: Any) -> float:
+    """:func:`_num` read back: None is ``+inf``."""
+    return math.inf if x is None else float(x)
+
+
+def _hypothesis_dict(h: Hypothesis) -> dict[str, Any]:
+    return {"source": h.source, "seed_vu": list(h.seed_vu), "offset_vu": list(h.offset_vu),
+            "rotation_rad": h.rotation_rad, "cost": _num(h.cost), "inliers": h.inliers,
+            "converged": h.converged, "coarse_score": _num(h.coarse_score)}
+
+
+def _hypothesis_from(h: dict[str, Any]) -> Hypothesis:
+    return Hypothesis(
+        source=h["source"], seed_vu=(int(h["seed_vu"][0]), int(h["seed_vu"][1])),
+        coarse_score=math.nan if h["coarse_score"] is None else float(h["coarse_score"]),
+        offset_vu=(float(h["offset_vu"][0]), float(h["offset_vu"][1])),
+        rotation_rad=float(h["rotation_rad"]), cost=_inf(h["cost"]),
+        inliers=int(h["inliers"]), converged=bool(h["converged"]),
+    )
+
+
+def _ambiguity_dict(a: Ambiguity) -> dict[str, Any]:
+    return {"ratio": _num(a.ratio), "rival": None if a.rival is None else _hypothesis_dict(a.rival),
+            "ambiguous": a.ambiguous, "along_unobservable": a.along_unobservable,
+            "reason": a.reason}
+
+
+def _ambiguity_from(a: dict[str, Any]) -> Ambiguity:
+    return Ambiguity(
+        ratio=_inf(a["ratio"]), rival=None if a["rival"] is None else _hypothesis_from(a["rival"]),
+        ambiguous=bool(a["ambiguous"]), along_unobservable=bool(a["along_unobservable"]),
+        reason=str(a["reason"]),
+    )
+
+
+def _settling_dict(st: Settling) -> dict[str, Any]:
+    return {"iterations": st.iterations, "shift_px": _num(st.shift_px),
+            "shift_sigmas": _num(st.shift_sigmas), "settled": st.settled}
+
+
+def _settling_from(st: dict[str, Any]) -> Settling:
+    return Settling(int(st["iterations"]), _inf(st["shift_px"]), _inf(st["shift_sigmas"]),
+                    bool(st["settled"]))
 
 
 # ---------------------------------------------------------------------------
