@@ -19,9 +19,9 @@ from .ridge import (
     PATCH_MARGIN,
     RIDGE_BAD_FIELD,
     RIDGE_DIVERGED,
-    magnitude_patch,
     MagnitudeField,
     RidgeSettings,
+    magnitude_patch,
     ridge_loop,
 )
 from .robust import symmetric_pinvh
