@@ -739,7 +739,12 @@ def fit_polyline_products(
         if products.image is None:
             raise ValueError("edge_profile needs the image: these products were built "
                              "without it (use prepare_image)")
-    fit = fit_one(shared, item)
+    # the seed (with its score surface, when the fit is to be examined), the LM
+    # from it, then the examination and the settling
+    t1 = time.perf_counter()
+    seed, surface = jobs.seed_of(shared, item, surface=opts.examined)
+    fit = fit_from(shared, item, seed, time.perf_counter() - t1)
+    fit = finish(fit, shared, item, surface)
     if profile is not None:
         fit = with_profile(fit, products, profile)
     _status.log_fit(fit)
@@ -830,16 +835,6 @@ def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any) -> Pol
         fit, offset_vu=ref.offset_vu if ref.accepted else fit.offset_vu, profile=ref,
         timings_s={**fit.timings_s, "profile": ref.time_s},
     )
-
-
-def fit_one(shared: jobs.Plan, it: jobs.Item) -> PolylineFit:
-    """One polyline's fit: the coarse seed (with the score surface, when the
-    fit is to be examined), the LM from it (timed as ``coarse`` and ``lm``),
-    then :func:`finish`."""
-    t1 = time.perf_counter()
-    seed, surface = jobs.seed_of(shared, it, surface=shared.options.examined)
-    fit = fit_from(shared, it, seed, time.perf_counter() - t1)
-    return finish(fit, shared, it, surface)
 
 
 def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],

@@ -286,7 +286,9 @@ def examine(fit: Any, shared: Any, item: Any, *, refit: Any, surface: Any = None
             fits.append((source, seed, score, refit(seed)))
         except (ValueError, FloatingPointError, OverflowError):
             pass
-    hypotheses = [_hypothesis(shared, item, *start) for start in fits]
+    hypotheses = []
+    for start in fits:
+        hypotheses.append(_hypothesis(shared, item, *start))
     best = 0
     if seeds > 1:
         for j, h in enumerate(hypotheses):
