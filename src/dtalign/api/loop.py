@@ -51,7 +51,7 @@ def pipeline_seed(edge: np.ndarray, gradient: Any, vertices: np.ndarray, normals
     terminator), else the overlap search of the rasterised polyline
     (rings), both with the support floor ``floor_fraction`` and margins
     already clipped to the image
-    (:func:`dtalign._kernels.pipeline.fit_polylines` seeds the same). The
+    (``dtalign._kernels.pipeline.fit_polylines`` seeds the same). The
     surface has rows ``dv + mv``, columns ``du + mu``, NaN where a shift is
     no candidate; None without ``surface``.
     """

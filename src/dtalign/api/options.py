@@ -15,7 +15,7 @@ of :func:`dtalign.lm_subpixel_refine`. A field in the group ``"kernel"``
 is a pipeline option the drop-in function does not take: it is checked by
 its ``check`` (metadata) and reaches the compiled twin below by name, so
 a new option of the compiled LM is a field here, a field of
-:class:`LMKernelOptions`, and the kernel code that reads it.
+``LMKernelOptions``, and the kernel code that reads it.
 
 The compiled twin
 -----------------

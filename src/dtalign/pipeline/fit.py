@@ -687,7 +687,7 @@ def fit_polyline_products(
     or the overlap search when ``use_polarity=False``); refine from it with
     the LM of :func:`dtalign.lm_subpixel_refine`; examine the fit against
     its rival basins (:func:`dtalign.pipeline.hypotheses.examine`); judge
-    whether an unconverged fit has settled (:func:`settle`); refine against
+    whether an unconverged fit has settled (:func:`~dtalign.pipeline.fit.settle`); refine against
     the image with the edge profile, when one is given.
 
     Parameters

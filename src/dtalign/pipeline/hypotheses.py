@@ -264,9 +264,9 @@ def examine(fit: Any, shared: Any, item: Any, *, refit: Any, surface: Any = None
     ``seeds > 1`` in the call's options, replaced by the cheapest of several starts).
 
     The starts: the fit's own coarse seed; the next ``seeds - 1`` distinct
-    peaks of the coarse score surface (:func:`_coarse_starts`; at least the
+    peaks of the coarse score surface (``_coarse_starts``; at least the
     second, for the ambiguity figure); and the competing basin of the DT
-    cost (:func:`_basin_starts`). Each is fitted by the same LM
+    cost (``_basin_starts``). Each is fitted by the same LM
     (``refit(seed)`` gives a :class:`~dtalign.pipeline.PolylineFit`) and
     costed by :func:`robust_cost`. With one seed the fit itself is kept
     whatever the costs (results stay those of the single start); with more,

@@ -1,16 +1,16 @@
 """The pipeline's fits: checks once per call, compiled work, light result wrapping.
 
 :func:`dtalign.pipeline.fit_polyline_products` and
-:func:`dtalign.pipeline.batch.fit_many` share this. :func:`plan` checks the
+:func:`dtalign.pipeline.batch.fit_many` share this. :func:`~dtalign.pipeline.jobs.plan` checks the
 first polyline of a call exactly as the step-by-step pipeline checks it
 (its own arrays, the window, the pivot, then every LM option, in that
 order: that fixes which error a bad call raises) with the call's
 :class:`~dtalign.api.options.FitOptions`. What it validated holds for
-every further polyline of the call, which :func:`prepare` then checks only
+every further polyline of the call, which ``prepare`` then checks only
 for its own arrays (one compiled pass) and, when rotating, its pivot
 spread. The polylines run in one compiled loop with the GIL released
-(:data:`dtalign.api.loop.fit_polylines`: :func:`loop_inputs`,
-:func:`run_loop`), which :mod:`dtalign.pipeline.batch` runs on its threads;
+(``dtalign.api.loop.fit_polylines``: ``loop_inputs``,
+``run_loop``), which :mod:`dtalign.pipeline.batch` runs on its threads;
 ``dtalign.pipeline.fit.wrap`` makes their results. The products of
 :func:`~dtalign.pipeline.products.prepare_image` are trusted: their arrays
 were checked when the products were made.
