@@ -95,7 +95,6 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
-import numbers
 import os
 import queue
 import signal
@@ -117,6 +116,9 @@ from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
+from ..api.checks import collect_errors as _check_errors
+from ..api.checks import progress_callback as _check_progress
+from ..api.checks import workers as _check_workers
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
 from .fit import PolylineFit, fit_from, fit_polyline_products, needs_settling, settle, wrap
@@ -157,22 +159,6 @@ _FIT_DEFAULTS = MappingProxyType({
 })
 
 _EXECUTORS = ("thread", "process")
-_ERROR_MODES = ("raise", "collect")
-
-
-def _check_workers(workers: Any) -> int:
-    if isinstance(workers, bool) or not isinstance(workers, numbers.Integral):
-        raise TypeError(f"workers must be an int >= 1, got {type(workers).__name__}")
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
-    return int(workers)
-
-
-def _check_errors(errors: Any) -> bool:
-    """Whether ``errors`` asks to collect (else raise)."""
-    if not isinstance(errors, str) or errors not in _ERROR_MODES:
-        raise ValueError(f"errors must be one of {_ERROR_MODES}, got {errors!r}")
-    return errors == "collect"
 
 
 def _check_options(options: dict[str, Any]) -> None:
@@ -186,15 +172,6 @@ def _check_options(options: dict[str, Any]) -> None:
         from .hypotheses import check_seeds
 
         check_seeds(options["seeds"])
-
-
-def _check_progress(progress: Any) -> Callable[[int, int], Any] | bool | None:
-    if progress is None or isinstance(progress, bool) or callable(progress):
-        return progress
-    raise TypeError(
-        f"progress must be a callable progress(done, total), True (a tqdm bar) or None, "
-        f"got {type(progress).__name__}"
-    )
 
 
 class _Progress:

@@ -305,10 +305,7 @@ def prepare_image(
     # colour: the rule of dtalign.api.colour, said on the logger
     image, note = grey_image(image)
     log_note(note)
-    try:
-        arr = check_image(image)
-    except (TypeError, ValueError) as exc:
-        raise type(exc)(str(exc).replace("image_ext", "image")) from None
+    arr = check_image(image, "image")
     cfg = resolve_config(config)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
