@@ -104,10 +104,10 @@ def normals(value: Any, n_vertices: int) -> FloatArray:
 
 
 #: Image-sized arrays up to this many values are scanned for NaN/inf on
-#: every call (tens of microseconds). Larger ones are checked where the
-#: kernels read them: scanning a 1024 x 1024 DT and gradient costs ~1.3 ms,
-#: several times a whole LM fit, and a value never read cannot change a
-#: result. Any non-finite value a kernel does read raises ValueError.
+#: every call (a small part of a fit). Larger ones are checked where the
+#: kernels read them: scanning a 1024 x 1024 DT and gradient costs several
+#: times a whole LM fit, and a value never read cannot change a result.
+#: Any non-finite value a kernel does read raises ValueError.
 FULL_SCAN_MAX_SIZE = 1 << 16
 
 
@@ -475,7 +475,7 @@ def resolve_pivot(verts: FloatArray, pivot_vu: Any) -> tuple[float, float]:
 
 
 # ---------------------------------------------------------------------------
-# Ranges that keep a call bounded. Each is checked after the SPEC-ordered
+# Ranges that keep a call bounded. Each is checked after the contract-ordered
 # checks of its function and names the argument.
 # ---------------------------------------------------------------------------
 
@@ -884,7 +884,7 @@ def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
 
 
 # ---------------------------------------------------------------------------
-# The image side (SPEC sections 1 and 5)
+# The image side (:ref:`contract-surface` and :ref:`contract-image`)
 # ---------------------------------------------------------------------------
 
 
