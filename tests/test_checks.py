@@ -170,3 +170,14 @@ def test_check_image_names_the_argument():
         checks.check_image(np.ones(3), "image")
     with pytest.raises(TypeError, match="^image_ext must be 2-D"):
         checks.check_image(np.ones(3))
+
+
+def test_noise_sigma_and_campaign_counts_name_the_argument():
+    with pytest.raises(ValueError, match="^noise_sigma must be finite and >= 0; got -1.0$"):
+        checks.check_noise_sigma(-1.0, "noise_sigma")
+    with pytest.raises(ValueError, match="^image_noise_sigma must be finite and >= 0; got 'x'$"):
+        checks.check_noise_sigma("x")
+    assert checks.int_at_least(3, "frames") == 3 and checks.int_at_least(128, "size", 128) == 128
+    for bad in (0, True, 2.0, "3"):
+        with pytest.raises(ValueError, match=re.escape(f"frames must be an int >= 1, got {bad!r}")):
+            checks.int_at_least(bad, "frames")

@@ -929,16 +929,17 @@ def check_sigma_px(sigma_px: Any) -> float:
     return value
 
 
-def check_noise_sigma(image_noise_sigma: Any) -> float:
-    """The image noise sigma: finite and >= 0."""
+def check_noise_sigma(image_noise_sigma: Any, name: str = "image_noise_sigma") -> float:
+    """The image noise sigma: finite and >= 0 (``name``: the argument's name
+    in the messages, the drop-in functions' ``image_noise_sigma``)."""
     try:
-        value = real(image_noise_sigma, "image_noise_sigma")
+        value = real(image_noise_sigma, name)
     except TypeError as exc:
         raise ValueError(
-            f"image_noise_sigma must be finite and >= 0; got {image_noise_sigma!r}"
+            f"{name} must be finite and >= 0; got {image_noise_sigma!r}"
         ) from exc
     if not (math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"image_noise_sigma must be finite and >= 0; got {value!r}")
+        raise ValueError(f"{name} must be finite and >= 0; got {value!r}")
     return value
 
 
@@ -956,6 +957,14 @@ def workers(value: Any) -> int:
         raise TypeError(f"workers must be an int >= 1, got {type(value).__name__}")
     if value < 1:
         raise ValueError(f"workers must be >= 1, got {value}")
+    return int(value)
+
+
+def int_at_least(value: Any, name: str, low: int = 1) -> int:
+    """An int (bool refused) of at least ``low``; any fault is one ValueError
+    (the campaign's settings: ``flush_items``, ``frames`` ...)."""
+    if not _is_int(value) or value < low:
+        raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
     return int(value)
 
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..api import checks as check
 from .manifest import Item, read_manifest
 from .store import Store
 from .tasks import failure_row, fit_item, fit_items
@@ -213,9 +214,7 @@ def _client(client: Any, scheduler: str | None, workers: int | None) -> Iterator
         with distributed.Client(scheduler) as c:
             yield c
         return
-    n = (os.cpu_count() or 1) if workers is None else workers
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise ValueError(f"workers must be an int >= 1, got {workers!r}")
+    n = check.int_at_least((os.cpu_count() or 1) if workers is None else workers, "workers")
     with _nanny_environ_restored(), local_cluster(n) as cluster, distributed.Client(cluster) as c:
         c._dtalign_owned = True  # _execute: closing it stops the tasks
         yield c
@@ -576,8 +575,7 @@ def run(
             raise ValueError("manifest items must have unique ids")
     for name, value in (("flush_items", flush_items), ("max_pending", max_pending),
                         ("items_per_task", 1 if items_per_task is None else items_per_task)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        check.int_at_least(value, name)
     st = store if isinstance(store, Store) else Store(store)
     summary = RunSummary(store=str(Path(st.path)), items=len(items))
     with st.lock():

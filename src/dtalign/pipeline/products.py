@@ -315,10 +315,7 @@ def prepare_image(
         if logger.isEnabledFor(logging.INFO):
             _quantised_note(sigma)
     else:
-        try:
-            sigma = check_noise_sigma(noise_sigma)
-        except ValueError as exc:
-            raise ValueError(str(exc).replace("image_noise_sigma", "noise_sigma")) from None
+        sigma = check_noise_sigma(noise_sigma, "noise_sigma")
     t1 = time.perf_counter()
     timings["noise"] = t1 - t0
     magnitude, edge_dt, gradient_vu = _compute_all_image_derivatives(arr, sigma, config=cfg)
