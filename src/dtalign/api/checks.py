@@ -7,11 +7,15 @@ kernel could trip on (a NaN cast to an index, a wrong trailing dimension)
 must be refused here. The message fragments the contract quotes
 (:ref:`contract-errors`) are part of the drop-in contract.
 
-The one module of argument checks, in three parts: the per-argument
-helpers; the whole-call checks of the fitting stages (``check_lm_inputs``
-and its siblings), shared by the compiled path and the reference so that
-both check in the same order (which decides the message a caller sees) and
-convert every array exactly once; and the image side's checks.
+The one module of argument checks, in five parts: the per-argument
+helpers (the search window in each form callers write it among them:
+:func:`search_window`); the whole-call checks of the fitting stages
+(``check_lm_inputs`` and its siblings), shared by the compiled path and the
+reference so that both check in the same order (which decides the message a
+caller sees) and convert every array exactly once; the image side's checks;
+the batch functions' own arguments; and the fields of a record read from
+text or JSON (the campaign manifest's). A caller whose argument has another
+name passes it, so that each message is right where it is made.
 """
 
 from __future__ import annotations

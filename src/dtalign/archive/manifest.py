@@ -29,8 +29,8 @@ Fields (only ``image`` and ``polylines`` are required):
 ``noise_sigma``
     The image noise sigma; estimated from the image when absent or null.
 ``window``
-    Coarse-search margin: an int for both axes or ``[mv, mu]``; the
-    campaign's default (30) when absent.
+    Coarse-search margin: an int for both axes or ``[mv, mu]`` (in a CSV
+    cell ``30`` or ``30 20``); the campaign's default (30) when absent.
 ``options``
     Keyword options of :func:`dtalign.pipeline.fit_polyline_products`
     (``fit_rotation``, ``trust_region_px``, ``use_polarity``, ...), over
@@ -279,8 +279,9 @@ def read_manifest(
     path : str or path-like
         A ``.jsonl`` / ``.ndjson`` (JSON lines) or ``.csv`` manifest (see
         the module documentation for the fields).
-    window : int or tuple of int, optional
-        Default coarse-search margin of items that give none (30).
+    window : int, tuple of int or str, optional
+        Default coarse-search margin of items that give none (30), in any
+        form the ``window`` field takes (:func:`dtalign.api.checks.search_window`).
     options : dict, optional
         Default fit options; an item's own ``options`` override them.
 
