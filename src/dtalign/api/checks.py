@@ -9,7 +9,7 @@ must be refused here. The message fragments the contract quotes
 
 The one module of argument checks, in five parts: the per-argument
 helpers (the search window in each form callers write it among them:
-:func:`search_window`); the whole-call checks of the fitting stages
+``search_window``); the whole-call checks of the fitting stages
 (``check_lm_inputs`` and its siblings), shared by the compiled path and the
 reference so that both check in the same order (which decides the message a
 caller sees) and convert every array exactly once; the image side's checks;

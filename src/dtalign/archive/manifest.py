@@ -281,7 +281,7 @@ def read_manifest(
         the module documentation for the fields).
     window : int, tuple of int or str, optional
         Default coarse-search margin of items that give none (30), in any
-        form the ``window`` field takes (:func:`dtalign.api.checks.search_window`).
+        form the ``window`` field takes (``dtalign.api.checks.search_window``).
     options : dict, optional
         Default fit options; an item's own ``options`` override them.
 
