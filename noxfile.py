@@ -74,7 +74,7 @@ def docs(session: nox.Session) -> None:
 
 @nox.session(python=PYTHON)
 def bench(session: nox.Session) -> None:
-    """Benchmark table: reference vs dtalign on SPEC section 7 workloads."""
+    """Benchmark table: reference vs dtalign on :ref:`contract-scenes` workloads."""
     session.install(".[test]")
     session.run(
         "python", "-m", "dtalign.benchmarking", "--json", "benchmarks/results/latest.json",

@@ -75,7 +75,7 @@ FLOORS: dict[str, tuple[float, float, float]] = {
     "coarse_30": (300.0, 312.0, 0.25),
     # A 465 / 390 / 0.16     B 464 / 421 / 0.09     C 599 / 569 / 0.05
     "coarse_50": (300.0, 599.0, 0.20),
-    # SPEC 8's scans (issue 13), 2026-12-01, runs while other sessions shared
+    # the scans of :ref:`contract-today` (issue 13), 2026-12-01, runs while other sessions shared
     # the two cores (1.1-1.7 cores busy): coarse_scored 409-412x; polarity
     # 299-432x. Basin, with the neighbours' bounds: 16 quick runs 373-1131x
     # (median 516x, (median - lowest) / median 0.28: the 0.30 below), 6 full
@@ -100,16 +100,16 @@ FLOORS: dict[str, tuple[float, float, float]] = {
     "lm_ridge": (40.0, 56.0, 0.50),
     # A 10.5 / 9.0 / 0.14    B 9.6 / 7.5 / 0.22     C 12.6 / 12.3 / 0.03
     # D (the target met since) 31.8 / 31.0 / 0.03
-    # E, CI machines: the fresh-clone CI run of a926c37 (2026-12-02; 994 s, the
-    # green runs before it 441-540 s) gave 19.9x and, measured again, 20.6x,
+    # E, CI machines: the fresh-clone CI run of a926c37 (2026-12-02; twice as
+    # long as the green runs before it) gave 19.9x and, measured again, 20.6x,
     # on LM code unchanged since the green run of 7ee4619, with lm_n200 at
     # 96.7x (that machine could not be inspected). The row is the one whose
     # working set outgrows a core's L2: ~104 bytes per vertex (points,
     # sigmas and their 1/sigma^2, polarity, residuals, weights, samples and
     # Jacobian of the state and of the trial step), 2.1 MB at N = 20,000.
     # On the development machine of that day (2 MiB of L2 per core) a
-    # vertex-iteration cost 7.9 ns up to N = 20,000 and 8.7-9.5 ns from
-    # N = 40,000 (20 forced iterations), and the row gave 29.7-30.2x; a
+    # vertex-iteration cost 10-20 % more from N = 40,000 than up to
+    # N = 20,000 (20 forced iterations), and the row gave 29.7-30.2x; a
     # CPU with less L2 pays that at N = 20,000, while the reference's NumPy
     # temporaries stream from memory on any CPU. Spread
     # (31.8 - 19.9) / 31.8 = 0.37, rounded up: 0.40 (floor 18x).

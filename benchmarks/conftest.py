@@ -24,7 +24,7 @@ IMPLEMENTATIONS = {"reference": dtalign.reference, "dtalign": dtalign}
 
 @pytest.fixture(scope="session")
 def bench_inputs() -> benchmarking.Inputs:
-    """The SPEC section 7 scenes and their derivatives, built once."""
+    """The scenes of :ref:`contract-scenes` and their derivatives, built once."""
     return benchmarking.build_inputs()
 
 

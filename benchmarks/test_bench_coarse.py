@@ -1,5 +1,5 @@
 """Coarse integer searches on the 200-pixel limb, +-30 and +-50 (targets >= 300x),
-and the competing-basin scan (SPEC section 8)."""
+and the competing-basin scan (:ref:`contract-today`)."""
 
 from __future__ import annotations
 

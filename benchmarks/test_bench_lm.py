@@ -1,4 +1,4 @@
-"""LM refinement workloads of SPEC section 7 (inputs: the coarse seed of each polyline)."""
+"""LM refinement workloads of :ref:`contract-scenes` (inputs: the coarse seed of each polyline)."""
 
 from __future__ import annotations
 

@@ -125,7 +125,7 @@ def report(key: str, r: dict) -> str:
         f"rms {moved.rms_px:.3f} px"
     )
     sv, su = moved.sigma_vu
-    out.append(f"DT covariance (pinvh, SPEC): sigma_v {sv:.4f}, sigma_u {su:.4f} px")
+    out.append(f"DT covariance (pinvh, the contract's): sigma_v {sv:.4f}, sigma_u {su:.4f} px")
     cn = np.asarray(moved.normal_covariance)
     out.append(
         f"geometry (normals): observable rank {moved.observable_rank} of 2; "

@@ -14,7 +14,7 @@ ridge on, polarity off, outliers, degenerate (every vertex rejected),
 walks that follow no edge, and a handful of 1024 x 1024 scenes. Images
 are mostly 96-256 px so the whole sweep stays fast.
 
-Also here: the SPEC state of a pose (:func:`spec_state`) and the two
+Also here: the contract's state of a pose (:func:`spec_state`) and the two
 conditioning measures that decide which fits are held to exact parity
 (issue #14; see ``test_parity``'s docstring).
 """
@@ -378,7 +378,7 @@ def _make_case(family: str, index: int, rng: np.random.Generator, kinds: tuple[s
 
 
 def _large_cases() -> list[ParityCase]:
-    """SPEC section 7 on 1024 x 1024: base, +-50 window, rotation, outliers, ridge."""
+    """The scenes of :ref:`contract-scenes` on 1024 x 1024: base, +-50 window, rotation, outliers, ridge."""
     disc, nav = IMAGES["disc_big"], IMAGES["nav_big"]
     out: list[ParityCase] = []
 
@@ -414,7 +414,7 @@ def build_cases() -> list[ParityCase]:
 
 
 # ---------------------------------------------------------------------------
-# The SPEC state of a pose, and the conditioning of a fit
+# The contract's state of a pose, and the conditioning of a fit
 # ---------------------------------------------------------------------------
 
 #: The paths' rounding differs by up to ~1e-13 px per step (measured on the
@@ -425,14 +425,14 @@ AMPLIFICATION_MAX = 1e3
 #: A solve loses ~kappa * 1e-16 of relative accuracy to rounding of ``H``;
 #: for steps of a few px to stay within 1e-9 px that is kappa <= ~1e6. Above
 #: it the system is near singular, and whether LU meets an exactly zero pivot
-#: (SPEC section 3 step 4: solve, or pinvh) depends on how ``H`` was rounded.
+#: (:ref:`contract-lm` step 2d: solve, or pinvh) depends on how ``H`` was rounded.
 KAPPA_MAX = 1e6
 
 
 def spec_state(dt: np.ndarray, vertices: np.ndarray, sigmas: np.ndarray, pol: np.ndarray,
                pose: tuple[float, float, float], pivot: tuple[float, float], fit_rotation: bool,
                c: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """SPEC section 2/3 residuals, weights and Jacobian at ``pose`` (NumPy)."""
+    """Residuals, weights and Jacobian at ``pose`` (NumPy; :ref:`contract-numerics`, :ref:`contract-lm`)."""
 
     def place(theta: float) -> np.ndarray:
         if theta == 0.0:

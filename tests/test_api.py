@@ -1,7 +1,7 @@
-"""The drop-in surface of SPEC section 1, tested from ``dtalign`` alone.
+"""The drop-in surface of :ref:`contract-surface`, tested from ``dtalign`` alone.
 
 Names, constants, signatures, result types, and every error type and
-message fragment quoted in SPEC section 1 (matched with
+message fragment quoted in :ref:`contract-errors` (matched with
 ``pytest.raises(..., match=...)`` as callers do), plus the refusals
 "beyond the reference" and the inputs that must *not* be errors. Inputs
 are tiny arrays built here, with NumPy only.
@@ -44,7 +44,7 @@ P, K = inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY
 NO = inspect.Parameter.empty
 C = CONSTANTS
 SIGNATURES = {
-    # SPEC 8.1: the support floor of today's techniques
+    # :ref:`contract-changes`: the support floor of today's techniques
     "coarse_ncc_search": [("edge_mask", P, NO), ("polyline_mask", P, NO), ("search_window_vu", P, NO),
                           ("min_support_fraction", K, 0.5)],
     "build_polyline_mask": [("vertices_vu", P, NO), ("shape_vu", P, NO)],
@@ -80,7 +80,7 @@ SIGNATURES = {
 }
 LM_FIELDS = ["offset_vu", "rotation_rad", "covariance", "residuals_px", "weights", "rms_px",
              "raw_rms_px", "iterations", "converged", "inlier_count", "degenerate",
-             "polarity_rejected_count"]  # SPEC 8.1: the 12th field, last
+             "polarity_rejected_count"]  # :ref:`contract-changes`: the 12th field, last
 
 # --- tiny inputs: a horizontal edge at row 5 of a 12 x 12 image ------------
 H = W = 12
@@ -237,7 +237,7 @@ def test_return_types_of_the_pieces():
 
 
 # --------------------------------------------------------------------------
-# SPEC section 1 errors: type and message fragment
+# Errors of the drop-in surface (:ref:`contract-errors`): type and message fragment
 # --------------------------------------------------------------------------
 
 E = ValueError
@@ -343,7 +343,7 @@ def test_spec_error(call, exc, fragment):
         call()
 
 
-# Two faults at once: the one SPEC section 1 checks first is reported.
+# Two faults at once: the one checked first (:ref:`contract-errors`) is reported.
 LM_ORDER = [
     ("vertices>normals", dict(vertices_vu=np.zeros((5, 3)), normals_vu=np.zeros((2, 2))),
      "vertices_vu must have shape"),

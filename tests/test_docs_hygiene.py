@@ -1,7 +1,9 @@
 """Paper cuts of issue 15: printing results, docs that stand alone, packaging.
 
 * a result prints as a short summary (arrays summarised), not every residual;
-* the docs cite no unshipped "SPEC", every public module has an API page,
+* the docs, code and tests cite the shipped contract (``docs/contract.rst``
+  and its section labels), never the unshipped design text; every public
+  module has an API page,
   intersphinx is configured with offline fallbacks and the build passes
   ``-W`` (nitpicky: no dead link) without network;
 * install instructions work from a clone; LICENSE, CHANGELOG and one
@@ -90,11 +92,69 @@ def _pages() -> dict[str, str]:
     return {str(p.relative_to(ROOT)): p.read_text(encoding="utf-8") for p in files}
 
 
+#: A citation of the design text that does not ship: the word in capitals on
+#: its own ("SPEC 8.1", "SPEC's order", "SPEC.md"). Names that merely contain
+#: it (``SPEC_PRIVATE``, ``SUSPECT``) and the folder ``tests/spec`` do not match.
+UNSHIPPED = re.compile(r"\bSPEC\b")
+
+#: Where a citation could be written: text files under these folders (and
+#: these files) of the repository. Generated output is left out:
+#: ``docs/_static`` (a script's printed output) and ``docs/_build``.
+CITING_FOLDERS = ("src", "docs", "tests", "benchmarks", "examples", ".ci")
+CITING_FILES = ("README.md", "CHANGELOG.md", "noxfile.py", "pyproject.toml")
+CITING_SUFFIXES = {".py", ".rst", ".md", ".txt", ".toml", ".cfg", ".cff", ".yml", ".yaml", ""}
+NOT_CITING = ("docs/_static", "docs/_build")
+
+
+def _citing_files() -> list[Path]:
+    files = [ROOT / name for name in CITING_FILES if (ROOT / name).is_file()]
+    for folder in CITING_FOLDERS:
+        for path in sorted((ROOT / folder).rglob("*")):
+            rel = path.relative_to(ROOT).as_posix()
+            if (path.is_file() and path.suffix in CITING_SUFFIXES
+                    and "__pycache__" not in path.parts
+                    and not rel.startswith(NOT_CITING)):
+                files.append(path)
+    # this file names the word to look for it
+    return [p for p in files if p != Path(__file__).resolve()]
+
+
 def test_no_reference_to_an_unshipped_spec():
     texts = {**_pages(), **_rendered_docstrings()}
-    offenders = sorted(name for name, text in texts.items() if re.search(r"\bSPEC\b", text))
+    offenders = sorted(name for name, text in texts.items() if UNSHIPPED.search(text))
     assert offenders == []
     assert (DOCS / "contract.rst").is_file()
+
+
+def test_no_file_cites_the_unshipped_spec():
+    files = _citing_files()
+    assert len(files) > 100 and ROOT / "src" / "dtalign" / "api" / "checks.py" in files
+    offenders = [
+        f"{path.relative_to(ROOT)}:{number}"
+        for path in files
+        for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace")
+                                      .splitlines(), 1)
+        if UNSHIPPED.search(line)
+    ]
+    assert offenders == []
+
+
+def test_the_citation_rule_matches_citations_only():
+    for cited in ("SPEC 8.1", "(SPEC section 2)", "SPEC's order", "/work/shared/SPEC.md"):
+        assert UNSHIPPED.search(cited), cited
+    for fine in ("SPEC_PRIVATE", "FitStatus.SUSPECT", "tests/spec/test_spec_lm.py", "a spec"):
+        assert not UNSHIPPED.search(fine), fine
+
+
+def test_every_cited_contract_label_exists():
+    labels = set(re.findall(r"^\.\. _(contract[\w-]*):", (DOCS / "contract.rst").read_text(
+        encoding="utf-8"), re.MULTILINE))
+    cited = {}
+    for path in _citing_files():
+        for label in re.findall(r":ref:`(contract[\w-]*)`", path.read_text(
+                encoding="utf-8", errors="replace")):
+            cited.setdefault(label, path.relative_to(ROOT).as_posix())
+    assert {label: where for label, where in cited.items() if label not in labels} == {}
 
 
 def _public_modules() -> list[str]:

@@ -1,9 +1,9 @@
-"""Behaviours of SPEC sections 2-4, worked out by hand on tiny inputs.
+"""Behaviours of :ref:`contract-numerics` to :ref:`contract-ridge`, worked out by hand on tiny inputs.
 
-Each test builds an input whose answer follows from the SPEC text alone
+Each test builds an input whose answer follows from the contract's text alone
 (a linear or V-shaped DT, a one-row coarse search, a Gaussian ridge, ...),
 so these tests do not depend on ``dtalign.reference``. The last ones check
-whole fits on the SPEC section 7 scenes.
+whole fits on the scenes of :ref:`contract-scenes`.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ def test_coarse_score_is_the_in_bounds_fraction_not_the_count():
     # du=-2 keeps one pixel inside, on an edge: 1/1; du=+2 and +3 overlap twice: 2/3.
     edge, poly = _one_row([0, 1, 2], [0, 3, 4], 10)
     assert dtalign.coarse_ncc_search(edge, poly, (0, 3), min_support_fraction=0.0) == (0, -2)
-    # SPEC 8.1's default floor: one pixel of three inside (< 0.5 * 3) is no candidate
+    # the default floor of :ref:`contract-changes`: one pixel of three inside (< 0.5 * 3) is no candidate
     assert dtalign.coarse_ncc_search(edge, poly, (0, 3)) == (0, 2)
 
 
@@ -235,7 +235,7 @@ def test_covariance_rcond_cutoff():
 
 
 def test_covariance_without_information_is_zero():
-    # the design's guard cases, no positive weight and no rows: SPEC 2 gives the
+    # the design's guard cases, no positive weight and no rows: :ref:`contract-numerics` gives the
     # zero matrix (a caller's s2 * cov with s2 == 0 must stay 0, not 0 * inf)
     for jac, w in ((np.ones((3, 2)), np.zeros(3)), (np.ones((0, 3)), np.ones(0))):
         cov = dtalign.information_matrix_to_covariance(jac, w)
@@ -341,7 +341,7 @@ def test_all_vertices_rejected_by_polarity_is_degenerate():
         assert np.all(res.covariance == np.inf)
         np.testing.assert_array_equal(res.residuals_px, np.full(6, 1.0e6))  # the penalty
         np.testing.assert_array_equal(res.weights, np.zeros(6))
-        # SPEC 8.1: raw RMS over the polarity-accepted vertices, of which there are none
+        # :ref:`contract-changes`: raw RMS over the polarity-accepted vertices, of which there are none
         assert res.raw_rms_px == math.inf and res.polarity_rejected_count == 6
 
 
@@ -507,7 +507,7 @@ def test_lm_final_ridge_not_applied_changes_nothing():
 
 
 # --------------------------------------------------------------------------
-# Whole fits on the SPEC section 7 scenes
+# Whole fits on the scenes of :ref:`contract-scenes`
 # --------------------------------------------------------------------------
 
 

@@ -1,7 +1,7 @@
 """Tests of :mod:`dtalign.api.image` against the NumPy/SciPy specification.
 
 The compiled image side must be a drop-in for
-:mod:`dtalign.reference.image` (SPEC sections 1 and 5): same checks and
+:mod:`dtalign.reference.image` (:ref:`contract-surface` and :ref:`contract-image`): same checks and
 messages, edge masks and distance transforms identical, gradients within
 1e-10 relative. On x86-64 (where SciPy's C filters and glibc's ``hypot``
 do not use FMA) every output is asserted bit-identical as well, which is

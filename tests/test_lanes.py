@@ -167,7 +167,7 @@ def test_polarity_lanes_match_the_scalar_test(polarity):
 
 
 def _state_scalar(dt, pts, sig, pol, pose, fit_rotation, tukey_c):
-    """SPEC's state at ``pose``, vertex by vertex, with sequential sums."""
+    """The contract's state at ``pose``, vertex by vertex, with sequential sums."""
     dv, du, theta = pose
     p = 3 if fit_rotation else 2
     n = pts.shape[0]

@@ -7,7 +7,7 @@
   root): it imports the submodule by its path;
 * no private (underscore) name crosses a subpackage boundary, neither
   imported (``from ..api.lm import _fit``) nor read off an imported module
-  (``lm._fit``), except the SPEC section 8 names the root re-exports;
+  (``lm._fit``), except the private names the root re-exports (:ref:`contract-private`);
 * the benchmark runner (``dtalign.benchmarking``) uses only public
   modules and names outside itself;
 * dependencies point down: ``_kernels`` imports no layer above it, ``api``
@@ -27,7 +27,7 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = SRC / "dtalign"
 
-#: SPEC section 8: private names importable from the package root.
+#: :ref:`contract-private`: private names importable from the package root.
 SPEC_PRIVATE = {"_rotate_vertices", "_rotate_directions", "_INFINITY_DT_PENALTY_PX"}
 
 

@@ -1,9 +1,9 @@
-"""SPEC section 8.1's LM changes, compiled against the reference.
+"""The LM changes of :ref:`contract-changes`, compiled against the reference.
 
 ``polarity_rejected_count``, ``raw_rms_px`` over the polarity-accepted
 vertices, ``converged`` that counts an applied, converged ridge stage, and
 the ridge stage reached through ``dtalign.ridge.gradient_ridge_refine`` (a
-caller's replacement gets exactly the SPEC's keywords, and the compiled path
+caller's replacement gets exactly the keywords :ref:`contract-changes` lists, and the compiled path
 is unchanged when nothing is replaced).
 """
 
@@ -52,7 +52,7 @@ def test_new_lm_fields_match_the_reference(case):
     want = ref.lm_subpixel_refine(**kw)
     assert got.polarity_rejected_count == want.polarity_rejected_count
     assert got.converged == want.converged
-    # raw_rms_px: the SPEC 8.1 formula of the compiled path's own residuals
+    # raw_rms_px: the :ref:`contract-changes` formula of the compiled path's own residuals
     # (the poses may differ by the parity bar's 1e-9 px, not the formula)
     if kw.get("use_polarity", True):
         accepted = dtalign.polarity_filter(
@@ -176,7 +176,7 @@ def test_a_replaced_ridge_stage_result_is_used(monkeypatch, module, applied):
     assert got.iterations == plain.iterations  # the LM's count
     if applied:
         assert got.offset_vu == (plain.offset_vu[0] + 0.25, plain.offset_vu[1] - 0.125)
-        assert got.converged  # SPEC 8.1: LM's or the applied ridge's
+        assert got.converged  # :ref:`contract-changes`: LM's or the applied ridge's
         state = fit(**{**kw, "final_gradient_ridge": False, "max_iterations": 0,
                        "initial_offset_vu": got.offset_vu})
         # the state is recomputed at the ridge pose, with the seed's polarity mask
@@ -209,7 +209,7 @@ def _square_kwargs(**extra):
 
 
 def test_converged_counts_an_applied_converged_ridge_stage():
-    """SPEC 8.1: an LM stopped by its iteration cap, then an applied ridge
+    """:ref:`contract-changes`: an LM stopped by its iteration cap, then an applied ridge
     stage that converged: the fit is converged, in both paths."""
     kw = _square_kwargs(final_gradient_ridge=True, max_iterations=1)
     lm_only = ref.lm_subpixel_refine(**{**kw, "final_gradient_ridge": False})

@@ -75,7 +75,7 @@ def test_drop_in_functions_do_not_warn(seed):
                 image_edge_dt=dt, image_gradient_vu=grad,
                 initial_offset_vu=(float(seed_vu[0]), float(seed_vu[1])), **kw,
             )
-            # a degenerate fit's covariance is the +inf sentinel (SPEC 3), by design
+            # a degenerate fit's covariance is the +inf sentinel (:ref:`contract-lm`), by design
             assert np.isinf(fit.covariance).all() == fit.degenerate
         dtalign.gradient_ridge_refine(
             vertices_vu=verts, normals_vu=normals, sigma_normal_per_vertex_px=sigmas,

@@ -34,10 +34,10 @@ condition number <= :data:`KAPPA_MAX`) is held to the exact bar in every
 case: pose within 1e-9 px and covariance within 1e-9 relative of the
 reference. An ill-conditioned case keeps everything that holds whichever
 way rounding went: the discrete outcome, the pose within 1e-6 px, the inf
-pattern, and a covariance, residuals and weights that are the SPEC formulas
+pattern, and a covariance, residuals and weights that are the contract's formulas
 at the compiled path's own final pose (``test_exact_parity_set`` prints
 and bounds the set). In every case the compiled covariance must equal, to
-1e-9 relative, the SPEC covariance at the compiled path's own final pose.
+1e-9 relative, the contract's covariance at the compiled path's own final pose.
 
 Residuals and weights are compared with bounds derived from the pose
 difference, not with a fixed number: the clipped Euclidean DT changes by at
@@ -45,7 +45,7 @@ most 1 per pixel along each axis, so its bilinear interpolant is
 sqrt(2)-Lipschitz, and a vertex moves by at most ``|dt| + |dtheta| *
 |x - pivot|``; the IRLS weight ``tukey(r / s, c) / s^2`` is Lipschitz in ``r``
 with constant ``1.54 / (c s^3)``. A 1e-12 relative floor covers rounding.
-``rms_px`` / ``raw_rms_px`` are checked to be the SPEC formulas of the
+``rms_px`` / ``raw_rms_px`` are checked to be the contract's formulas of the
 (checked) residuals and weights.
 
 Run with ``-s`` to see the measured figures.
@@ -100,8 +100,8 @@ class Outcome:
     actual: Any  # compiled LMRefineResult
     pose_dev: float
     cov_dev: float  # vs reference, max-norm relative
-    self_cov_dev: float  # vs SPEC covariance at the compiled pose
-    self_state_dev: float  # residuals / weights vs SPEC state at the compiled pose
+    self_cov_dev: float  # vs the contract's covariance at the compiled pose
+    self_state_dev: float  # residuals / weights vs the contract's state at the compiled pose
     amplification: float  # result movement per px of start movement (compiled path)
     kappa: float  # Jacobi-scaled condition number of J^T W J at the compiled final pose
 
@@ -167,7 +167,7 @@ class _Runner:
             probe = dtalign.lm_subpixel_refine(
                 **{**kw, "initial_offset_vu": (seed[0] + ev * PROBE_PX, seed[1] + eu * PROBE_PX)})
             amplification = max(amplification, _pose_dev(probe, actual, case) / PROBE_PX)
-        # The SPEC state at the compiled path's own final pose.
+        # The contract's state at the compiled path's own final pose.
         fit_rotation = bool(case.lm_kwargs.get("fit_rotation", False))
         pivot = case.lm_kwargs.get("pivot_vu")
         if pivot is None:
@@ -208,7 +208,7 @@ def assert_lm_parity(out: Outcome) -> None:
     if out.well_conditioned:  # the exact set
         assert out.pose_dev <= POSE_EXACT_PX
         assert out.cov_dev <= COV_EXACT_REL
-    # whatever the conditioning: the SPEC formulas at the compiled path's own pose
+    # whatever the conditioning: the contract's formulas at the compiled path's own pose
     assert out.self_cov_dev <= COV_EXACT_REL
     assert out.self_state_dev <= 1e-12
 
@@ -225,9 +225,9 @@ def assert_lm_parity(out: Outcome) -> None:
     w_tol = TUKEY_SLOPE / (c * sig**3) * r_tol + 1e-12 / sig**2
     assert np.all(np.abs(act.weights - exp.weights) <= w_tol)
 
-    # rms values are the SPEC formulas of the reported arrays
+    # rms values are the contract's formulas of the reported arrays
     r, w = act.residuals_px, act.weights
-    accepted = r != 1.0e6  # SPEC 8.1: over the polarity-accepted vertices
+    accepted = r != 1.0e6  # :ref:`contract-changes`: over the polarity-accepted vertices
     raw = math.sqrt(np.mean(r[accepted] ** 2)) if accepted.any() else math.inf
     assert act.raw_rms_px == pytest.approx(raw, rel=1e-12)
     if act.degenerate:
@@ -260,7 +260,7 @@ def test_lm_parity_summary(run: _Runner) -> None:
         f" {devs[well].max():.3e} px over the well-conditioned cases",
         f"  max covariance rel. deviation: {cov_well:.3e} over the well-conditioned cases,"
         f" {cov_all:.3e} over all cases",
-        f"  max covariance rel. deviation vs SPEC at own pose: {max(o.self_cov_dev for o in outs):.3e}"
+        f"  max covariance rel. deviation vs the contract at own pose: {max(o.self_cov_dev for o in outs):.3e}"
         f" (residuals/weights: {max(o.self_state_dev for o in outs):.3e})",
         f"  max |d residual| {max(np.max(np.abs(o.actual.residuals_px - o.expected.residuals_px)) for o in outs):.3e} px,"
         f" max |d weight| {max(np.max(np.abs(o.actual.weights - o.expected.weights)) for o in outs):.3e},"
@@ -357,7 +357,7 @@ def test_sweep_covers_its_families(run: _Runner) -> None:
 
 @pytest.mark.parametrize("seed", range(30))
 def test_sample_dt_bilinear_parity(seed: int) -> None:
-    """Same formula, same order (SPEC section 2): bit-identical samples."""
+    """Same formula, same order (:ref:`contract-numerics`): bit-identical samples."""
     rng = np.random.default_rng([11, seed])
     h, w = (int(x) for x in rng.integers(1, 40, 2))
     dt = rng.normal(0.0, 10.0, (h, w)) if seed % 2 else rng.integers(0, 64, (h, w)).astype(float)
@@ -506,7 +506,7 @@ def test_gradient_ridge_parity_summary(run: _Runner) -> None:
 
 
 def _spec_single_vertex(dt: np.ndarray, vertex: np.ndarray, sigma: float) -> tuple[np.ndarray, float, float]:
-    """``J``, ``r`` and ``w`` of one vertex at zero offset (SPEC sections 2-3)."""
+    """``J``, ``r`` and ``w`` of one vertex at zero offset (:ref:`contract-numerics`, :ref:`contract-lm`)."""
     s = ref.sample_dt_bilinear
     pts = vertex[None, :]
     jac = np.array([(s(dt, pts + [0.25, 0.0]) - s(dt, pts - [0.25, 0.0]))[0] / 0.5,
@@ -526,12 +526,12 @@ GN_RESIDUAL_REL = 1e-14
 def test_lm_single_vertex_without_damping_solves_the_rank_one_system() -> None:
     """One weighted vertex, damping 0: ``H = a a^T`` is singular up to rounding.
 
-    Whether ``solve`` is singular (SPEC section 3 step 4) is decided by how
+    Whether ``solve`` is singular (:ref:`contract-lm` step 2d) is decided by how
     the LU factorisation rounds, which differs between CPUs (OpenBLAS's
     SkylakeX kernel fuses multiply-adds, the compiled elimination does not):
     one path may take pinvh's minimum-norm step and the other a step with a
-    large component along the null space of ``a^T``, 70 px away. Either is
-    SPEC: both solve the Gauss-Newton system ``a a^T x = -a s``, i.e.
+    large component along the null space of ``a^T``, 70 px away. Either follows
+    the contract: both solve the Gauss-Newton system ``a a^T x = -a s``, i.e.
     ``a^T x = -s``, which is asserted for every accepted step, with the
     same iterations, degenerate flag and inlier count.
     """
@@ -552,13 +552,13 @@ def test_lm_single_vertex_without_damping_solves_the_rank_one_system() -> None:
         for name, res in (("reference", want), ("compiled", got)):
             x = np.array(res.offset_vu)  # the seed is (0, 0): the pose is the step
             assert np.isfinite(x).all()
-            if not x.any():  # the step was refused (SPEC step 6): the seed, not converged
+            if not x.any():  # the step was refused (:ref:`contract-lm` step 2f): the seed, not converged
                 assert not res.converged
                 continue
             moved[name] += 1
             residual = abs(float(a @ x) + s)
             assert residual <= GN_RESIDUAL_REL * (np.linalg.norm(a) * np.linalg.norm(x) + abs(s)), name
-            # accepted because the cost fell (SPEC step 6: the weights of the seed state)
+            # accepted because the cost fell (:ref:`contract-lm` step 2f: the weights of the seed state)
             assert float(ref.sample_dt_bilinear(dt, vertex[None, :] + x)[0]) ** 2 < r**2
             assert res.converged == (math.hypot(*x) < dtalign.DEFAULT_LM_STEP_TOLERANCE)
     assert min(moved.values()) >= 100  # non-vacuous: most steps are accepted

@@ -1,4 +1,4 @@
-"""Parity of SPEC section 8's scans: the compiled path against ``dtalign.reference``.
+"""Parity of the scans of :ref:`contract-today`: the compiled path against ``dtalign.reference``.
 
 Seeded random scenes, at least 200 per function, over the families the
 issue names: ties, flat edge masks, polylines mostly off-frame, the support
@@ -178,7 +178,7 @@ def test_parity_sweep_covers_the_named_cases():
 
 
 def test_large_limb_polarity_and_basin_equal_the_reference():
-    """The SPEC 7 limb: the sparse path of the polarity search (every vertex
+    """The limb of :ref:`contract-scenes`: the sparse path of the polarity search (every vertex
     inside under every shift) and the basin's early drop on a real DT."""
     scene = scenes.disc_scene(shape=(384, 384), radius=90.0, n_vertices=300)
     _, dt, grad = ref.compute_all_image_derivatives(scene.image, scene.noise_sigma)

@@ -8,7 +8,7 @@ the example counts keep the whole file to a few seconds after compilation.
 Tolerances:
 
 * Sampler, coarse search, Tukey weights and polarity are written in the
-  reference's exact order of floating-point operations (SPEC section 2), so
+  reference's exact order of floating-point operations (:ref:`contract-numerics`), so
   they are compared bit for bit.
 * The LM fit is not: the compiled loop accumulates ``J^T W J`` as sequential
   sums where the reference uses a BLAS matmul, solves the 2x2 / 3x3 system by
@@ -282,9 +282,9 @@ def test_covariance_parity(data):
 
 def assert_spec_at_own_pose(res, kw):
     """What holds on either branch of an ill-posed fit: a finite pose, and the
-    residuals, weights, rms and covariance that SPEC gives at that pose.
+    residuals, weights, rms and covariance that the contract gives at that pose.
 
-    Returns SPEC's ``(J, w)`` at the pose.
+    Returns the contract's ``(J, w)`` at the pose.
     """
     pose = (*res.offset_vu, res.rotation_rad)
     assert np.isfinite(pose).all()
@@ -301,7 +301,7 @@ def assert_spec_at_own_pose(res, kw):
     np.testing.assert_allclose(res.residuals_px, r, rtol=0, atol=1e-12 * np.abs(r).max())
     np.testing.assert_allclose(res.weights, w, rtol=0, atol=1e-12 * np.abs(w).max())
     assert res.degenerate == (not (w > 0).any())
-    raw = math.sqrt(np.mean(r[pol] ** 2)) if pol.any() else math.inf  # SPEC 8.1: polarity-accepted
+    raw = math.sqrt(np.mean(r[pol] ** 2)) if pol.any() else math.inf  # :ref:`contract-changes`: polarity-accepted
     assert math.isclose(res.raw_rms_px, raw, rel_tol=1e-12)
     if res.degenerate:
         assert res.rms_px == math.inf and np.isposinf(res.covariance).all()
@@ -317,14 +317,14 @@ def test_lm_on_degenerate_geometry(n):
     """Straight edges and single vertices: rank-deficient information.
 
     The DT is constant along u, so u is unobservable, but the bilinear
-    formula (SPEC section 2) does not reproduce a constant exactly: the u
+    formula (:ref:`contract-numerics`) does not reproduce a constant exactly: the u
     column of J is rounding noise, and whether LU meets an exactly zero pivot
     on it (pinvh, no u step) or a tiny one (a step of ~1e13 px along u, which
-    SPEC accepts: the cost does not depend on u) depends on how the BLAS
+    the contract accepts: the cost does not depend on u) depends on how the BLAS
     rounds. Both happen: with three vertices the reference takes the first
     branch under OpenBLAS's SkylakeX kernel and the second under Haswell, as
     the compiled path does everywhere, and the coupling moves v by 1e-4 px.
-    So no parity is asserted; each path must give SPEC's state at its own
+    So no parity is asserted; each path must give the contract's state at its own
     pose, fit the observable v, and keep every vertex.
     """
     dt = np.abs(np.arange(30.0) - 14.3)[:, None] * np.ones((1, 30))  # a horizontal edge
@@ -346,7 +346,7 @@ RIDGE_GN_RESIDUAL_REL = 1e-12
 
 
 def _ridge_state(mag, vertex, normal, sigma, pose, fit_rotation):
-    """SPEC section 4 for one vertex at ``pose`` (pivot: the vertex): ``(J, r, w)``."""
+    """:ref:`contract-ridge` for one vertex at ``pose`` (pivot: the vertex): ``(J, r, w)``."""
     n_half = round(dtalign.DEFAULT_RIDGE_HALF_WIDTH_PX / dtalign.DEFAULT_RIDGE_SAMPLE_STEP_PX)
     t = np.arange(-n_half, n_half + 1) * dtalign.DEFAULT_RIDGE_SAMPLE_STEP_PX
 
@@ -372,13 +372,13 @@ def _ridge_state(mag, vertex, normal, sigma, pose, fit_rotation):
 def test_rank_deficient_ridge_steps_solve_their_system():
     """One vertex, three parameters: ``H = a a^T`` is rank 1 in exact arithmetic.
 
-    Whether its LU meets an exactly zero pivot (SPEC's singular, pinvh
+    Whether its LU meets an exactly zero pivot (the contract's singular, pinvh
     branch) depends on how ``H`` was rounded (BLAS in the reference, a
     sequential loop here), so the paths wander apart by rounding: under
     OpenBLAS's Sandybridge kernel they agree bit for bit, under Haswell the
     reference even converges and the compiled path does not. What holds on
     either branch: every step solves the Gauss-Newton system ``a^T x = -s``
-    of SPEC section 4 at its own iterate, and ``applied`` follows the cap.
+    of :ref:`contract-ridge` at its own iterate, and ``applied`` follows the cap.
     """
     vv, uu = np.mgrid[0:30, 0:30]
     ring = np.exp(-((np.hypot(vv - 15.0, uu - 15.0) - 8.0) ** 2) / 2.0)  # a ridge of radius 8
@@ -414,7 +414,7 @@ def test_unconverged_ridge_polish_amplifies_rounding():
     between the paths (BLAS sums against lane-wise sums) ends > 1e-6 px
     apart after the polish, by an amount that depends on the CPU's BLAS
     kernel. What holds on either branch: the LM step before the polish is in
-    parity, the flags agree, and each polished result is SPEC's state at its
+    parity, the flags agree, and each polished result is the contract's state at its
     own pose.
     """
     sc = navigation_scene(rotation_rad=0.02, shape=(57, 57), radius=8.0, n_vertices=8,

@@ -224,7 +224,7 @@ _add(RIDGE, "weight_mask", "strings", np.full(N, "y"), TypeError, "weight_mask m
 
 # coarse search and the polyline mask
 for arg in ["edge_mask", "polyline_mask"]:
-    # SPEC 9: one message names both masks
+    # :ref:`contract-errors`: one message names both masks
     _add("coarse_ncc_search", arg, "1d", np.ones(48, bool), ValueError,
          "edge_mask and polyline_mask must be 2-D")
     _add("coarse_ncc_search", arg, "3d", np.ones((48, 48, 1), bool), ValueError,
@@ -324,7 +324,7 @@ def test_matrix_covers_every_public_function():
     spec = {"coarse_ncc_search", "build_polyline_mask", "polarity_filter", "tukey_biweight_weights",
             "information_matrix_to_covariance", "sample_dt_bilinear", "apply_translation", LM, RIDGE,
             "compute_image_gradient_vu", "build_image_edge_dt", "compute_all_image_derivatives",
-            "ImageDerivativesConfig"}  # SPEC section 1 (result types: test below)
+            "ImageDerivativesConfig"}  # :ref:`contract-surface` (result types: test below)
     assert spec <= set(dtalign.__all__)
     assert {p.values[0] for p in CASES} == spec
 
@@ -349,7 +349,7 @@ def assert_lm_sane(res, n: int, p: int) -> None:
     assert all(math.isfinite(x) for x in res.offset_vu) and math.isfinite(res.rotation_rad)
     assert res.residuals_px.shape == (n,) and np.isfinite(res.residuals_px).all()
     assert res.weights.shape == (n,) and np.isfinite(res.weights).all() and (res.weights >= 0).all()
-    # SPEC 8.1: the RMS over the polarity-accepted vertices, +inf when none is
+    # :ref:`contract-changes`: the RMS over the polarity-accepted vertices, +inf when none is
     if res.polarity_rejected_count == n:
         assert res.raw_rms_px == INF and res.degenerate
     else:
@@ -423,7 +423,7 @@ def test_lm_edge_case_is_finite_and_matches_reference(case):
     assert_lm_sane(c, n, 3 if kw.get("fit_rotation") else 2)
     assert_lm_parity(c, r)
     if case.startswith("outside-with") or case == "polarity-rejects-all":
-        # SPEC 1: a polyline entirely outside the image is a legal, degenerate fit
+        # :ref:`contract-surface`: a polyline entirely outside the image is a legal, degenerate fit
         assert c.degenerate and c.iterations == 0 and c.offset_vu == (1.0, -1.0)
         assert (c.residuals_px == 1e6).all()
     if case.startswith("max-iterations-0"):
@@ -453,7 +453,7 @@ def test_ridge_edge_case_is_finite_and_matches_reference(case):
     assert all(math.isfinite(x) for x in [*c.offset_vu, c.rotation_rad])
     assert (c.iterations, c.converged, c.applied) == (r.iterations, r.converged, r.applied)
     np.testing.assert_allclose(c.offset_vu, r.offset_vu, rtol=0, atol=1e-6)
-    if not c.applied:  # SPEC 4: the inputs come back unchanged
+    if not c.applied:  # :ref:`contract-ridge`: the inputs come back unchanged
         assert c.offset_vu == tuple(_scene().offset) and c.rotation_rad == 0.0
     if case in ("all-false-mask", "max-iterations-0", "outside"):
         assert c.iterations == 0 and not c.applied
@@ -484,7 +484,7 @@ def test_coarse_documented_results():
         assert all(type(x) is int for x in got)
     assert f(np.eye(1, 9, 4), np.eye(1, 9, 1), (3, 3)) == (0, 3)
     # numeric masks: a 0/1 edge mask (any dtype) is the boolean one; the polyline
-    # mask's nonzero pixels count; other edge values are summed (SPEC 8.2)
+    # mask's nonzero pixels count; other edge values are summed (:ref:`contract-coarse-scored`)
     assert f(b.edge.astype(np.float32), b.pmask.astype(np.int16) * -3, (3, 3)) == f(b.edge, b.pmask, (3, 3))
     weighted = b.edge.astype(np.float32) * -3
     assert f(weighted, b.pmask, (3, 3)) == ref.coarse_ncc_search(weighted, b.pmask, (3, 3))
@@ -514,12 +514,12 @@ def test_small_function_documented_results():
     np.testing.assert_array_equal(w, [0, 0, 0, 0, 0, 1, 0])  # non-finite residuals get weight 0
     assert dtalign.tukey_biweight_weights(np.zeros(0)).shape == (0,)
     cov = dtalign.information_matrix_to_covariance
-    # SPEC 2: no information is the zero matrix (the LM's degenerate result keeps +inf)
+    # :ref:`contract-numerics`: no information is the zero matrix (the LM's degenerate result keeps +inf)
     assert not cov(np.zeros((0, 3)), np.zeros(0)).any() and cov(np.zeros((0, 3)), np.zeros(0)).shape == (3, 3)
     assert not cov(np.ones((4, 2)), np.zeros(4)).any()
     assert cov(np.zeros((3, 0)), np.ones(3)).shape == (0, 0)
     rank1 = cov(np.array([[1.0, 0.0], [2.0, 0.0]]), np.ones(2))
-    np.testing.assert_allclose(rank1, [[0.2, 0.0], [0.0, 0.0]], rtol=1e-12)  # SPEC 6: null direction 0
+    np.testing.assert_allclose(rank1, [[0.2, 0.0], [0.0, 0.0]], rtol=1e-12)  # :ref:`contract-decisions`: null direction 0
     np.testing.assert_array_equal(dtalign.sample_dt_bilinear(np.full((1, 1), 2.0), [[-5.0, 7.0], [0.3, 0.2]]), [2, 2])
     row = np.arange(5.0)[None, :]
     np.testing.assert_array_equal(dtalign.sample_dt_bilinear(row, [[3.0, 1.25], [-1, 99]]), [1.25, 4.0])

@@ -80,7 +80,7 @@ _LAZY: dict[str, str] = {
     "ProfileRefinement": ".pipeline.profile_fit",
 }
 
-#: Private names today's techniques import (SPEC section 8.6): importable,
+#: Private names today's techniques import (:ref:`contract-private`): importable,
 #: not in ``__all__``.
 _PRIVATE_LAZY: dict[str, str] = {
     "_rotate_vertices": ".api.sampling",

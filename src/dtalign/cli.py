@@ -739,20 +739,6 @@ def _label_jobs(jobs: list[_Job]) -> None:
         job.plot_name = re.sub(r"[^\w.+-]+", "_", stem)
 
 
-def _window(text: str) -> tuple[int, int]:
-    """``--window``: ``N`` for both axes or ``V,U``."""
-    parts = [p.strip() for p in str(text).split(",")]
-    if len(parts) not in (1, 2):
-        raise CLIError(f"--window takes one or two ints (N or V,U), got {text!r}")
-    try:
-        values = [int(p) for p in parts]
-    except ValueError:
-        raise CLIError(f"--window takes ints (N or V,U), got {text!r}") from None
-    if any(v < 0 for v in values):
-        raise CLIError(f"--window must be non-negative, got {text}")
-    return (values[0], values[0]) if len(values) == 1 else (values[0], values[1])
-
-
 def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
              messages: _Messages) -> tuple[Any, Any, Any]:
     import dtalign.io as io
@@ -916,7 +902,9 @@ def _offset_line(fit: Any) -> str:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    window = _window(args.window)
+    from .api.checks import search_window
+
+    window = search_window(args.window, "--window", form="option")
     _sphere_model(args)  # a malformed --sphere is the command's error, before any image
     jobs, batch = _jobs(args)
     zooms = _zoom_points(args)

@@ -12,6 +12,6 @@ import sys
 
 from .api import ridge as _ridge
 
-# SPEC section 8.1: the module object replaces this one in sys.modules, so
+# :ref:`contract-changes`: the module object replaces this one in sys.modules, so
 # ``import dtalign.ridge`` and the package attribute ``dtalign.ridge`` are it.
 sys.modules[__name__] = _ridge

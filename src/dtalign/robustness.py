@@ -75,7 +75,7 @@ CORRECT_TOLERANCE_PX: float = 0.5
 _SHAPE: tuple[int, int] = (256, 256)
 
 #: The noise of every family but ``heavy_noise``, in DN on a 100 DN body:
-#: the SPEC section 7 level.
+#: the level of the scenes of :ref:`contract-scenes`.
 _NOISE_DN: float = 2.0
 
 #: Vertices per model polyline: dense enough that the robust cost is smooth,

@@ -1,6 +1,6 @@
-"""SPEC §8.4: ``find_secondary_dt_minimum`` (the competing-basin second opinion).
+""":ref:`contract-basin`: ``find_secondary_dt_minimum`` (the competing-basin second opinion).
 
-Expected values come from the SPEC by hand or from ``_expected_basin``, a
+Expected values come from the contract by hand or from ``_expected_basin``, a
 brute-force NumPy transcription of §8.4 (costs with NumPy's ``.mean()``).
 """
 

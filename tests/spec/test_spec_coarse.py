@@ -1,6 +1,6 @@
-"""SPEC §2 (coarse search, polyline mask, polarity, Tukey, sampler) and §8.1/§8.2.
+""":ref:`contract-numerics` (coarse search, polyline mask, polarity, Tukey, sampler) and §8.1/§8.2.
 
-Expected values come from the SPEC by hand, or from a tiny brute-force NumPy
+Expected values come from the contract by hand, or from a tiny brute-force NumPy
 transcription of §2/§8.2 inside this file (``_expected_ncc``) on small arrays.
 """
 
@@ -19,7 +19,7 @@ pytestmark = pytest.mark.filterwarnings("error")
 # ---------------------------------------------------------------- §8.2 transcription
 
 def _expected_ncc(edge, poly, window, fraction):
-    """§2 + §8.2 on small arrays, written from the SPEC text."""
+    """§2 + §8.2 on small arrays, written from the contract's text."""
     edge = np.asarray(edge)
     poly = np.asarray(poly)
     h, w = edge.shape

@@ -1,4 +1,4 @@
-"""SPEC §9: every error text, verbatim, and the order of checks of §§1, 3, 4 and 8.
+""":ref:`contract-errors`: every error text, verbatim, and the order of checks of §§1, 3, 4 and 8.
 
 Each text is matched with ``pytest.raises(..., match=re.escape(text))`` with
 its placeholders filled as an f-string would fill them. Order tests build an

@@ -1,4 +1,4 @@
-"""SPEC §8.5: ``DTFitGateConfig``, ``DTFitGateVerdict``, ``evaluate_dt_fit_gates``."""
+""":ref:`contract-gates`: ``DTFitGateConfig``, ``DTFitGateVerdict``, ``evaluate_dt_fit_gates``."""
 
 from __future__ import annotations
 

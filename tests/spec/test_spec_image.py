@@ -1,4 +1,4 @@
-"""SPEC §5 (image side), checked by properties that follow from its text."""
+""":ref:`contract-image` (image side), checked by properties that follow from its text."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""SPEC §2 (covariance), §3 and §8.1: ``lm_subpixel_refine`` and its ridge stage.
+""":ref:`contract-numerics` (covariance), §3 and §8.1: ``lm_subpixel_refine`` and its ridge stage.
 
 The scene: a DT that is the distance to a circle of radius 6 centred at (12, 12)
 on a 25 x 25 grid; the image gradient points radially outward with a
@@ -352,7 +352,7 @@ def test_ridge_not_called_when_off(monkeypatch):
 
 
 def test_unreplaced_ridge_stage_composes_as_spec():
-    # §3 step 4 with the compiled ridge: the same as running the LM, then
+    # §3 step 3 with the compiled ridge: the same as running the LM, then
     # gradient_ridge_refine from its pose with the §8.1 keywords
     dt, grad, verts, normals = _scene()
     sig = np.ones(len(verts))
@@ -483,7 +483,7 @@ def test_ridge_weight_mask_zero_no_iteration():
     assert not r.applied and r.iterations == 0 and r.offset_vu == (0.0, 0.0)
 
 
-# ---------------------------------------------------------------- §2 Jacobian and §3 step 5
+# ---------------------------------------------------------------- §2 Jacobian and §3 step 4
 
 def _pose(verts, pivot, dv, du, theta):
     rot = verts if theta == 0.0 else np.asarray(dtalign._rotate_vertices(verts, pivot, theta))

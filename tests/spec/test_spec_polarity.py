@@ -1,6 +1,6 @@
-"""SPEC §8.3: ``coarse_polarity_search_scored``.
+""":ref:`contract-polarity-search`: ``coarse_polarity_search_scored``.
 
-Expected values come from the SPEC by hand or from ``_expected_polarity``, a
+Expected values come from the contract by hand or from ``_expected_polarity``, a
 brute-force NumPy transcription of §8.3 on small arrays (the score summed with
 ``np.sum`` exactly as §8.3 says).
 """

@@ -1,6 +1,7 @@
-"""SPEC §1 and §8: the names, constants, signatures and result dataclasses.
+""":ref:`contract-surface` and §8: the names, constants, signatures and result dataclasses.
 
-Written only against ``/work/shared/SPEC.md`` (§§1-5, §8, §9). Every name is
+Written only against the contract (``docs/contract.rst``, §§1-5, §8, §9).
+A ``§N`` in these files is section N of the contract. Every name is
 looked up on the ``dtalign`` module inside the test, so a missing name fails
 its own tests rather than the whole file.
 """

@@ -1,4 +1,4 @@
-"""The competing-basin scan of ``find_secondary_dt_minimum`` (SPEC section 8.4).
+"""The competing-basin scan of ``find_secondary_dt_minimum`` (:ref:`contract-basin`).
 
 Costs are means of bilinear DT samples computed exactly as the reference
 computes them (the same operations in the same order, and NumPy's pairwise
@@ -479,7 +479,7 @@ def secondary_basin(dt, pts, cdv, cdu, mv, mu, radius, min_support):
     slack = CARRY_SLACK + (2 * n + 16 + 4 * max(h, w)) * ROUNDING
     carry = CARRY_STEPS * max(step_v, step_h) * (1.0 + slack)
     found = False
-    best = (math.inf, math.inf, 0, 0)  # (cost, distance, dv, du): the SPEC order
+    best = (math.inf, math.inf, 0, 0)  # (cost, distance, dv, du): the order of :ref:`contract-basin`
     near = int(math.ceil(radius)) + NEAR_RING if radius < nv + nu else nv + nu
     a_c = int(round(cdv)) + mv
     b_c = int(round(cdu)) + mu

@@ -8,7 +8,7 @@ import numpy as np
 
 from .._jit import kernel
 
-#: Status codes of :func:`polyline_status`, in SPEC section 1's check order.
+#: Status codes of :func:`polyline_status`, in the check order of :ref:`contract-errors`.
 OK = 0
 BAD_VERTICES = 1
 BAD_NORMALS = 2

@@ -1,4 +1,4 @@
-"""Coarse integer search over the sparse polyline support (SPEC section 2).
+"""Coarse integer search over the sparse polyline support (:ref:`contract-numerics`).
 
 Instead of gathering edge pixels once per shift (what the reference does),
 each polyline pixel scatters its contribution into the whole score table.
@@ -252,8 +252,9 @@ def overlap_dense(pv, pu, flat, h, w, mv, mu):
 
 @inline_kernel
 def better(score, dv, du, best_score, best_dv, best_du):
-    """SPEC's order of shifts: a higher score, or an equal one with the smaller
-    ``(|dv| + |du|, |dv|, dv, du)``. A NaN score never wins."""
+    """The contract's order of shifts (:ref:`contract-numerics`): a higher
+    score, or an equal one with the smaller ``(|dv| + |du|, |dv|, dv, du)``.
+    A NaN score never wins."""
     if score > best_score:
         return True
     if score != best_score:
@@ -452,7 +453,7 @@ def polyline_support(poly):
 
 @kernel
 def coarse_search_scored(edge, poly, mv, mu, fraction):
-    """SPEC 8.2: ``(dv, du, score)``, ``score`` before the ``max(score, 0)``.
+    """:ref:`contract-coarse-scored`: ``(dv, du, score)``, ``score`` before the ``max(score, 0)``.
 
     ``edge`` and ``poly`` are bool masks of the same, non-empty shape.
     """

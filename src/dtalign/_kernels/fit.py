@@ -1,8 +1,8 @@
 """One compiled call for a whole ``lm_subpixel_refine``: polarity, LM, ridge, summary.
 
-Each Numba dispatch costs about a microsecond of argument unboxing, and a
-fit of 200 vertices takes ~100 us, so the stages run inside one kernel and
-Python only validates before and wraps the result after.
+Each Numba dispatch's argument unboxing costs about a hundredth of a fit of
+200 vertices, so the stages run inside one kernel and Python only validates
+before and wraps the result after.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def _failed(error, pose0, n, n_params):
 
 @kernel
 def accepted_raw_rms(r, pol):
-    """SPEC 8.1's ``raw_rms_px``: ``sqrt(mean(r**2))`` over the vertices the
+    """``raw_rms_px`` as :ref:`contract-changes` defines it: ``sqrt(mean(r**2))`` over the vertices the
     seed polarity mask accepted, summed as NumPy's ``mean`` sums (pairwise),
     so it equals the reference's bit for bit; ``+inf`` when none is."""
     squares = np.empty(r.shape[0])
@@ -76,7 +76,7 @@ def _summary(r, w):
 
 @kernel
 def fit(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts):
-    """SPEC section 3, steps 1-5.
+    """:ref:`contract-lm`, steps 1-4.
 
     ``opts`` is the one record of LM / ridge options
     (:class:`dtalign.api.options.LMKernelOptions`, a named tuple: Numba
@@ -103,10 +103,10 @@ def fit_with_mask(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts, p
     """:func:`fit` from a given seed polarity mask ``pol`` (1.0 accepted, 0.0
     not; ``opts.use_polarity`` is not read).
 
-    With ``opts.max_iterations == 0`` and no ridge it is SPEC section 3 step
-    3 and 5 alone: the state and summary at ``pose0``, what
+    With ``opts.max_iterations == 0`` and no ridge it is the result of
+    :ref:`contract-lm` (step 4) at ``pose0`` alone: the state and summary there, what
     ``lm_subpixel_refine`` needs after a replaced ridge stage moved the pose
-    (SPEC 8.1).
+    (:ref:`contract-changes`).
     """
     fit_rotation = opts.fit_rotation
     tukey_c = opts.tukey_c
@@ -148,7 +148,7 @@ def fit_with_mask(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts, p
             return _failed(DIVERGED, pose0, n, n_params)
         if ridge_iterations > 0 and not moved > opts.ridge_max_displacement:
             pose = new_pose
-            converged = converged or ridge_converged  # SPEC 8.1
+            converged = converged or ridge_converged  # :ref:`contract-changes`
             inv_var = np.empty(n)
             for i in range(n):
                 inv_var[i] = 1.0 / (sig[i] * sig[i])

@@ -1,4 +1,4 @@
-"""Compiled kernels of the image side (SPEC section 5).
+"""Compiled kernels of the image side (:ref:`contract-image`).
 
 The whole pipeline (Gaussian smoothing, Sobel, magnitude, Canny thinning,
 first pass of the distance transform) streams over the image one row at a

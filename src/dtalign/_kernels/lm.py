@@ -1,4 +1,4 @@
-"""The Levenberg-Marquardt / Tukey IRLS loop of SPEC section 3, compiled whole.
+"""The Levenberg-Marquardt / Tukey IRLS loop of :ref:`contract-lm`, compiled whole.
 
 A pure-NumPy iteration spends most of its time in interpreter overhead on
 arrays of a few hundred vertices; compiling the whole loop removes that.
@@ -138,7 +138,7 @@ def lm_loop(
     dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, max_iterations,
     damping, step_tolerance, tukey_c, rcond, trust_region, tikhonov_alpha,
 ):
-    """The fit of SPEC section 3 steps 2-3.
+    """The fit of :ref:`contract-lm` step 2 (the state at the seed when no step is taken).
 
     ``trust_region < 0`` means no trust region. Returns the final pose
     ``(dv, du, theta)``, the iteration count, the converged flag, the

@@ -1,6 +1,6 @@
 """NumPy's pairwise float64 summation, reproduced operation for operation.
 
-SPEC section 8 fixes two scores as NumPy computes them: the polarity-weighted
+:ref:`contract-today` fixes two scores as NumPy computes them: the polarity-weighted
 coarse score (``np.sum`` of the weights) and the secondary-basin cost
 (``.mean()`` of the samples). Equal scores must compare equal exactly as in
 the reference (ties decide the winner), so these sums are not just

@@ -1,4 +1,4 @@
-"""The polarity-weighted coarse search (SPEC section 8.3).
+"""The polarity-weighted coarse search (:ref:`contract-polarity-search`).
 
 Each vertex scores ``max(n_hat . g / |g|, 0)`` where its shifted base pixel
 is an edge pixel, and 0 elsewhere; a shift's score is NumPy's pairwise sum

@@ -1,4 +1,4 @@
-"""Gradient-ridge polish of SPEC section 4, compiled whole.
+"""Gradient-ridge polish of :ref:`contract-ridge`, compiled whole.
 
 The magnitude comes either as a gradient-magnitude image or, from the LM
 driver, as the gradient-vector image, whose magnitude is formed only in a

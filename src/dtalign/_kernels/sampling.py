@@ -1,6 +1,6 @@
 """Bilinear sampling and the rigid pose transform, one point at a time.
 
-The arithmetic is written in exactly the order of SPEC section 2 (and of
+The arithmetic is written in exactly the order of :ref:`contract-numerics` (and of
 :mod:`dtalign.reference`), so a sample here is bit-identical to the NumPy
 specification's.
 """
@@ -41,7 +41,7 @@ def cell(h, w, v, u):
 @inline_kernel
 def blend(a, b, c, d, fv, fu):
     """Corners ``a = (v0, u0)``, ``b = (v0, u1)``, ``c = (v1, u0)``,
-    ``d = (v1, u1)`` weighted in the order of SPEC section 2."""
+    ``d = (v1, u1)`` weighted in the order of :ref:`contract-numerics`."""
     return a * (1 - fv) * (1 - fu) + b * (1 - fv) * fu + c * fv * (1 - fu) + d * fv * fu
 
 

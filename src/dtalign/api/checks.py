@@ -7,18 +7,24 @@ kernel could trip on (a NaN cast to an index, a wrong trailing dimension)
 must be refused here. The message fragments the contract quotes
 (:ref:`contract-errors`) are part of the drop-in contract.
 
-The one module of argument checks, in three parts: the per-argument
-helpers; the whole-call checks of the fitting stages (``check_lm_inputs``
-and its siblings), shared by the compiled path and the reference so that
-both check in the same order (which decides the message a caller sees) and
-convert every array exactly once; and the image side's checks.
+The one module of argument checks, in five parts: the per-argument
+helpers (the search window in each form callers write it among them:
+``search_window``); the whole-call checks of the fitting stages
+(``check_lm_inputs`` and its siblings), shared by the compiled path and the
+reference so that both check in the same order (which decides the message a
+caller sees) and convert every array exactly once; the image side's checks;
+the batch functions' own arguments; and the fields of a record read from
+text or JSON (the campaign manifest's). A caller whose argument has another
+name passes it, so that each message is right where it is made.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import numbers
-from collections.abc import Mapping
+import re
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -102,10 +108,10 @@ def normals(value: Any, n_vertices: int) -> FloatArray:
 
 
 #: Image-sized arrays up to this many values are scanned for NaN/inf on
-#: every call (tens of microseconds). Larger ones are checked where the
-#: kernels read them: scanning a 1024 x 1024 DT and gradient costs ~1.3 ms,
-#: several times a whole LM fit, and a value never read cannot change a
-#: result. Any non-finite value a kernel does read raises ValueError.
+#: every call (a small part of a fit). Larger ones are checked where the
+#: kernels read them: scanning a 1024 x 1024 DT and gradient costs several
+#: times a whole LM fit, and a value never read cannot change a result.
+#: Any non-finite value a kernel does read raises ValueError.
 FULL_SCAN_MAX_SIZE = 1 << 16
 
 
@@ -221,25 +227,86 @@ def shape2(value: Any, name: str = "shape_vu") -> tuple[int, int]:
     return count(value[0], f"{name}[0]"), count(value[1], f"{name}[1]")
 
 
-def search_window(value: Any) -> tuple[int, int]:
-    """The coarse-search margin: a tuple/list of two non-negative ints.
+#: The forms a search window is written in, each with the wording its
+#: writer reads: ``"argument"``, the drop-in functions' ``search_window_vu``
+#: (a tuple or list of two ints, checked in the contract's order:
+#: :ref:`contract-errors`); ``"option"``, a command-line option's text
+#: (``N`` for both axes or ``V,U``); ``"field"``, a manifest field or a
+#: campaign default (an int, a list of one or two ints, or that text, whose
+#: two ints may also be separated by a space, as in a CSV cell).
+WINDOW_FORMS = ("argument", "option", "field")
 
-    Checked in the contract's order (:ref:`contract-errors`): the container, each entry's type,
-    then the sign (so a ``(-1, 2.0)`` window is a TypeError, as upstream).
+#: What separates the two ints of a window written as text.
+_WINDOW_SEPARATOR = re.compile(r"\s*,\s*|\s+")
+
+
+def search_window(value: Any, name: str = "search_window_vu", *,
+                  form: str = "argument") -> tuple[int, int]:
+    """The coarse-search margin ``(mv, mu)``: two non-negative ints.
+
+    Parameters
+    ----------
+    value : Any
+        The window as the caller wrote it (see :data:`WINDOW_FORMS`).
+    name : str, optional
+        How the messages name it (``search_window_vu``, ``--window``, a
+        manifest's ``"manifest m.jsonl line 3: window"``).
+    form : {"argument", "option", "field"}, optional
+        The form ``value`` is written in, and so what is accepted:
+        ``"argument"`` only a tuple or list of two ints, checked in the
+        contract's order (the container, each entry's type, then the sign:
+        a ``(-1, 2.0)`` window is a TypeError, as upstream); ``"option"``
+        the text ``N`` or ``V,U``; ``"field"`` also an int or a list of one
+        or two ints.
+
+    Raises
+    ------
+    ValueError
+        If ``value`` is not of its form, or a margin is negative.
+    TypeError
+        If an entry of an ``"argument"`` window is not an int.
     """
-    if not isinstance(value, (tuple, list)) or len(value) != 2:
-        raise ValueError(
-            f"search_window_vu must be a length-2 sequence of ints; got {value!r}"
-        )
-    for i, item in enumerate(value):
-        if isinstance(item, (bool, np.bool_)) or not isinstance(item, numbers.Integral):
-            raise TypeError(
-                f"search_window_vu[{i}] must be int; got {type(item).__name__}"
-            )
-    mv, mu = int(value[0]), int(value[1])
+    if form == "argument":
+        if not isinstance(value, (tuple, list)) or len(value) != 2:
+            raise ValueError(f"{name} must be a length-2 sequence of ints; got {value!r}")
+        for i, item in enumerate(value):
+            if not _is_int(item):
+                raise TypeError(f"{name}[{i}] must be int; got {type(item).__name__}")
+        mv, mu = int(value[0]), int(value[1])
+        if mv < 0 or mu < 0:
+            raise ValueError(f"{name} must be non-negative; got {value!r}")
+        return mv, mu
+    if form not in WINDOW_FORMS:
+        raise ValueError(f"form must be one of {WINDOW_FORMS}, got {form!r}")
+    option = form == "option"
+    if option or isinstance(value, str):
+        parts = _WINDOW_SEPARATOR.split(str(value).strip())
+        if option and len(parts) > 2:
+            raise ValueError(f"{name} takes one or two ints (N or V,U), got {value!r}")
+        try:
+            entries: Any = [int(p) for p in parts]
+        except ValueError:
+            if option:
+                raise ValueError(f"{name} takes ints (N or V,U), got {value!r}") from None
+            raise ValueError(f"{name} takes one int or two separated by a comma or a space, "
+                             f"got {value!r}") from None
+    elif _is_int(value):
+        entries = [value]
+    else:
+        entries = value
+    if (not isinstance(entries, (list, tuple)) or len(entries) not in (1, 2)
+            or not all(_is_int(v) for v in entries)):
+        raise ValueError(f"{name} must be an int or a list of two ints, got {value!r}")
+    mv, mu = int(entries[0]), int(entries[-1])
     if mv < 0 or mu < 0:
-        raise ValueError(f"search_window_vu must be non-negative; got {value!r}")
+        shown = value if option else repr(value)
+        raise ValueError(f"{name} must be non-negative, got {shown}")
     return mv, mu
+
+
+def _is_int(value: Any) -> bool:
+    """An integral number that is not a bool."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
 
 
 def mask2d(value: Any, name: str) -> NDArray[np.bool_]:
@@ -412,7 +479,7 @@ def resolve_pivot(verts: FloatArray, pivot_vu: Any) -> tuple[float, float]:
 
 
 # ---------------------------------------------------------------------------
-# Ranges that keep a call bounded. Each is checked after the SPEC-ordered
+# Ranges that keep a call bounded. Each is checked after the contract-ordered
 # checks of its function and names the argument.
 # ---------------------------------------------------------------------------
 
@@ -672,6 +739,21 @@ def check_basin_inputs(
     return BasinArgs(dt, verts, converged, mv, mu, radius, fraction)
 
 
+def _pose_keywords(
+    verts: FloatArray, kw: Mapping[str, Any], fit_rotation: bool, centroid: tuple[float, float],
+) -> tuple[tuple[float, float], float, tuple[float, float], float]:
+    """:func:`pose` of the keywords LM and the ridge polish share."""
+    return pose(
+        verts,
+        fit_rotation=fit_rotation,
+        pivot_vu=kw["pivot_vu"],
+        pivot_distance_px=kw["pivot_distance_px"],
+        initial_offset_vu=kw["initial_offset_vu"],
+        initial_rotation_rad=kw["initial_rotation_rad"],
+        centroid=centroid,
+    )
+
+
 class LMArgs(NamedTuple):
     """Validated, converted arguments of ``lm_subpixel_refine``."""
 
@@ -722,15 +804,7 @@ def check_lm_inputs(
     verts, norms, sig, centroid = checked
     dt = kw["image_edge_dt"] if trusted_images else image2d(kw["image_edge_dt"], "image_edge_dt")
     fit_rotation = bool(kw["fit_rotation"])
-    offset, rotation, pivot, distance = pose(
-        verts,
-        fit_rotation=fit_rotation,
-        pivot_vu=kw["pivot_vu"],
-        pivot_distance_px=kw["pivot_distance_px"],
-        initial_offset_vu=kw["initial_offset_vu"],
-        initial_rotation_rad=kw["initial_rotation_rad"],
-        centroid=centroid,
-    )
+    offset, rotation, pivot, distance = _pose_keywords(verts, kw, fit_rotation, centroid)
     has_gradient = kw["image_gradient_vu"] is not None
     if kw["final_gradient_ridge"] and not has_gradient:
         raise ValueError("final_gradient_ridge=True requires image_gradient_vu")
@@ -790,15 +864,7 @@ def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
     )
     magnitude = image2d(kw["gradient_magnitude"], "gradient_magnitude")
     fit_rotation = bool(kw["fit_rotation"])
-    offset, rotation, pivot, distance = pose(
-        verts,
-        fit_rotation=fit_rotation,
-        pivot_vu=kw["pivot_vu"],
-        pivot_distance_px=kw["pivot_distance_px"],
-        initial_offset_vu=kw["initial_offset_vu"],
-        initial_rotation_rad=kw["initial_rotation_rad"],
-        centroid=centroid,
-    )
+    offset, rotation, pivot, distance = _pose_keywords(verts, kw, fit_rotation, centroid)
     half_width = positive_real(kw["half_width_px"], "half_width_px")
     sample_step = positive_real(kw["sample_step_px"], "sample_step_px")
     ratio = half_width / sample_step
@@ -831,7 +897,7 @@ def check_ridge_inputs(kw: Mapping[str, Any]) -> RidgeArgs:
 
 
 # ---------------------------------------------------------------------------
-# The image side (SPEC sections 1 and 5)
+# The image side (:ref:`contract-surface` and :ref:`contract-image`)
 # ---------------------------------------------------------------------------
 
 
@@ -846,19 +912,20 @@ def resolve_config(config: Any) -> ImageDerivativesConfig:
     return config
 
 
-def check_image(image_ext: Any) -> FloatArray:
-    """A non-empty, finite 2-D image as C-contiguous float64."""
+def check_image(image_ext: Any, name: str = "image_ext") -> FloatArray:
+    """A non-empty, finite 2-D image as C-contiguous float64 (``name``: the
+    argument's name in the messages, the drop-in functions' ``image_ext``)."""
     arr = np.asarray(image_ext)
     if arr.ndim != 2:
-        raise TypeError(f"image_ext must be 2-D; got ndim={arr.ndim}")
+        raise TypeError(f"{name} must be 2-D; got ndim={arr.ndim}")
     if arr.dtype.kind not in "biuf":
-        raise TypeError(f"image_ext must be a real numeric array, got dtype {arr.dtype}")
+        raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
     if arr.size == 0:
-        raise ValueError(f"image_ext must not be empty, got shape {arr.shape}")
+        raise ValueError(f"{name} must not be empty, got shape {arr.shape}")
     out = np.ascontiguousarray(arr, dtype=np.float64)
     if not np.isfinite(out).all():
         raise ValueError(
-            "image_ext must contain only finite values; NaN or +/-inf would propagate "
+            f"{name} must contain only finite values; NaN or +/-inf would propagate "
             "through gaussian_filter / sobel and poison every derivative downstream"
         )
     return readonly(out)
@@ -875,16 +942,17 @@ def check_sigma_px(sigma_px: Any) -> float:
     return value
 
 
-def check_noise_sigma(image_noise_sigma: Any) -> float:
-    """The image noise sigma: finite and >= 0."""
+def check_noise_sigma(image_noise_sigma: Any, name: str = "image_noise_sigma") -> float:
+    """The image noise sigma: finite and >= 0 (``name``: the argument's name
+    in the messages, the drop-in functions' ``image_noise_sigma``)."""
     try:
-        value = real(image_noise_sigma, "image_noise_sigma")
+        value = real(image_noise_sigma, name)
     except TypeError as exc:
         raise ValueError(
-            f"image_noise_sigma must be finite and >= 0; got {image_noise_sigma!r}"
+            f"{name} must be finite and >= 0; got {image_noise_sigma!r}"
         ) from exc
     if not (math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"image_noise_sigma must be finite and >= 0; got {value!r}")
+        raise ValueError(f"{name} must be finite and >= 0; got {value!r}")
     return value
 
 
@@ -898,3 +966,159 @@ def positive_int(value: Any, name: str) -> int:
 def check_seeds(seeds: Any) -> int:
     """The number of starts of a multi-start fit: a positive int."""
     return positive_int(seeds, "seeds")
+
+
+# ---------------------------------------------------------------------------
+# The batch functions' own arguments (fit_many, fit_images, map_ordered)
+# ---------------------------------------------------------------------------
+
+#: The accepted values of ``errors``: raise the first error, or collect each.
+ERROR_MODES = ("raise", "collect")
+
+
+def workers(value: Any) -> int:
+    """A worker count: an int >= 1 (bool refused)."""
+    if not _is_int(value):
+        raise TypeError(f"workers must be an int >= 1, got {type(value).__name__}")
+    if value < 1:
+        raise ValueError(f"workers must be >= 1, got {value}")
+    return int(value)
+
+
+def int_at_least(value: Any, name: str, low: int = 1) -> int:
+    """An int (bool refused) of at least ``low``; any fault is one ValueError
+    (the campaign's settings: ``flush_items``, ``frames`` ...)."""
+    if not _is_int(value) or value < low:
+        raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+    return int(value)
+
+
+def collect_errors(errors: Any) -> bool:
+    """Whether ``errors`` (one of :data:`ERROR_MODES`) asks to collect (else raise)."""
+    if not isinstance(errors, str) or errors not in ERROR_MODES:
+        raise ValueError(f"errors must be one of {ERROR_MODES}, got {errors!r}")
+    return errors == "collect"
+
+
+def progress_callback(progress: Any) -> Callable[[int, int], Any] | bool | None:
+    """``progress``: a callable ``progress(done, total)``, True (a tqdm bar) or None."""
+    if progress is None or isinstance(progress, bool) or callable(progress):
+        return progress
+    raise TypeError(
+        f"progress must be a callable progress(done, total), True (a tqdm bar) or None, "
+        f"got {type(progress).__name__}"
+    )
+
+
+# ---------------------------------------------------------------------------
+# Fields of a record written as text or JSON (the campaign manifest's)
+#
+# ``name`` says where the value was read (``"manifest m.jsonl line 3:
+# noise_sigma"``), so each message names the field and its line as written.
+# ---------------------------------------------------------------------------
+
+
+def blank(value: Any) -> bool:
+    """No value: absent (None) or an empty CSV cell."""
+    return value is None or (isinstance(value, str) and not value.strip())
+
+
+def known_names(given: Iterable[str], accepted: Sequence[str], what: str, where: str = "") -> None:
+    """Refuse names outside ``accepted``, listing the unknown ones and the accepted ones.
+
+    The message reads ``"{where}: unknown {what}(s) 'a', 'b'; accepted: ..."``.
+    """
+    unknown = sorted(set(given) - set(accepted))
+    if unknown:
+        raise ValueError(f"{where + ': ' if where else ''}unknown {what}(s) "
+                         f"{', '.join(map(repr, unknown))}; accepted: {', '.join(accepted)}")
+
+
+def path_text(value: Any, name: str) -> str:
+    """A non-empty path, stripped of surrounding blanks."""
+    if not isinstance(value, str) or not value.strip():
+        raise ValueError(f"{name} must be a non-empty path")
+    return value.strip()
+
+
+def path_list(value: Any, name: str, separator: str) -> tuple[str, ...]:
+    """One or more non-empty paths: a list, or text separated by ``separator``."""
+    paths: Sequence[Any]
+    if value is None:
+        raise ValueError(f"{name} is missing")
+    if isinstance(value, str):
+        paths = [p.strip() for p in value.split(separator)]
+    elif isinstance(value, (list, tuple)):
+        paths = value
+    else:
+        raise ValueError(f"{name} must be a path or a list of paths")
+    if not paths or any(not isinstance(p, str) or not p.strip() for p in paths):
+        raise ValueError(f"{name} must hold one or more non-empty paths")
+    return tuple(p.strip() for p in paths)
+
+
+def label(value: Any, name: str, default: str) -> str:
+    """A name (a string, or an int written as one); ``default`` when blank."""
+    if blank(value):
+        return default
+    if not isinstance(value, (str, int)) or isinstance(value, bool):
+        raise ValueError(f"{name} must be a string, got {type(value).__name__}")
+    return str(value).strip()
+
+
+def optional_nonnegative(value: Any, name: str) -> float | None:
+    """None when blank, else a finite number >= 0 (text is read as a number)."""
+    if blank(value):
+        return None
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(out) or out < 0.0:
+        raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    return out
+
+
+def json_object(value: Any, name: str) -> dict[str, Any]:
+    """A mapping, or JSON text of an object; empty when blank."""
+    if blank(value):
+        return {}
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{name} is not a JSON object: {exc.msg}") from None
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name} must be an object, got {type(value).__name__}")
+    return dict(value)
+
+
+def json_list(value: Any, length: int, name: str, per: str) -> list[Any]:
+    """A list of ``length`` entries (one per ``per``), or JSON text of one; empty when blank."""
+    if blank(value):
+        return []
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{name} is not a JSON list: {exc.msg}") from None
+    if not isinstance(value, (list, tuple)) or len(value) != length:
+        raise ValueError(f"{name} must be a list of {length} entries (one per {per}, "
+                         "null for none)")
+    return list(value)
+
+
+def keywords(value: Any, name: str, keys: Sequence[str], required: Sequence[str]) -> dict[str, Any]:
+    """An object of keyword arguments: only ``keys``, all of ``required``."""
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name} must be an object or null")
+    unknown = sorted(set(value) - set(keys))
+    missing = [key for key in required if key not in value]
+    if unknown or missing:
+        raise ValueError(
+            f"{name}: "
+            + (f"unknown key(s) {', '.join(map(repr, unknown))}; " if unknown else "")
+            + (f"missing {', '.join(missing)}; " if missing else "")
+            + f"keys: {', '.join(keys)}"
+        )
+    return dict(value)

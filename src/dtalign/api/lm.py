@@ -28,7 +28,7 @@ from .constants import (
 from .options import fit_arguments
 from .results import LMRefineResult
 
-#: The ridge stage as shipped; SPEC 8.1 lets a caller replace the module
+#: The ridge stage as shipped; :ref:`contract-changes` lets a caller replace the module
 #: attribute, and only then does the LM call out to Python for it.
 _compiled_ridge = _ridge_module.gradient_ridge_refine
 
@@ -115,7 +115,7 @@ def lm_subpixel_refine(
 
 
 def _ridge_replaced() -> bool:
-    """Whether a caller replaced ``dtalign.ridge.gradient_ridge_refine`` (SPEC 8.1)."""
+    """Whether a caller replaced ``dtalign.ridge.gradient_ridge_refine`` (:ref:`contract-changes`)."""
     return _ridge_module.gradient_ridge_refine is not _compiled_ridge
 
 
@@ -145,7 +145,7 @@ def _result(out: tuple[Any, ...]) -> LMRefineResult:
 
 
 def _fit_with_replaced_ridge(a: LMArgs) -> LMRefineResult:
-    """SPEC 8.1: the LM compiled, then the caller's ridge stage, called with
+    """:ref:`contract-changes`: the LM compiled, then the caller's ridge stage, called with
     exactly the keywords the spec lists, then the state at its pose."""
     args = fit_arguments(a, ridge=False)
     grad = args[1]

@@ -70,13 +70,13 @@ def apply_translation(vertices_vu: ArrayLike, dv: float, du: float) -> FloatArra
 
 
 def _rotate_vertices(vertices_vu: Any, pivot_vu: Any, theta: float) -> Any:
-    """Rotate vertices by ``theta`` about ``pivot_vu`` (SPEC section 2's rotation).
+    """Rotate vertices by ``theta`` about ``pivot_vu`` (the pose rotation of :ref:`contract-numerics`).
 
     ``v' = pv + cos(theta) (v - pv) - sin(theta) (u - pu)``,
     ``u' = pu + sin(theta) (v - pv) + cos(theta) (u - pu)``. At exactly
     ``theta == 0.0`` the input object itself is returned (no arithmetic),
     as today's techniques rely on. Private, but imported by those techniques
-    (SPEC section 8.6).
+    (:ref:`contract-private`).
     """
     if theta == 0.0:
         return vertices_vu
@@ -93,7 +93,7 @@ def _rotate_directions(directions_vu: Any, theta: float) -> Any:
     """Rotate direction vectors (normals) by ``theta`` about the origin.
 
     The input object itself at exactly ``theta == 0.0``; private, imported
-    by today's techniques (SPEC section 8.6).
+    by today's techniques (:ref:`contract-private`).
     """
     if theta == 0.0:
         return directions_vu
@@ -104,7 +104,7 @@ def _rotate_directions(directions_vu: Any, theta: float) -> Any:
 
 
 #: The two rotations under public names for the package's own layers (the
-#: pipeline's hypotheses); the underscored names are the SPEC section 8.6
+#: pipeline's hypotheses); the underscored names are the :ref:`contract-private`
 #: ones today's techniques import from ``dtalign``, and stay the definitions.
 rotate_vertices = _rotate_vertices
 rotate_directions = _rotate_directions

@@ -98,8 +98,8 @@ def information_matrix_to_covariance(
     """
     jac, w, rcond = check_covariance_inputs(jacobian, weights, rcond)
     if jac.shape[0] == 0 or not (w > 0).any():
-        # SPEC 2: no information is the zero matrix here (a caller's s2 * cov
-        # with s2 == 0 must stay 0); the +inf sentinel is the LM's (SPEC 3)
+        # :ref:`contract-numerics`: no information is the zero matrix here (a caller's s2 * cov
+        # with s2 == 0 must stay 0); the +inf sentinel is the LM's (:ref:`contract-lm`)
         return np.zeros((jac.shape[1], jac.shape[1]))
     info, _ = _k.normal_equations(jac, w, np.zeros(jac.shape[0]), jac.shape[1])
     cov, ok = _k.symmetric_pinvh(info, rcond)

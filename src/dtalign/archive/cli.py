@@ -68,6 +68,7 @@ def command(args: argparse.Namespace) -> int:
     ValueError
         On a malformed command line or manifest (the caller prints it as one line).
     """
+    from ..api import checks as check
     from . import make_example, run
     from .store import Store
 
@@ -80,11 +81,7 @@ def command(args: argparse.Namespace) -> int:
         raise ValueError("archive needs MANIFEST and --out STORE (or --make-example DIR)")
     window = None
     if args.window is not None:
-        try:
-            window = [int(x) for x in args.window.split(",")]
-        except ValueError:
-            raise ValueError(f"--window takes one int or two separated by a comma, got "
-                             f"{args.window!r}") from None
+        window = check.search_window(args.window, "--window", form="field")
     if args.scheduler and args.workers is not None:
         raise ValueError("--workers starts a local cluster; with --scheduler the cluster's "
                          "own workers are used")

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..api import checks as check
 from .manifest import write_manifest
 
 __all__ = ["make_example"]
@@ -49,10 +50,8 @@ def make_example(
     from ..io.files import save_polyline_csv
     from ..scenes import navigation_scene
 
-    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-        raise ValueError(f"frames must be an int >= 1, got {frames!r}")
-    if isinstance(size, bool) or not isinstance(size, int) or size < 128:
-        raise ValueError(f"size must be an int >= 128, got {size!r}")
+    check.int_at_least(frames, "frames")
+    check.int_at_least(size, "size", 128)
     root = Path(directory)
     (root / "frames").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)

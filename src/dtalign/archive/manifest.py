@@ -29,8 +29,8 @@ Fields (only ``image`` and ``polylines`` are required):
 ``noise_sigma``
     The image noise sigma; estimated from the image when absent or null.
 ``window``
-    Coarse-search margin: an int for both axes or ``[mv, mu]``; the
-    campaign's default (30) when absent.
+    Coarse-search margin: an int for both axes or ``[mv, mu]`` (in a CSV
+    cell ``30`` or ``30 20``); the campaign's default (30) when absent.
 ``options``
     Keyword options of :func:`dtalign.pipeline.fit_polyline_products`
     (``fit_rotation``, ``trust_region_px``, ``use_polarity``, ...), over
@@ -60,13 +60,13 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import math
-import numbers
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from ..api import checks as check
 
 __all__ = ["DEFAULT_WINDOW", "FIELDS", "Item", "read_manifest", "write_manifest"]
 
@@ -179,95 +179,14 @@ def _where(path: Path, line: int) -> str:
     return f"manifest {path} line {line}"
 
 
-def _window(value: Any, where: str) -> tuple[int, int]:
-    if isinstance(value, str):
-        parts = value.replace(",", " ").split()
-        try:
-            value = [int(p) for p in parts]
-        except ValueError:
-            raise ValueError(f"{where}: window must be one or two ints, got {value!r}") from None
-    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
-        value = [value, value]
-    if (
-        not isinstance(value, (list, tuple))
-        or len(value) not in (1, 2)
-        or any(isinstance(v, bool) or not isinstance(v, numbers.Integral) for v in value)
-    ):
-        raise ValueError(f"{where}: window must be an int or a list of two ints, got {value!r}")
-    mv, mu = (value[0], value[0]) if len(value) == 1 else (value[0], value[1])
-    if mv < 0 or mu < 0:
-        raise ValueError(f"{where}: window must be non-negative, got {value!r}")
-    return int(mv), int(mu)
-
-
-def _noise(value: Any, where: str) -> float | None:
-    if value is None or (isinstance(value, str) and not value.strip()):
-        return None
-    try:
-        sigma = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: noise_sigma must be a number, got {value!r}") from None
-    if not math.isfinite(sigma) or sigma < 0.0:
-        raise ValueError(f"{where}: noise_sigma must be finite and >= 0, got {value!r}")
-    return sigma
-
-
-def _mapping(value: Any, name: str, where: str) -> dict[str, Any]:
-    if value is None or (isinstance(value, str) and not value.strip()):
-        return {}
-    if isinstance(value, str):
-        try:
-            value = json.loads(value)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{where}: {name} is not a JSON object: {exc.msg}") from None
-    if not isinstance(value, Mapping):
-        raise ValueError(f"{where}: {name} must be an object, got {type(value).__name__}")
-    return dict(value)
-
-
 def _spheres(value: Any, n: int, where: str) -> tuple[dict[str, Any] | None, ...]:
     """``spheres``: a list (JSON text in a CSV cell) of one sphere model or null per polyline."""
-    if value is None or (isinstance(value, str) and not value.strip()):
-        return ()
-    if isinstance(value, str):
-        try:
-            value = json.loads(value)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{where}: spheres is not a JSON list: {exc.msg}") from None
-    if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise ValueError(f"{where}: spheres must be a list of {n} entries (one per polyline, "
-                         "null for none)")
-    out: list[dict[str, Any] | None] = []
-    for k, entry in enumerate(value):
-        if entry is None:
-            out.append(None)
-            continue
-        if not isinstance(entry, Mapping):
-            raise ValueError(f"{where}: spheres[{k}] must be an object or null")
-        bad = sorted(set(entry) - set(SPHERE_KEYS))
-        missing = [key for key in _SPHERE_REQUIRED if key not in entry]
-        if bad or missing:
-            raise ValueError(
-                f"{where}: spheres[{k}]: "
-                + (f"unknown key(s) {', '.join(map(repr, bad))}; " if bad else "")
-                + (f"missing {', '.join(missing)}; " if missing else "")
-                + f"keys: {', '.join(SPHERE_KEYS)}"
-            )
-        out.append(dict(entry))
-    return tuple(out)
-
-
-def _polylines(value: Any, where: str) -> tuple[str, ...]:
-    paths: Sequence[Any]
-    if isinstance(value, str):
-        paths = [p.strip() for p in value.split(CSV_POLYLINE_SEPARATOR)]
-    elif isinstance(value, (list, tuple)):
-        paths = value
-    else:
-        raise ValueError(f"{where}: polylines must be a path or a list of paths")
-    if not paths or any(not isinstance(p, str) or not p.strip() for p in paths):
-        raise ValueError(f"{where}: polylines must hold one or more non-empty paths")
-    return tuple(p.strip() for p in paths)
+    entries = check.json_list(value, n, f"{where}: spheres", "polyline")
+    return tuple(
+        None if entry is None
+        else check.keywords(entry, f"{where}: spheres[{k}]", SPHERE_KEYS, _SPHERE_REQUIRED)
+        for k, entry in enumerate(entries)
+    )
 
 
 def _resolve(base: Path, p: str) -> str:
@@ -281,48 +200,26 @@ def _item(
 ) -> Item:
     if not isinstance(record, Mapping):
         raise ValueError(f"{where}: a record must be an object, got {type(record).__name__}")
-    unknown = sorted(set(record) - set(FIELDS))
-    if unknown:
-        raise ValueError(
-            f"{where}: unknown field(s) {', '.join(map(repr, unknown))}; known: {', '.join(FIELDS)}"
-        )
-    image = record.get("image")
-    if not isinstance(image, str) or not image.strip():
-        raise ValueError(f"{where}: image must be a non-empty path")
-    image = image.strip()
-    if record.get("polylines") is None:
-        raise ValueError(f"{where}: polylines is missing")
-    polylines = _polylines(record["polylines"], where)
-    item_id = record.get("id")
-    if item_id is None or (isinstance(item_id, str) and not item_id.strip()):
-        item_id = image
-    if not isinstance(item_id, (str, int)) or isinstance(item_id, bool):
-        raise ValueError(f"{where}: id must be a string, got {type(item_id).__name__}")
-    options = {**defaults.get("options", {}), **_mapping(record.get("options"), "options", where)}
-    bad = sorted(set(options) - option_names)
-    if bad:
-        raise ValueError(
-            f"{where}: unknown fit option(s) {', '.join(map(repr, bad))}; "
-            f"accepted: {', '.join(sorted(option_names))}"
-        )
-    config = _mapping(record.get("config"), "config", where)
-    bad = sorted(set(config) - set(_CONFIG_FIELDS))
-    if bad:
-        raise ValueError(
-            f"{where}: unknown config field(s) {', '.join(map(repr, bad))}; "
-            f"accepted: {', '.join(_CONFIG_FIELDS)}"
-        )
+    check.known_names(record, FIELDS, "field", where)
+    image = check.path_text(record.get("image"), f"{where}: image")
+    polylines = check.path_list(record.get("polylines"), f"{where}: polylines",
+                                CSV_POLYLINE_SEPARATOR)
+    item_id = check.label(record.get("id"), f"{where}: id", default=image)
+    options = {**defaults.get("options", {}),
+               **check.json_object(record.get("options"), f"{where}: options")}
+    check.known_names(options, sorted(option_names), "fit option", where)
+    config = check.json_object(record.get("config"), f"{where}: config")
+    check.known_names(config, _CONFIG_FIELDS, "config field", where)
     window = record.get("window")
-    if window is None or (isinstance(window, str) and not window.strip()):
-        window = defaults.get("window", DEFAULT_WINDOW)
     return Item(
-        id=str(item_id).strip(),
+        id=item_id,
         image=image,
         polylines=polylines,
         image_path=_resolve(base, image),
         polyline_paths=tuple(_resolve(base, p) for p in polylines),
-        noise_sigma=_noise(record.get("noise_sigma"), where),
-        window=_window(window, where),
+        noise_sigma=check.optional_nonnegative(record.get("noise_sigma"), f"{where}: noise_sigma"),
+        window=(defaults.get("window", DEFAULT_WINDOW) if check.blank(window)
+                else check.search_window(window, f"{where}: window", form="field")),
         options=options,
         config=config,
         line=line,
@@ -376,8 +273,9 @@ def read_manifest(
     path : str or path-like
         A ``.jsonl`` / ``.ndjson`` (JSON lines) or ``.csv`` manifest (see
         the module documentation for the fields).
-    window : int or tuple of int, optional
-        Default coarse-search margin of items that give none (30).
+    window : int, tuple of int or str, optional
+        Default coarse-search margin of items that give none (30), in any
+        form the ``window`` field takes (``dtalign.api.checks.search_window``).
     options : dict, optional
         Default fit options; an item's own ``options`` override them.
 
@@ -400,13 +298,9 @@ def read_manifest(
     names = fit_option_names()
     defaults: dict[str, Any] = {}
     if window is not None:
-        defaults["window"] = _window(window, "window")
+        defaults["window"] = check.search_window(window, "window", form="field")
     if options:
-        bad = sorted(set(options) - names)
-        if bad:
-            raise ValueError(
-                f"unknown fit option(s) {', '.join(map(repr, bad))}; accepted: {', '.join(sorted(names))}"
-            )
+        check.known_names(options, sorted(names), "fit option")
         defaults["options"] = dict(options)
     base = p.resolve().parent
     items: list[Item] = []
@@ -435,8 +329,6 @@ def write_manifest(path: PathLike, records: Sequence[Mapping[str, Any]]) -> Path
     p = Path(path)
     with open(p, "w", encoding="utf-8") as fh:
         for rec in records:
-            unknown = sorted(set(rec) - set(FIELDS))
-            if unknown:
-                raise ValueError(f"unknown manifest field(s) {', '.join(map(repr, unknown))}")
+            check.known_names(rec, FIELDS, "manifest field")
             fh.write(json.dumps(dict(rec)) + "\n")
     return p

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..api import checks as check
 from .manifest import Item, read_manifest
 from .store import Store
 from .tasks import failure_row, fit_item, fit_items
@@ -48,12 +49,12 @@ DEFAULT_FLUSH_SECONDS = 10.0
 #: few enough that the client and scheduler hold no campaign-sized state.
 DEFAULT_MAX_PENDING = 1000
 
-#: Items per task unless the caller says: Dask costs about 4.5 ms of CPU per
-#: task on the 2-core development machine (2 ms in the client's process,
-#: where a LocalCluster's scheduler runs, 2.5 ms on the worker), against
-#: ~28 ms for a 1024^2 frame with three polylines; four frames a task bring
-#: that from 16 % to 4 %, and let one scheduler (single-threaded, at ~2 ms a
-#: task) feed four times the workers (docs/campaign.rst, "Throughput").
+#: Items per task unless the caller says: Dask's CPU per task (a little less
+#: of it in the client's process, where a LocalCluster's scheduler runs, than
+#: on the worker) is about a sixth of a 1024^2 frame's fit with three
+#: polylines; four frames a task bring that from 16 % to 4 %, and let one
+#: scheduler (single-threaded) feed four times the workers
+#: (docs/campaign.rst, "Throughput", has the measurements).
 MAX_AUTO_ITEMS_PER_TASK = 4
 
 #: ...but never fewer than this many tasks per worker thread, so that a
@@ -92,7 +93,7 @@ def auto_items_per_task(items: int, threads: int) -> int:
 #: * no sampling profiler: it walks the task's stack every 10 ms for a
 #:   dashboard this cluster does not serve;
 #: * the event-loop health check every second, not every 20 ms, in every
-#:   process; these two are about a third of Dask's own CPU on ~30 ms tasks;
+#:   process; these two are about a third of Dask's own CPU on tasks of a frame;
 #: * workers keep the memory a task frees for the next one (glibc's settings,
 #:   through the pre-spawn environment; a user's variables of these names win).
 #:   Dask's MALLOC_TRIM_THRESHOLD_=65536 returns it at once and turns off
@@ -213,9 +214,7 @@ def _client(client: Any, scheduler: str | None, workers: int | None) -> Iterator
         with distributed.Client(scheduler) as c:
             yield c
         return
-    n = (os.cpu_count() or 1) if workers is None else workers
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise ValueError(f"workers must be an int >= 1, got {workers!r}")
+    n = check.int_at_least((os.cpu_count() or 1) if workers is None else workers, "workers")
     with _nanny_environ_restored(), local_cluster(n) as cluster, distributed.Client(cluster) as c:
         c._dtalign_owned = True  # _execute: closing it stops the tasks
         yield c
@@ -342,8 +341,8 @@ class _Writer:
 
     A finished task's rows stay on its worker until the part they belong to
     is written; the part's rows are then fetched in one ``client.gather``.
-    A fetch costs about 1.5 ms of CPU in the client's process and in the
-    worker's, whatever it carries, so one per part rather than per task
+    A fetch costs about a twentieth of a frame's fit in CPU, in the client's
+    process and in the worker's, whatever it carries, so one per part rather than per task
     (docs/campaign.rst, "Throughput"). A result whose worker dies before it
     is fetched is computed again by Dask (the client still holds its future).
     """
@@ -576,8 +575,7 @@ def run(
             raise ValueError("manifest items must have unique ids")
     for name, value in (("flush_items", flush_items), ("max_pending", max_pending),
                         ("items_per_task", 1 if items_per_task is None else items_per_task)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        check.int_at_least(value, name)
     st = store if isinstance(store, Store) else Store(store)
     summary = RunSummary(store=str(Path(st.path)), items=len(items))
     with st.lock():

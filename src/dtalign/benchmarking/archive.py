@@ -79,8 +79,8 @@ def _skipped(reason: str) -> list[dict[str, Any]]:
              "description": f"skipped: {reason}"}]
 
 
-#: The control task: SHA-256 over 40 MiB, 25-30 ms of GIL-free C code with
-#: the CPU's SHA instructions (about a frame's time: a shorter task would
+#: The control task: SHA-256 over 40 MiB, GIL-free C code with the CPU's SHA
+#: instructions that takes about a frame's time (a shorter task would
 #: measure Dask's cost per task more than the machine). Its 2-process scaling
 #: through the same cluster, a task each, is what the machine (other sessions
 #: share the cores) and Dask's cost per task allowed at that moment.
@@ -96,8 +96,8 @@ _CONTROL_BUFFER_MIB = 1
 
 
 #: The second control: compiled work bound by floating-point throughput
-#: (:mod:`~dtalign.benchmarking.fpload`), 270 units of ~0.11 ms, about a
-#: frame's time, the same two ways. Two virtual CPUs that share a physical
+#: (:mod:`~dtalign.benchmarking.fpload`), 270 units of about a fit each,
+#: about a frame's time, the same two ways. Two virtual CPUs that share a physical
 #: core's FP pipes scale far less on it than on SHA-256; the fits keep
 #: those pipes busy as it does.
 _FP_UNITS = 270

@@ -21,8 +21,7 @@ from ..pipeline.jobs import fp_throughput
 
 __all__ = ["LANES", "ROUNDS", "fp_throughput", "unit"]
 
-#: Rounds per work unit: ~0.11 ms on the development machine, about one fit
-#: of the batch row.
+#: Rounds per work unit: about the compiled work of one fit of the batch row.
 ROUNDS = 18_000
 
 

@@ -301,7 +301,7 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     that moment; below ~1.8 another process held the second core. A second
     control (``fp_control_ratio``) runs compiled work bound by
     floating-point throughput (:mod:`~dtalign.benchmarking.fpload`, units
-    of ~0.1 ms) the same way. SHA-256 is latency-bound, so it still scales
+    of about a fit each) the same way. SHA-256 is latency-bound, so it still scales
     on two virtual CPUs that share one physical core's execution units;
     code that keeps the FP pipes busy does not. A third control runs
     ``fit_many``'s compiled loop alone on the same 64 fits

@@ -90,7 +90,7 @@ class Inputs:
     limb_mask: np.ndarray
     lm: dict[str, dict[str, Any]]
     navigation: Any
-    limb: Any = None  # the 200-vertex limb polyline of the SPEC 7 disc
+    limb: Any = None  # the 200-vertex limb polyline of the disc scene (:ref:`contract-scenes`)
     converged_vu: tuple[float, float] = (0.0, 0.0)  # its LM fit, for the basin scan
 
 

@@ -94,7 +94,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 import os
 import queue
 import signal
@@ -115,6 +114,9 @@ from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
+from ..api.checks import collect_errors as _check_errors
+from ..api.checks import progress_callback as _check_progress
+from ..api.checks import workers as _check_workers
 from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
@@ -141,31 +143,8 @@ def _usable_cpus() -> int:
 DEFAULT_WORKERS = _usable_cpus()
 
 _EXECUTORS = ("thread", "process")
-_ERROR_MODES = ("raise", "collect")
 
 
-def _check_workers(workers: Any) -> int:
-    if isinstance(workers, bool) or not isinstance(workers, numbers.Integral):
-        raise TypeError(f"workers must be an int >= 1, got {type(workers).__name__}")
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
-    return int(workers)
-
-
-def _check_errors(errors: Any) -> bool:
-    """Whether ``errors`` asks to collect (else raise)."""
-    if not isinstance(errors, str) or errors not in _ERROR_MODES:
-        raise ValueError(f"errors must be one of {_ERROR_MODES}, got {errors!r}")
-    return errors == "collect"
-
-
-def _check_progress(progress: Any) -> Callable[[int, int], Any] | bool | None:
-    if progress is None or isinstance(progress, bool) or callable(progress):
-        return progress
-    raise TypeError(
-        f"progress must be a callable progress(done, total), True (a tqdm bar) or None, "
-        f"got {type(progress).__name__}"
-    )
 
 
 class _Progress:

@@ -308,10 +308,7 @@ def prepare_image(
     # colour: the rule of dtalign.api.colour, said on the logger
     image, note = grey_image(image)
     log_note(note)
-    try:
-        arr = check_image(image)
-    except (TypeError, ValueError) as exc:
-        raise type(exc)(str(exc).replace("image_ext", "image")) from None
+    arr = check_image(image, "image")
     cfg = resolve_config(config)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -321,10 +318,7 @@ def prepare_image(
         if logger.isEnabledFor(logging.INFO):
             _quantised_note(sigma)
     else:
-        try:
-            sigma = check_noise_sigma(noise_sigma)
-        except ValueError as exc:
-            raise ValueError(str(exc).replace("image_noise_sigma", "noise_sigma")) from None
+        sigma = check_noise_sigma(noise_sigma, "noise_sigma")
     t1 = time.perf_counter()
     timings["noise"] = t1 - t0
     magnitude, edge_dt, gradient_vu = _compute_all_image_derivatives(arr, sigma, config=cfg)

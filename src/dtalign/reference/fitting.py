@@ -49,7 +49,7 @@ from ..api.constants import (
 from ..api.results import CoarseSearchResult, LMRefineResult, RidgeRefineResult, SecondaryBasin
 
 # --------------------------------------------------------------------------
-# Sampling and pose (SPEC 2: bilinear sampler, pose transform)
+# Sampling and pose (:ref:`contract-numerics`: bilinear sampler, pose transform)
 # --------------------------------------------------------------------------
 
 
@@ -156,7 +156,7 @@ def _solve_normal_equations(matrix: FloatArray, rhs: FloatArray, rcond: float) -
 
 
 # --------------------------------------------------------------------------
-# Coarse search (SPEC 2: polyline mask, coarse search)
+# Coarse search (:ref:`contract-numerics`: polyline mask, coarse search)
 # --------------------------------------------------------------------------
 
 
@@ -186,7 +186,7 @@ def coarse_ncc_search(
 
 
 def _shift_key(dv: int, du: int) -> tuple[int, int, int, int]:
-    """The tie order of equal scores (SPEC 2)."""
+    """The tie order of equal scores (:ref:`contract-numerics`)."""
     return (abs(dv) + abs(du), abs(dv), dv, du)
 
 
@@ -328,7 +328,7 @@ def find_secondary_dt_minimum(
 
 
 # --------------------------------------------------------------------------
-# Polarity, Tukey, covariance (SPEC 2)
+# Polarity, Tukey, covariance (:ref:`contract-numerics`)
 # --------------------------------------------------------------------------
 
 
@@ -379,8 +379,8 @@ def information_matrix_to_covariance(
     """Pseudoinverse of the M-estimator information matrix ``J^T W J``."""
     jac, w, rcond = check_covariance_inputs(jacobian, weights, rcond)
     if jac.shape[0] == 0 or not (w > 0).any():
-        # SPEC 2: no information is the zero matrix here (a caller's s2 * cov
-        # with s2 == 0 must stay 0); the +inf sentinel is the LM's (SPEC 3)
+        # :ref:`contract-numerics`: no information is the zero matrix here (a caller's s2 * cov
+        # with s2 == 0 must stay 0); the +inf sentinel is the LM's (:ref:`contract-lm`)
         return np.zeros((jac.shape[1], jac.shape[1]))
     a = np.sqrt(w)[:, None] * jac
     info = a.T @ a
@@ -389,7 +389,7 @@ def information_matrix_to_covariance(
 
 
 # --------------------------------------------------------------------------
-# Levenberg-Marquardt with Tukey IRLS (SPEC 3)
+# Levenberg-Marquardt with Tukey IRLS (:ref:`contract-lm`)
 # --------------------------------------------------------------------------
 
 
@@ -444,9 +444,9 @@ def lm_subpixel_refine(
     converged = False
     state = None  # (r, w, J): the last state computed
     while iterations < a.max_iterations:
-        # Step 1 samples the state at the current pose on every iteration,
+        # Step 2a samples the state at the current pose on every iteration,
         # as the design's loop does (after an accepted step it was also
-        # computed in step 7: the same values, computed again).
+        # computed in step 2f of :ref:`contract-lm`: the same values, again).
         state = evaluate(pose)
         r, w, jac = state
         if not (w > 0).any():
@@ -483,7 +483,7 @@ def lm_subpixel_refine(
             pose = trial
             lam = max(lam / 2, LM_DAMPING_MIN)
             iterations += 1
-            state = evaluate(pose)  # step 7: the state at the accepted pose
+            state = evaluate(pose)  # step 2f: the state at the accepted pose
             if _step_norm(step, a.pivot_distance) < a.step_tolerance:
                 converged = True
                 break
@@ -498,7 +498,7 @@ def lm_subpixel_refine(
 
     if a.final_gradient_ridge and (w > 0).any():
         assert grad is not None  # check_lm_inputs refused the ridge without it
-        # SPEC 8.1: through the module attribute, so a caller may replace it
+        # :ref:`contract-changes`: through the module attribute, so a caller may replace it
         ridge = gradient_ridge_refine(
             vertices_vu=pts,
             normals_vu=nrm,
@@ -526,7 +526,7 @@ def lm_subpixel_refine(
     else:
         rms = float(np.sqrt(np.sum(w * r * r) / total_weight))
         cov = information_matrix_to_covariance(jac, w, rcond=a.pinvh_rcond)
-    # SPEC 8.1: over the vertices the seed polarity mask accepted
+    # :ref:`contract-changes`: over the vertices the seed polarity mask accepted
     accepted_r = r[polarity]
     raw_rms = float(np.sqrt(np.mean(accepted_r * accepted_r))) if accepted_r.size else float("inf")
     return LMRefineResult(
@@ -546,7 +546,7 @@ def lm_subpixel_refine(
 
 
 # --------------------------------------------------------------------------
-# Gradient-ridge polish (SPEC 4)
+# Gradient-ridge polish (:ref:`contract-ridge`)
 # --------------------------------------------------------------------------
 
 

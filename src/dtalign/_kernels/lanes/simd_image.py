@@ -134,7 +134,7 @@ class _Image:
         return out
 
     def _blend(self, a, bb, c, d, fv, gv, fu, gu):  # type: ignore[no-untyped-def]
-        """``sampling.blend``: the corners weighted in the order of SPEC section 2
+        """``sampling.blend``: the corners weighted in the order of :ref:`contract-numerics`
         (``gv = 1 - fv``, ``gu = 1 - fu``)."""
         b = self.b
         s = b.fmul(b.fmul(a, gv), gu)
