@@ -41,18 +41,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from . import checks as check
+from . import constants as c
 from .checks import FloatArray, LMArgs
-from .constants import (
-    DEFAULT_LM_DAMPING,
-    DEFAULT_LM_MAX_ITERATIONS,
-    DEFAULT_LM_STEP_TOLERANCE,
-    DEFAULT_PINVH_RCOND,
-    DEFAULT_RIDGE_HALF_WIDTH_PX,
-    DEFAULT_RIDGE_MAX_ITERATIONS,
-    DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX,
-    DEFAULT_RIDGE_SAMPLE_STEP_PX,
-    DEFAULT_TUKEY_C,
-)
 from .image import _use_libm_hypot
 
 __all__ = ["DEFAULT_SEARCH_WINDOW_VU", "DEFAULT_SEEDS", "NO_GRADIENT", "RIDGE_HALF",
@@ -135,11 +125,11 @@ class FitOptions:
     tikhonov_alpha: float = field(default=0.0, metadata=_LM)
     final_gradient_ridge: bool = field(default=False, metadata=_LM)
     initial_rotation_rad: float = field(default=0.0, metadata=_LM)
-    max_iterations: int = field(default=DEFAULT_LM_MAX_ITERATIONS, metadata=_LM)
-    damping: float = field(default=DEFAULT_LM_DAMPING, metadata=_LM)
-    step_tolerance_px: float = field(default=DEFAULT_LM_STEP_TOLERANCE, metadata=_LM)
-    tukey_c: float = field(default=DEFAULT_TUKEY_C, metadata=_LM)
-    pinvh_rcond: float = field(default=DEFAULT_PINVH_RCOND, metadata=_LM)
+    max_iterations: int = field(default=c.DEFAULT_LM_MAX_ITERATIONS, metadata=_LM)
+    damping: float = field(default=c.DEFAULT_LM_DAMPING, metadata=_LM)
+    step_tolerance_px: float = field(default=c.DEFAULT_LM_STEP_TOLERANCE, metadata=_LM)
+    tukey_c: float = field(default=c.DEFAULT_TUKEY_C, metadata=_LM)
+    pinvh_rcond: float = field(default=c.DEFAULT_PINVH_RCOND, metadata=_LM)
     seeds: int = DEFAULT_SEEDS
     ambiguity: bool = True
     edge_profile: Any = field(default=None, repr=False)
@@ -207,7 +197,7 @@ _DEFAULTS = FitOptions()
 
 #: The ridge polish inside LM runs with its defaults (:ref:`contract-lm`):
 #: this many profile samples on each side of a vertex.
-RIDGE_HALF = round(DEFAULT_RIDGE_HALF_WIDTH_PX / DEFAULT_RIDGE_SAMPLE_STEP_PX)
+RIDGE_HALF = round(c.DEFAULT_RIDGE_HALF_WIDTH_PX / c.DEFAULT_RIDGE_SAMPLE_STEP_PX)
 #: Stand-in gradient when none is given (never read: polarity and ridge are off).
 NO_GRADIENT = np.zeros((1, 1, 2))
 
@@ -256,10 +246,10 @@ def lm_kernel_options(a: LMArgs, ridge: bool | None = None) -> LMKernelOptions:
         tikhonov_alpha=float(a.tikhonov_alpha),
         ridge=bool(a.final_gradient_ridge if ridge is None else ridge),
         ridge_half=int(RIDGE_HALF),
-        ridge_sample_step=float(DEFAULT_RIDGE_SAMPLE_STEP_PX),
-        ridge_max_iterations=int(DEFAULT_RIDGE_MAX_ITERATIONS),
-        ridge_step_tolerance=float(DEFAULT_LM_STEP_TOLERANCE),
-        ridge_max_displacement=float(DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX),
+        ridge_sample_step=float(c.DEFAULT_RIDGE_SAMPLE_STEP_PX),
+        ridge_max_iterations=int(c.DEFAULT_RIDGE_MAX_ITERATIONS),
+        ridge_step_tolerance=float(c.DEFAULT_LM_STEP_TOLERANCE),
+        ridge_max_displacement=float(c.DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX),
         use_libm=bool(_use_libm_hypot()),
         # the pipeline's own options of the compiled LM, by name
         **{f.name: getattr(a.options or _DEFAULTS, f.name) for f in KERNEL_FIELDS},
