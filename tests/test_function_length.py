@@ -36,7 +36,6 @@ ALLOWED = {
     "pipeline/fit.py:PolylineFit.from_dict",
     "cli.py:_cmd_fit",
     # split next, one commit each
-    "archive/runner.py:_execute",
     "benchmarking/archive.py:measure_archive",
     "cli.py:_build",
     "cli.py:_cmd_demo",
