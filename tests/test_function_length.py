@@ -36,9 +36,6 @@ ALLOWED = {
     "pipeline/fit.py:PolylineFit.from_dict",
     "cli.py:_cmd_fit",
     # split next, one commit each
-    "benchmarking/archive.py:measure_archive",
-    "cli.py:_build",
-    "cli.py:_cmd_demo",
     "pipeline/profile_fit.py:refine_with_profile",
     "plotting.py:plot_fit",
     "scenes.py:render_sphere",
