@@ -37,7 +37,6 @@ ALLOWED = {
     "cli.py:_cmd_fit",
     # split next, one commit each
     "pipeline/profile_fit.py:refine_with_profile",
-    "scenes.py:render_sphere",
 }
 
 
