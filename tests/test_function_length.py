@@ -35,8 +35,6 @@ ALLOWED = {
     "pipeline/fit.py:PolylineFit.to_dict",
     "pipeline/fit.py:PolylineFit.from_dict",
     "cli.py:_cmd_fit",
-    # split next, one commit each
-    "pipeline/profile_fit.py:refine_with_profile",
 }
 
 
