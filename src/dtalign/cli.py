@@ -338,9 +338,8 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     _add_demo(sub)
     _add_fit(sub)
     _add_overlay(sub)
-    bench = sub.add_parser("bench", help="quick benchmark table", add_help=False,
-                           description="Run dtalign.benchmarking (options are passed through).")
-    bench.set_defaults(handler=_cmd_bench)
+    bench = _command(sub, "bench", _cmd_bench, "quick benchmark table",
+                     "Run dtalign.benchmarking (options are passed through).", add_help=False)
     bench.add_argument("args", nargs=argparse.REMAINDER)
     # archive: campaigns on Dask; the parser and command live in dtalign.archive.cli.
     from .archive import cli as archive_cli
@@ -349,15 +348,19 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     return parser, dict(sub.choices)
 
 
+def _command(sub: Any, name: str, handler: Callable[[argparse.Namespace], int], help: str,
+             description: str, **kwargs: Any) -> argparse.ArgumentParser:
+    """Subcommand ``name``'s parser; ``handler(args)`` runs it."""
+    p = sub.add_parser(name, help=help, description=description, **kwargs)
+    p.set_defaults(handler=handler)
+    return p
+
+
 def _add_demo(sub: Any) -> None:
-    demo = sub.add_parser(
-        "demo",
-        help="fit the synthetic disc scene and time each stage",
-        description="Build the seeded disc scene (a bright disc with a displaced limb "
-        "polyline), run derivatives, coarse search and LM, and print the truth, "
-        "the fit and the stage times.",
-    )
-    demo.set_defaults(handler=_cmd_demo)
+    demo = _command(sub, "demo", _cmd_demo, "fit the synthetic disc scene and time each stage",
+                    "Build the seeded disc scene (a bright disc with a displaced limb polyline), "
+                    "run derivatives, coarse search and LM, and print the truth, the fit and the "
+                    "stage times.")
     demo.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     demo.add_argument("--n-vertices", type=int, default=200, help="limb vertices (default 200)")
     demo.add_argument("--rotation", type=float, default=None, metavar="RAD",
@@ -374,16 +377,11 @@ def _add_demo(sub: Any) -> None:
 
 
 def _add_fit(sub: Any) -> None:
-    fit = sub.add_parser(
-        "fit",
-        help="fit model polylines (CSV v,u,nv,nu,sigma) to images",
-        description="Fit each IMAGE (.npy, .png, .fits) with its POLYLINE CSV "
-        "(header v,u,nv,nu,sigma; the normal (nv, nu) points to the bright side "
-        "of the edge). Give IMAGE POLYLINE pairs, or --batch/--glob for many "
-        "images whose polyline is the .csv of the same stem. Options may come "
-        "anywhere.",
-    )
-    fit.set_defaults(handler=_cmd_fit)
+    fit = _command(sub, "fit", _cmd_fit, "fit model polylines (CSV v,u,nv,nu,sigma) to images",
+                   "Fit each IMAGE (.npy, .png, .fits) with its POLYLINE CSV (header "
+                   "v,u,nv,nu,sigma; the normal (nv, nu) points to the bright side of the edge). "
+                   "Give IMAGE POLYLINE pairs, or --batch/--glob for many images whose polyline "
+                   "is the .csv of the same stem. Options may come anywhere.")
     fit.add_argument("pairs", nargs="*", metavar="IMAGE POLYLINE", help="image and polyline files")
     fit.add_argument("--batch", metavar="LIST", help="text file, one 'IMAGE [POLYLINE]' per line "
                      "(POLYLINE defaults to IMAGE's stem + .csv)")
@@ -420,13 +418,11 @@ def _add_sphere_options(fit: argparse.ArgumentParser) -> None:
 
 
 def _add_overlay(sub: Any) -> None:
-    overlay = sub.add_parser(
-        "overlay",
-        help="split a Cassini summary PNG into an image and a model polyline CSV",
-        description="Read a summary PNG (grey image + red model overlay), write the clean "
-        "grey image (.npy) and the traced overlay as a polyline CSV, optionally displaced.",
-    )
-    overlay.set_defaults(handler=_cmd_overlay)
+    overlay = _command(
+        sub, "overlay", _cmd_overlay,
+        "split a Cassini summary PNG into an image and a model polyline CSV",
+        "Read a summary PNG (grey image + red model overlay), write the clean grey image "
+        "(.npy) and the traced overlay as a polyline CSV, optionally displaced.")
     overlay.add_argument("png", metavar="PNG", help="the summary PNG")
     overlay.add_argument("--shape", choices=("limb", "lines"), required=True, help="what the overlay is")
     overlay.add_argument("--n-lines", type=int, default=2, help="straight lines to trace (default 2)")
