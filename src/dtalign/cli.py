@@ -25,9 +25,10 @@ reported on standard error as ``dtalign: warning: ...``.
 Status lines go to standard error, through the progress bar's writer while
 a bar is shown.
 
-A new subcommand is a ``sub.add_parser(...)`` in :func:`build_parser`
-with ``set_defaults(handler=...)``: :func:`main` parses each subcommand's
-arguments intermixed (options anywhere) and calls its handler.
+A new subcommand is a ``_command(sub, name, handler, help, description)``
+call in :func:`build_parser`'s builder, which sets its handler: :func:`main`
+parses each subcommand's arguments intermixed (options anywhere) and calls
+its handler.
 """
 
 from __future__ import annotations
