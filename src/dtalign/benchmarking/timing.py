@@ -202,7 +202,7 @@ def measure_noise_overhead(inputs: Inputs, repeats: int, min_sample_s: float) ->
 
 
 def _overhead_row(name: str, description: str, t_base: list[float], t_with: list[float],
-                  target: float, agree: bool, load_cores: float) -> dict[str, Any]:
+                  target: float, agree: bool, load_cores: float | None) -> dict[str, Any]:
     """An overhead row: the ratio of the medians ``with / base`` of one run,
     passed when the results agree and the ratio is at most ``target``."""
     ratio = statistics.median(t_with) / statistics.median(t_base)
