@@ -25,9 +25,10 @@ reported on standard error as ``dtalign: warning: ...``.
 Status lines go to standard error, through the progress bar's writer while
 a bar is shown.
 
-A new subcommand is a ``sub.add_parser(...)`` in :func:`build_parser`
-with ``set_defaults(handler=...)``: :func:`main` parses each subcommand's
-arguments intermixed (options anywhere) and calls its handler.
+A new subcommand is a ``_command(sub, name, handler, help, description)``
+call in :func:`build_parser`'s builder, which sets its handler: :func:`main`
+parses each subcommand's arguments intermixed (options anywhere) and calls
+its handler.
 """
 
 from __future__ import annotations
@@ -316,19 +317,16 @@ def _zoom_points(args: argparse.Namespace) -> list[tuple[float, float]]:
 
 def _add_plot_options(p: argparse.ArgumentParser, plot_help: str) -> None:
     p.add_argument("--plot", metavar="OUT.png", help=plot_help)
-    p.add_argument(
-        "--zoom",
-        action="append",
-        metavar="V,U",
-        help="add a zoomed panel around image point (V, U) to the plot (repeatable)",
-    )
-    p.add_argument(
-        "--zoom-half",
-        type=float,
-        default=DEFAULT_ZOOM_HALF_PX,
-        metavar="PX",
-        help=f"half-size of each zoom panel in px (default {DEFAULT_ZOOM_HALF_PX:g})",
-    )
+    p.add_argument("--zoom", action="append", metavar="V,U",
+                   help="add a zoomed panel around image point (V, U) to the plot (repeatable)")
+    p.add_argument("--zoom-half", type=float, default=DEFAULT_ZOOM_HALF_PX, metavar="PX",
+                   help=f"half-size of each zoom panel in px (default {DEFAULT_ZOOM_HALF_PX:g})")
+
+
+def _add_output_options(p: argparse.ArgumentParser, instead: str, written: str) -> None:
+    """``--json`` (print JSON instead of ``instead``) and ``-o FILE`` (write ``written`` or JSON)."""
+    p.add_argument("--json", action="store_true", help=f"print JSON instead of {instead}")
+    p.add_argument("-o", "--output", metavar="FILE", help=f"write {written} or JSON to FILE")
 
 
 def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
@@ -338,65 +336,73 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     )
     parser.add_argument("--version", action="store_true", help="print the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _add_demo(sub)
+    _add_fit(sub)
+    _add_overlay(sub)
+    bench = _command(sub, "bench", _cmd_bench, "quick benchmark table",
+                     "Run dtalign.benchmarking (options are passed through).", add_help=False)
+    bench.add_argument("args", nargs=argparse.REMAINDER)
+    # archive: campaigns on Dask; the parser and command live in dtalign.archive.cli.
+    from .archive import cli as archive_cli
 
-    demo = sub.add_parser(
-        "demo",
-        help="fit the synthetic disc scene and time each stage",
-        description="Build the seeded disc scene (a bright disc with a displaced limb "
-        "polyline), run derivatives, coarse search and LM, and print the truth, "
-        "the fit and the stage times.",
-    )
-    demo.set_defaults(handler=_cmd_demo)
+    archive_cli.add_parser(sub).set_defaults(handler=_cmd_archive)
+    return parser, dict(sub.choices)
+
+
+def _command(sub: Any, name: str, handler: Callable[[argparse.Namespace], int], help: str,
+             description: str, **kwargs: Any) -> argparse.ArgumentParser:
+    """Subcommand ``name``'s parser; ``handler(args)`` runs it."""
+    p = sub.add_parser(name, help=help, description=description, **kwargs)
+    p.set_defaults(handler=handler)
+    return p
+
+
+def _add_demo(sub: Any) -> None:
+    demo = _command(sub, "demo", _cmd_demo, "fit the synthetic disc scene and time each stage",
+                    "Build the seeded disc scene (a bright disc with a displaced limb polyline), "
+                    "run derivatives, coarse search and LM, and print the truth, the fit and the "
+                    "stage times.")
     demo.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     demo.add_argument("--n-vertices", type=int, default=200, help="limb vertices (default 200)")
-    demo.add_argument(
-        "--rotation",
-        type=float,
-        default=None,
-        metavar="RAD",
-        help="true rotation in radians; also fits the rotation",
-    )
+    demo.add_argument("--rotation", type=float, default=None, metavar="RAD",
+                      help="true rotation in radians; also fits the rotation")
     demo.add_argument("--window", type=int, default=30, help="search margin in px (default 30)")
     demo.add_argument("--repeat", type=int, default=1, help="run the stages N times, report the last")
     _add_plot_options(demo, "write a picture of the fit")
-    demo.add_argument("--json", action="store_true", help="print JSON instead of text")
-    demo.add_argument("-o", "--output", metavar="FILE", help="write the text or JSON to FILE")
+    _add_output_options(demo, "text", "the text")
     demo.add_argument(
         "--save",
         metavar="DIR",
         help="write the scene as DIR/demo.npy (image) and DIR/demo.csv (polyline) for 'fit'",
     )
 
-    fit = sub.add_parser(
-        "fit",
-        help="fit model polylines (CSV v,u,nv,nu,sigma) to images",
-        description="Fit each IMAGE (.npy, .png, .fits) with its POLYLINE CSV "
-        "(header v,u,nv,nu,sigma; the normal (nv, nu) points to the bright side "
-        "of the edge). Give IMAGE POLYLINE pairs, or --batch/--glob for many "
-        "images whose polyline is the .csv of the same stem. Options may come "
-        "anywhere.",
-    )
-    fit.set_defaults(handler=_cmd_fit)
+
+def _add_fit(sub: Any) -> None:
+    fit = _command(sub, "fit", _cmd_fit, "fit model polylines (CSV v,u,nv,nu,sigma) to images",
+                   "Fit each IMAGE (.npy, .png, .fits) with its POLYLINE CSV (header "
+                   "v,u,nv,nu,sigma; the normal (nv, nu) points to the bright side of the edge). "
+                   "Give IMAGE POLYLINE pairs, or --batch/--glob for many images whose polyline "
+                   "is the .csv of the same stem. Options may come anywhere.")
     fit.add_argument("pairs", nargs="*", metavar="IMAGE POLYLINE", help="image and polyline files")
-    fit.add_argument(
-        "--batch",
-        metavar="LIST",
-        help="text file, one 'IMAGE [POLYLINE]' per line (POLYLINE defaults to IMAGE's stem + .csv)",
-    )
+    fit.add_argument("--batch", metavar="LIST", help="text file, one 'IMAGE [POLYLINE]' per line "
+                     "(POLYLINE defaults to IMAGE's stem + .csv)")
     fit.add_argument("--glob", metavar="PATTERN", help="images matching PATTERN (quote it)")
-    fit.add_argument(
-        "--window",
-        default=str(DEFAULT_WINDOW_PX),
-        metavar="N|V,U",
-        help="search margin in px: N for both axes, or V,U (e.g. 30,20); "
-        f"default {DEFAULT_WINDOW_PX}, as in Python",
-    )
+    fit.add_argument("--window", default=str(DEFAULT_WINDOW_PX), metavar="N|V,U",
+                     help="search margin in px: N for both axes, or V,U (e.g. 30,20); "
+                     f"default {DEFAULT_WINDOW_PX}, as in Python")
     fit.add_argument("--noise-sigma", type=float, help="image noise sigma (default: estimated)")
     fit.add_argument("--rotation", action="store_true", help="also fit an in-plane rotation")
     fit.add_argument("--ridge", action="store_true", help="finish with the gradient-ridge polish")
     fit.add_argument("--trust-region", type=float, metavar="PX", help="LM trust region (1.0 in production)")
     fit.add_argument("--tikhonov", type=float, default=0.0, metavar="ALPHA", help="pull toward the coarse seed")
     fit.add_argument("--no-polarity", action="store_true", help="do not reject vertices by polarity")
+    _add_sphere_options(fit)
+    _add_output_options(fit, "a table", "the table")
+    _add_plot_options(fit, "write a picture of the fit (with several images: OUT_<image label>.png)")
+    fit.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_sphere_options(fit: argparse.ArgumentParser) -> None:
     fit.add_argument(
         "--sphere",
         metavar="V,U,R,PHASE,LIGHT",
@@ -404,57 +410,28 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
         "light direction in degrees (0 = up, 90 = +u); refines the fit with its "
         "photometric profile (see the docs' profiles page)",
     )
-    fit.add_argument(
-        "--law",
-        default="lambert",
-        metavar="LAW",
-        help="with --sphere: lambert (default), minnaert,K or lommel-seeliger",
-    )
+    fit.add_argument("--law", default="lambert", metavar="LAW",
+                     help="with --sphere: lambert (default), minnaert,K or lommel-seeliger")
     fit.add_argument("--edge", choices=("limb", "terminator"), default="limb",
                      help="with --sphere: which edge the polyline is (default limb)")
     fit.add_argument("--psf-sigma", type=float, metavar="PX",
                      help="with --sphere: the PSF's Gaussian sigma (default: estimated)")
-    fit.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    fit.add_argument("-o", "--output", metavar="FILE", help="write the table or JSON to FILE")
-    _add_plot_options(
-        fit, "write a picture of the fit (with several images: OUT_<image label>.png)"
-    )
-    fit.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    overlay = sub.add_parser(
-        "overlay",
-        help="split a Cassini summary PNG into an image and a model polyline CSV",
-        description="Read a summary PNG (grey image + red model overlay), write the clean "
-        "grey image (.npy) and the traced overlay as a polyline CSV, optionally displaced.",
-    )
-    overlay.set_defaults(handler=_cmd_overlay)
+
+def _add_overlay(sub: Any) -> None:
+    overlay = _command(
+        sub, "overlay", _cmd_overlay,
+        "split a Cassini summary PNG into an image and a model polyline CSV",
+        "Read a summary PNG (grey image + red model overlay), write the clean grey image "
+        "(.npy) and the traced overlay as a polyline CSV, optionally displaced.")
     overlay.add_argument("png", metavar="PNG", help="the summary PNG")
     overlay.add_argument("--shape", choices=("limb", "lines"), required=True, help="what the overlay is")
     overlay.add_argument("--n-lines", type=int, default=2, help="straight lines to trace (default 2)")
     overlay.add_argument("--image", required=True, metavar="OUT.npy", help="write the grey image here")
     overlay.add_argument("--polyline", required=True, metavar="OUT.csv", help="write the polyline here")
-    overlay.add_argument(
-        "--displace",
-        default="0,0",
-        metavar="DV,DU",
-        help="move the model by -(DV, DU), e.g. --displace 3,-2: a correct fit then returns "
-        "about (DV, DU)",
-    )
-
-    bench = sub.add_parser(
-        "bench",
-        help="quick benchmark table",
-        description="Run dtalign.benchmarking (options are passed through).",
-        add_help=False,
-    )
-    bench.set_defaults(handler=_cmd_bench)
-    bench.add_argument("args", nargs=argparse.REMAINDER)
-
-    # archive: campaigns on Dask; the parser and command live in dtalign.archive.cli.
-    from .archive import cli as archive_cli
-
-    archive_cli.add_parser(sub).set_defaults(handler=_cmd_archive)
-    return parser, dict(sub.choices)
+    overlay.add_argument("--displace", default="0,0", metavar="DV,DU",
+                         help="move the model by -(DV, DU), e.g. --displace 3,-2: a correct fit "
+                         "then returns about (DV, DU)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -472,6 +449,45 @@ def _fmt(x: float, digits: int = 3) -> str:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    zooms, stdout, save_dir = _demo_outputs(args)
+    messages = _Messages()
+
+    import dtalign.pipeline as pipeline
+    import dtalign.scenes as scenes
+
+    rotation = 0.0 if args.rotation is None else float(args.rotation)
+    t0 = time.perf_counter()
+    scene = scenes.disc_scene(
+        n_vertices=args.n_vertices, rotation_rad=rotation, seed=args.seed, search_window=args.window
+    )
+    t_scene = time.perf_counter() - t0
+    if save_dir is not None:
+        _save_demo(scene, save_dir, args, messages)
+    _compile_notice(messages)
+    for _ in range(args.repeat):
+        fit = _demo_fit(scene, args)
+    noise_est = pipeline.estimate_noise_sigma(scene.image)
+    if args.json:
+        out = {
+            "true_offset_vu": list(scene.true_offset_vu),
+            "true_rotation_rad": scene.true_rotation_rad,
+            "noise_sigma_true": scene.noise_sigma,
+            "noise_sigma_estimated": noise_est,
+            "fit": fit.to_dict(),
+            "scene_s": t_scene,
+        }
+        stdout.emit(json.dumps(out, indent=2))
+    else:
+        stdout.emit(_demo_text(scene, fit, noise_est, args))
+    if args.plot:
+        _plot(scene.image, scene.polyline.vertices_vu, fit, args.plot, "demo", zooms,
+              args.zoom_half, messages)
+    stdout.close(messages)
+    return 0
+
+
+def _demo_outputs(args: argparse.Namespace) -> tuple[list[tuple[float, float]], _Stdout, Path | None]:
+    """The demo's options checked: its zoom points, its output, and the folder to save to."""
     if args.n_vertices < 3:
         raise CLIError(f"--n-vertices must be >= 3, got {args.n_vertices}")
     if args.window < 0:
@@ -491,88 +507,68 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         save_dir.mkdir(parents=True, exist_ok=True)
         if not os.access(save_dir, os.W_OK):
             raise CLIError(f"--save {save_dir}: folder is not writable")
-    messages = _Messages()
+    return zooms, stdout, save_dir
 
+
+def _demo_fit(scene: Any, args: argparse.Namespace) -> Any:
+    """One run of the stages on the demo scene: derivatives, coarse search and LM."""
     import dtalign.pipeline as pipeline
-    import dtalign.scenes as scenes
 
+    poly = scene.polyline
+    products = pipeline.prepare_image(scene.image, scene.noise_sigma)
+    return pipeline.fit_polyline_products(
+        products,
+        poly.vertices_vu,
+        poly.normals_vu,
+        poly.sigmas,
+        search_window_vu=scene.search_window_vu,
+        fit_rotation=args.rotation is not None,
+        pivot_vu=scene.pivot_vu,
+        pivot_distance_px=scene.pivot_distance_px if args.rotation is not None else None,
+        trust_region_px=1.0,
+    )
+
+
+def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace) -> str:
+    """The demo's report: the scene, the truth, the fit against it, and the stage times."""
     from .api.constants import DEFAULT_LM_MAX_ITERATIONS
 
-    rotation = 0.0 if args.rotation is None else float(args.rotation)
-    t0 = time.perf_counter()
-    scene = scenes.disc_scene(
-        n_vertices=args.n_vertices, rotation_rad=rotation, seed=args.seed, search_window=args.window
-    )
-    t_scene = time.perf_counter() - t0
-    poly = scene.polyline
-    if save_dir is not None:
-        _save_demo(scene, save_dir, args, messages)
-    _compile_notice(messages)
-    for _ in range(args.repeat):
-        products = pipeline.prepare_image(scene.image, scene.noise_sigma)
-        fit = pipeline.fit_polyline_products(
-            products,
-            poly.vertices_vu,
-            poly.normals_vu,
-            poly.sigmas,
-            search_window_vu=scene.search_window_vu,
-            fit_rotation=args.rotation is not None,
-            pivot_vu=scene.pivot_vu,
-            pivot_distance_px=scene.pivot_distance_px if args.rotation is not None else None,
-            trust_region_px=1.0,
-        )
-    noise_est = pipeline.estimate_noise_sigma(scene.image)
-    t = fit.timings_s
-    if args.json:
-        out = {
-            "true_offset_vu": list(scene.true_offset_vu),
-            "true_rotation_rad": scene.true_rotation_rad,
-            "noise_sigma_true": scene.noise_sigma,
-            "noise_sigma_estimated": noise_est,
-            "fit": fit.to_dict(),
-            "scene_s": t_scene,
-        }
-        stdout.emit(json.dumps(out, indent=2))
-    else:
-        h, w = scene.image.shape
-        tv, tu = scene.true_offset_vu
-        (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
-        (sv2, su2) = fit.sigma_vu_scaled
-        lines = [
-            f"scene     : {h} x {w} disc, radius 150 px, {len(poly)} limb vertices, seed {args.seed}",
-            f"noise     : sigma {scene.noise_sigma:g} DN (estimated from the image: {noise_est:.3f})",
-            f"true      : offset (dv, du) = ({tv:.3f}, {tu:.3f}) px"
-            + (f", rotation {scene.true_rotation_rad:.5f} rad" if args.rotation is not None else ""),
-            f"coarse    : offset (dv, du) = {fit.coarse_offset_vu} (window ±{args.window})",
-            f"fitted    : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)",
-            f"scaled    : ± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (1 sigma scaled by the residuals, "
-            f"variance factor {_fmt(fit.variance_factor, 4)})",
-        ]
-        if fit.fit_rotation:
-            lines.append(f"rotation  : {fit.rotation_rad:.6f} ± {_fmt(fit.sigma_rotation_rad or 0.0, 6)} rad")
-        lines.append(f"error     : dv {dv - tv:+.4f}, du {du - tu:+.4f} px")
-        if fit.observable_rank < (3 if fit.fit_rotation else 2):
-            lines.append(
-                f"observable: rank {fit.observable_rank}: a circle turned about its centre "
-                "looks the same, so its rotation is not measured (sigma inf)"
-            )
+    poly, t = scene.polyline, fit.timings_s
+    h, w = scene.image.shape
+    tv, tu = scene.true_offset_vu
+    (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
+    (sv2, su2) = fit.sigma_vu_scaled
+    lines = [
+        f"scene     : {h} x {w} disc, radius 150 px, {len(poly)} limb vertices, seed {args.seed}",
+        f"noise     : sigma {scene.noise_sigma:g} DN (estimated from the image: {noise_est:.3f})",
+        f"true      : offset (dv, du) = ({tv:.3f}, {tu:.3f}) px"
+        + (f", rotation {scene.true_rotation_rad:.5f} rad" if args.rotation is not None else ""),
+        f"coarse    : offset (dv, du) = {fit.coarse_offset_vu} (window ±{args.window})",
+        f"fitted    : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)",
+        f"scaled    : ± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (1 sigma scaled by the residuals, "
+        f"variance factor {_fmt(fit.variance_factor, 4)})",
+    ]
+    if fit.fit_rotation:
+        lines.append(f"rotation  : {fit.rotation_rad:.6f} ± {_fmt(fit.sigma_rotation_rad or 0.0, 6)} rad")
+    lines.append(f"error     : dv {dv - tv:+.4f}, du {du - tu:+.4f} px")
+    if fit.observable_rank < (3 if fit.fit_rotation else 2):
         lines.append(
-            f"LM        : {fit.lm.iterations} iterations (cap {DEFAULT_LM_MAX_ITERATIONS}), "
-            f"{_settled_text(fit)}, rms {_fmt(fit.rms_px)} px, "
-            f"inliers {fit.inlier_count}/{len(poly)}"
+            f"observable: rank {fit.observable_rank}: a circle turned about its centre "
+            "looks the same, so its rotation is not measured (sigma inf)"
         )
-        lines += [
-            f"status    : {fit.status}"
-            + (f" ({', '.join(map(str, fit.reasons))})" if fit.reasons else ""),
-            f"wall time : derivatives {t.get('derivatives', 0.0) * 1e3:.1f} ms, "
-            f"coarse {t.get('coarse', 0.0) * 1e3:.1f} ms, lm {t.get('lm', 0.0) * 1e3:.1f} ms"
-            + (" (first call: includes loading or compiling the kernels; try --repeat 2)" if args.repeat == 1 else ""),
-        ]
-        stdout.emit("\n".join(lines))
-    if args.plot:
-        _plot(scene.image, poly.vertices_vu, fit, args.plot, "demo", zooms, args.zoom_half, messages)
-    stdout.close(messages)
-    return 0
+    lines.append(
+        f"LM        : {fit.lm.iterations} iterations (cap {DEFAULT_LM_MAX_ITERATIONS}), "
+        f"{_settled_text(fit)}, rms {_fmt(fit.rms_px)} px, "
+        f"inliers {fit.inlier_count}/{len(poly)}"
+    )
+    lines += [
+        f"status    : {fit.status}"
+        + (f" ({', '.join(map(str, fit.reasons))})" if fit.reasons else ""),
+        f"wall time : derivatives {t.get('derivatives', 0.0) * 1e3:.1f} ms, "
+        f"coarse {t.get('coarse', 0.0) * 1e3:.1f} ms, lm {t.get('lm', 0.0) * 1e3:.1f} ms"
+        + (" (first call: includes loading or compiling the kernels; try --repeat 2)" if args.repeat == 1 else ""),
+    ]
+    return "\n".join(lines)
 
 
 def _settled_text(fit: Any) -> str:

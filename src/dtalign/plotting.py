@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -147,66 +148,11 @@ def plot_fit(
             f"vertices_vu has {verts.shape[0]} vertices but the fit has {residuals.shape[0]}"
         )
     fitted = fit.transform(verts)
-    both = np.vstack([verts, fitted])
-    h, w = img.shape
-    v0 = int(max(math.floor(both[:, 0].min() - margin_px), 0))
-    v1 = int(min(math.ceil(both[:, 0].max() + margin_px) + 1, h))
-    u0 = int(max(math.floor(both[:, 1].min() - margin_px), 0))
-    u1 = int(min(math.ceil(both[:, 1].max() + margin_px) + 1, w))
-    if v1 <= v0 or u1 <= u0:  # the model is entirely outside the image
-        v0, v1, u0, u1 = 0, h, 0, w
+    v0, v1, u0, u1 = _crop_box(img.shape, np.vstack([verts, fitted]), margin_px)
     zooms = [check.pair(z, "zoom_vu") for z in (zoom_vu or ())]
-    if ax is not None:
-        if zooms:
-            raise ValueError("zoom_vu needs a figure of its own: pass ax=None")
-        fig = ax.figure
-        zoom_axes = []
-    elif zooms:
-        fig = _figure((figsize[0] * 1.45, figsize[1]))
-        grid = fig.add_gridspec(len(zooms), 2, width_ratios=(2.2, 1.0))
-        ax = fig.add_subplot(grid[:, 0])
-        zoom_axes = [fig.add_subplot(grid[i, 1]) for i in range(len(zooms))]
-    else:
-        fig = _figure(figsize)
-        ax = fig.add_subplot(1, 1, 1)
-        zoom_axes = []
-    crop = img[v0:v1, u0:u1]
-    lo, hi = (float(x) for x in np.percentile(crop, [1.0, 99.5]))
-    hi = hi if hi > lo else lo + 1.0
-    n = verts.shape[0]
-    size = float(np.clip(3000.0 / max(n, 1), 2.0, 16.0))
-    polarity = fit.polarity_rejected
-    tukey = fit.tukey_rejected
-    ok = ~polarity
-    weighted = residuals[np.asarray(fit.lm.weights) > 0.0]
-    vmax = max(float(np.percentile(weighted, 99.0)) if weighted.size else 1.0, 1e-3)
-
-    def draw(axis: Any, scale: float) -> Any:
-        axis.imshow(
-            img, cmap="gray", vmin=lo, vmax=hi, interpolation="nearest",
-            extent=(-0.5, w - 0.5, h - 0.5, -0.5),
-        )
-        axis.scatter(
-            verts[:, 1], verts[:, 0], s=size * 0.5 * scale, c="cyan", lw=0,
-            label="model, initial pose",
-        )
-        sc = axis.scatter(
-            fitted[ok, 1], fitted[ok, 0], s=size * scale, c=residuals[ok], cmap="plasma",
-            vmin=0.0, vmax=vmax, lw=0, label="model, fitted pose",
-        )
-        if tukey.any():
-            axis.scatter(
-                fitted[tukey, 1], fitted[tukey, 0], s=size * 4 * scale, facecolors="none",
-                edgecolors="orange", lw=0.8, label=f"Tukey-rejected ({int(tukey.sum())})",
-            )
-        if polarity.any():
-            axis.scatter(
-                fitted[polarity, 1], fitted[polarity, 0], s=size * 3 * scale, c="red",
-                marker="x", lw=0.8, label=f"polarity-rejected ({int(polarity.sum())})",
-            )
-        return sc
-
-    sc = draw(ax, 1.0)
+    fig, ax, zoom_axes = _fit_axes(ax, len(zooms), figsize)
+    layers = _FitLayers.of(img, img[v0:v1, u0:u1], verts, fitted, residuals, fit)
+    sc = layers.draw(ax, 1.0)
     fig.colorbar(
         sc, ax=[ax, *zoom_axes], shrink=0.8, extend="max",
         label="DT residual at the fitted pose (px)",
@@ -219,7 +165,7 @@ def plot_fit(
     ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
     ax.set_title(title if title is not None else _summary(fit), fontsize=9)
     for zax, (zv, zu) in zip(zoom_axes, zooms, strict=True):
-        draw(zax, 6.0)
+        layers.draw(zax, 6.0)
         zax.set_xlim(zu - zoom_half_px, zu + zoom_half_px)
         zax.set_ylim(zv + zoom_half_px, zv - zoom_half_px)
         zax.set_title(f"zoom at (v, u) = ({zv:.0f}, {zu:.0f})", fontsize=8)
@@ -227,6 +173,91 @@ def plot_fit(
         ax.add_patch(_rectangle(zu - zoom_half_px, zv - zoom_half_px, 2 * zoom_half_px))
     _save(fig, path, dpi)
     return fig
+
+
+def _crop_box(shape: tuple[int, ...], points: np.ndarray, margin_px: float
+              ) -> tuple[int, int, int, int]:
+    """``(v0, v1, u0, u1)``: the points plus a margin, within the image (all of it if none are)."""
+    h, w = shape
+    v0 = int(max(math.floor(points[:, 0].min() - margin_px), 0))
+    v1 = int(min(math.ceil(points[:, 0].max() + margin_px) + 1, h))
+    u0 = int(max(math.floor(points[:, 1].min() - margin_px), 0))
+    u1 = int(min(math.ceil(points[:, 1].max() + margin_px) + 1, w))
+    if v1 <= v0 or u1 <= u0:  # the model is entirely outside the image
+        v0, v1, u0, u1 = 0, h, 0, w
+    return v0, v1, u0, u1
+
+
+def _fit_axes(ax: Any, n_zooms: int, figsize: tuple[float, float]) -> tuple[Any, Any, list[Any]]:
+    """The figure, the main axes and a zoom panel's axes for each zoom point."""
+    if ax is not None:
+        if n_zooms:
+            raise ValueError("zoom_vu needs a figure of its own: pass ax=None")
+        return ax.figure, ax, []
+    if n_zooms:
+        fig = _figure((figsize[0] * 1.45, figsize[1]))
+        grid = fig.add_gridspec(n_zooms, 2, width_ratios=(2.2, 1.0))
+        return (fig, fig.add_subplot(grid[:, 0]),
+                [fig.add_subplot(grid[i, 1]) for i in range(n_zooms)])
+    fig = _figure(figsize)
+    return fig, fig.add_subplot(1, 1, 1), []
+
+
+@dataclass(frozen=True)
+class _FitLayers:
+    """What :func:`plot_fit` draws on its main view and again on each zoom panel."""
+
+    img: np.ndarray
+    lo: float  # the grey stretch: the crop's 1 and 99.5 percentiles
+    hi: float
+    verts: np.ndarray  # the model at its initial pose
+    fitted: np.ndarray  # ... and at the fitted pose
+    residuals: np.ndarray
+    polarity: np.ndarray  # the vertices the polarity test rejected
+    tukey: np.ndarray  # ... and those the Tukey biweight rejected
+    vmax: float  # top of the residuals' colour scale
+    size: float  # marker size, smaller for more vertices
+
+    @classmethod
+    def of(cls, img: np.ndarray, crop: np.ndarray, verts: np.ndarray, fitted: np.ndarray,
+           residuals: np.ndarray, fit: Any) -> _FitLayers:
+        lo, hi = (float(x) for x in np.percentile(crop, [1.0, 99.5]))
+        weighted = residuals[np.asarray(fit.lm.weights) > 0.0]
+        return cls(
+            img, lo, hi if hi > lo else lo + 1.0, verts, fitted, residuals,
+            fit.polarity_rejected, fit.tukey_rejected,
+            max(float(np.percentile(weighted, 99.0)) if weighted.size else 1.0, 1e-3),
+            float(np.clip(3000.0 / max(verts.shape[0], 1), 2.0, 16.0)),
+        )
+
+    def draw(self, axis: Any, scale: float) -> Any:
+        """Image, model at both poses, rejected vertices; returns the residuals' scatter."""
+        h, w = self.img.shape
+        fitted, size, ok = self.fitted, self.size, ~self.polarity
+        axis.imshow(
+            self.img, cmap="gray", vmin=self.lo, vmax=self.hi, interpolation="nearest",
+            extent=(-0.5, w - 0.5, h - 0.5, -0.5),
+        )
+        axis.scatter(
+            self.verts[:, 1], self.verts[:, 0], s=size * 0.5 * scale, c="cyan", lw=0,
+            label="model, initial pose",
+        )
+        sc = axis.scatter(
+            fitted[ok, 1], fitted[ok, 0], s=size * scale, c=self.residuals[ok], cmap="plasma",
+            vmin=0.0, vmax=self.vmax, lw=0, label="model, fitted pose",
+        )
+        if self.tukey.any():
+            axis.scatter(
+                fitted[self.tukey, 1], fitted[self.tukey, 0], s=size * 4 * scale,
+                facecolors="none", edgecolors="orange", lw=0.8,
+                label=f"Tukey-rejected ({int(self.tukey.sum())})",
+            )
+        if self.polarity.any():
+            axis.scatter(
+                fitted[self.polarity, 1], fitted[self.polarity, 0], s=size * 3 * scale, c="red",
+                marker="x", lw=0.8, label=f"polarity-rejected ({int(self.polarity.sum())})",
+            )
+        return sc
 
 
 def _rectangle(u: float, v: float, size: float) -> Any:

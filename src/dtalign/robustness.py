@@ -213,6 +213,16 @@ def _polyline(name: str, true_vu: FloatArray, normals: FloatArray, offset: Float
     return Polyline(name, true_vu - offset, n, np.ones(true_vu.shape[0]))
 
 
+def _scene(family: str, seed: int, image: FloatArray, clean: FloatArray, noise: float,
+           polyline: Polyline, window: int, offset: FloatArray, **rest: Any) -> HardScene:
+    """A family's scene with a symmetric search window; polarity used, the error in
+    2-D and the truth reachable unless ``rest`` says otherwise."""
+    rest = {"use_polarity": True, "across_vu": None, "reachable": True} | rest
+    return HardScene(family=family, seed=seed, image=image, clean_image=clean,
+                     noise_sigma=noise, polyline=polyline, search_window_vu=(window, window),
+                     true_offset_vu=_pair(offset), **rest)
+
+
 def parallel_rings(seed: int) -> HardScene:
     """Two parallel straight ring edges of the same polarity, 5-20 px apart.
 
@@ -244,18 +254,11 @@ def parallel_rings(seed: int) -> HardScene:
     true_vu = centre + e_model * normal + tau[:, None] * tangent
     normals = np.tile(normal, (_N_VERTICES, 1))
     decoy_shift = (e_decoy - e_model) * normal
-    return HardScene(
-        family="parallel_rings",
-        seed=seed,
-        image=image,
-        clean_image=clean,
-        noise_sigma=_NOISE_DN,
-        polyline=_polyline("ring", true_vu, normals, offset),
-        search_window_vu=(30, 30),
+    return _scene(
+        "parallel_rings", seed, image, clean, _NOISE_DN,
+        _polyline("ring", true_vu, normals, offset), 30, offset,
         use_polarity=False,
-        true_offset_vu=_pair(offset),
         across_vu=_pair(normal),
-        reachable=True,
         decoy_offset_vu=_pair(offset + decoy_shift),
         decoy_vertices_vu=true_vu + decoy_shift,
         description=f"ring edges {spacing:.1f} px apart, same polarity",
@@ -291,18 +294,9 @@ def crater_rim(seed: int) -> HardScene:
     radial = np.stack([np.cos(phi), np.sin(phi)], axis=1)
     true_vu = centre + radius * radial
     rim = crater_centre + crater_radius * radial
-    return HardScene(
-        family="crater_rim",
-        seed=seed,
-        image=image,
-        clean_image=clean,
-        noise_sigma=_NOISE_DN,
-        polyline=_polyline("limb", true_vu, -radial, offset),
-        search_window_vu=(20, 20),
-        use_polarity=True,
-        true_offset_vu=_pair(offset),
-        across_vu=None,
-        reachable=True,
+    return _scene(
+        "crater_rim", seed, image, clean, _NOISE_DN,
+        _polyline("limb", true_vu, -radial, offset), 20, offset,
         decoy_offset_vu=_pair(offset - gap * r0),
         decoy_vertices_vu=rim,
         description=f"crater rim {gap:.1f} px inside the limb, reversed polarity",
@@ -350,18 +344,9 @@ def terminator_limb(seed: int) -> HardScene:
     else:
         name, true_vu, normals, decoy = "limb", limb, limb_n, term
         decoy_shift = np.array([0.0, -width])
-    return HardScene(
-        family="terminator_limb",
-        seed=seed,
-        image=image,
-        clean_image=clean,
-        noise_sigma=_NOISE_DN,
-        polyline=_polyline(name, true_vu, normals, offset),
-        search_window_vu=(20, 20),
-        use_polarity=True,
-        true_offset_vu=_pair(offset),
-        across_vu=None,
-        reachable=True,
+    return _scene(
+        "terminator_limb", seed, image, clean, _NOISE_DN,
+        _polyline(name, true_vu, normals, offset), 20, offset,
         decoy_offset_vu=_pair(offset + decoy_shift),
         decoy_vertices_vu=decoy,
         description=f"{name} model, crescent {width:.1f} px wide",
@@ -393,17 +378,9 @@ def small_window(seed: int) -> HardScene:
     margin = int(rng.integers(3, 6))
     offset = _random_offset(rng, 12.0, 20.0)
     image, clean, true_vu, normals = _limb_scene(rng, _NOISE_DN, seed)
-    return HardScene(
-        family="small_window",
-        seed=seed,
-        image=image,
-        clean_image=clean,
-        noise_sigma=_NOISE_DN,
-        polyline=_polyline("limb", true_vu, normals, offset),
-        search_window_vu=(margin, margin),
-        use_polarity=True,
-        true_offset_vu=_pair(offset),
-        across_vu=None,
+    return _scene(
+        "small_window", seed, image, clean, _NOISE_DN,
+        _polyline("limb", true_vu, normals, offset), margin, offset,
         reachable=False,
         decoy_offset_vu=_pair(np.clip(offset, -margin, margin)),
         description=f"offset {math.hypot(*offset):.1f} px, window +-{margin} px",
@@ -421,18 +398,9 @@ def heavy_noise(seed: int) -> HardScene:
     noise = 100.0 / rng.uniform(0.7, 1.5)
     offset = _random_offset(rng, 2.0, 8.0)
     image, clean, true_vu, normals = _limb_scene(rng, noise, seed)
-    return HardScene(
-        family="heavy_noise",
-        seed=seed,
-        image=image,
-        clean_image=clean,
-        noise_sigma=noise,
-        polyline=_polyline("limb", true_vu, normals, offset),
-        search_window_vu=(16, 16),
-        use_polarity=True,
-        true_offset_vu=_pair(offset),
-        across_vu=None,
-        reachable=True,
+    return _scene(
+        "heavy_noise", seed, image, clean, noise,
+        _polyline("limb", true_vu, normals, offset), 16, offset,
         description=f"contrast {100.0 / noise:.2f} noise sigmas",
     )
 
@@ -455,18 +423,9 @@ def outliers(seed: int) -> HardScene:
     vertices[idx] += shift[:, None] * poly.normals_vu[idx]
     on_edge = np.ones(_N_VERTICES, dtype=bool)
     on_edge[idx] = False
-    return HardScene(
-        family="outliers",
-        seed=seed,
-        image=image,
-        clean_image=clean,
-        noise_sigma=_NOISE_DN,
-        polyline=Polyline("limb", vertices, poly.normals_vu, poly.sigmas),
-        search_window_vu=(16, 16),
-        use_polarity=True,
-        true_offset_vu=_pair(offset),
-        across_vu=None,
-        reachable=True,
+    return _scene(
+        "outliers", seed, image, clean, _NOISE_DN,
+        Polyline("limb", vertices, poly.normals_vu, poly.sigmas), 16, offset,
         true_edge_mask=on_edge,
         description=f"{count} of {_N_VERTICES} vertices displaced 2-12 px",
     )

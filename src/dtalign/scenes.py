@@ -507,6 +507,44 @@ def render_sphere(
     -------
     SphereScene
     """
+    _check_sphere(law, psf, minnaert_k, phase_deg, radius_px, oversample, n_vertices)
+    h, w = int(shape[0]), int(shape[1])
+    c = np.asarray(_centre((h, w)) if center_vu is None else center_vu, dtype=np.float64)
+    off = np.asarray(offset_vu, dtype=np.float64)
+    phase = math.radians(phase_deg)
+    sun = sun_direction_vu(illumination_deg)
+    k = float(minnaert_k) if minnaert_k is not None else 1.0
+    psf_sigma = float(psf_sigma_px) if psf_sigma_px is not None else 0.0
+    blur = psf_sigma > 0.0
+    signal = _sphere_signal((h, w), c, radius_px, phase, sun, law, k, albedo_dn,
+                            psf if blur else "none", psf_sigma, int(oversample))
+    image, noise_sigma, peak_snr = _camera(signal, background_dn, poisson_gain, read_noise_dn,
+                                           seed)
+    model_c = c - off
+    term = (_terminator_polyline(model_c, radius_px, phase, sun, n_vertices)
+            if phase_deg > 0.0 else None)
+    return SphereScene(
+        image=np.ascontiguousarray(image, dtype=np.float64),
+        noise_sigma=float(noise_sigma),
+        peak_snr=float(peak_snr),
+        true_offset_vu=(float(off[0]), float(off[1])),
+        center_vu=(float(c[0]), float(c[1])),
+        model_center_vu=(float(model_c[0]), float(model_c[1])),
+        radius_px=float(radius_px),
+        phase_deg=float(phase_deg),
+        illumination_deg=float(illumination_deg),
+        law=law,
+        minnaert_k=None if minnaert_k is None else float(minnaert_k),
+        psf=psf if blur else "none",
+        psf_sigma_px=psf_sigma if blur else None,
+        limb=_limb_polyline(model_c, radius_px, sun, n_vertices),
+        terminator=term,
+    )
+
+
+def _check_sphere(law: str, psf: str, minnaert_k: float | None, phase_deg: float,
+                  radius_px: float, oversample: int, n_vertices: int) -> None:
+    """:func:`render_sphere`'s argument checks."""
     if law not in SPHERE_LAWS:
         raise ValueError(f"law must be one of {SPHERE_LAWS}, got {law!r}")
     if psf not in SPHERE_PSFS:
@@ -524,19 +562,17 @@ def render_sphere(
         raise ValueError(f"oversample must be an int >= 1, got {oversample!r}")
     if int(n_vertices) != n_vertices or n_vertices < 2:
         raise ValueError(f"n_vertices must be an int >= 2, got {n_vertices!r}")
-    h, w = int(shape[0]), int(shape[1])
-    c = np.asarray(_centre((h, w)) if center_vu is None else center_vu, dtype=np.float64)
-    off = np.asarray(offset_vu, dtype=np.float64)
-    phase = math.radians(phase_deg)
-    sun = sun_direction_vu(illumination_deg)
-    k = float(minnaert_k) if minnaert_k is not None else 1.0
-    psf_sigma = float(psf_sigma_px) if psf_sigma_px is not None else 0.0
-    blur = psf_sigma > 0.0
-    os_ = int(oversample)
 
+
+def _sphere_signal(shape: tuple[int, int], c: FloatArray, radius_px: float, phase: float,
+                   sun: tuple[float, float], law: str, k: float, albedo_dn: float, psf: str,
+                   psf_sigma: float, os_: int) -> FloatArray:
+    """The noiseless sphere in DN: shaded on the fine grid, blurred (``psf`` not
+    ``"none"``), then averaged over each pixel's ``os_ x os_`` samples."""
+    h, w = shape
     # Shade only a box around the disc, widened by the PSF's reach.
     reach = (_PSF_TRUNCATE * psf_sigma * (WINGS_SCALE if psf == "core+wings" else 1.0)
-             if blur else 0.0)
+             if psf != "none" else 0.0)
     margin = radius_px + reach + 2.0
     i0, i1 = max(0, int(math.floor(c[0] - margin))), min(h, int(math.ceil(c[0] + margin)) + 1)
     j0, j1 = max(0, int(math.floor(c[1] - margin))), min(w, int(math.ceil(c[1] + margin)) + 1)
@@ -545,53 +581,43 @@ def render_sphere(
     fu = (np.arange(j0, j1)[:, None] + sub[None, :]).ravel()
     fine = _shade(fv[:, None] - c[0], fu[None, :] - c[1], radius_px, phase, sun, law, k,
                   albedo_dn)
-    if blur:
-        sig = psf_sigma * os_
-        if psf == "gaussian":
-            fine = _blur_fine(fine, sig)
-        else:
-            fine = ((1.0 - WINGS_FRACTION) * _blur_fine(fine, sig)
-                    + WINGS_FRACTION * _blur_fine(fine, WINGS_SCALE * sig))
+    sig = psf_sigma * os_
+    if psf == "gaussian":
+        fine = _blur_fine(fine, sig)
+    elif psf == "core+wings":
+        fine = ((1.0 - WINGS_FRACTION) * _blur_fine(fine, sig)
+                + WINGS_FRACTION * _blur_fine(fine, WINGS_SCALE * sig))
     signal = np.zeros((h, w))
     signal[i0:i1, j0:j1] = fine.reshape(i1 - i0, os_, j1 - j0, os_).mean(axis=(1, 3))
+    return signal
 
+
+def _camera(signal: FloatArray, background_dn: float, poisson_gain: float | None,
+            read_noise_dn: float, seed: int) -> tuple[FloatArray, float, float]:
+    """The signal on the sky level with shot and read noise: the image, the noise
+    sigma of the background, and the peak's signal-to-noise ratio."""
     clean = signal + background_dn
     rng = np.random.default_rng(seed)
     image = clean
     if poisson_gain is not None:
         image = rng.poisson(np.maximum(clean, 0.0) * poisson_gain) / poisson_gain
     if read_noise_dn > 0.0:
-        image = image + rng.normal(0.0, read_noise_dn, (h, w))
+        image = image + rng.normal(0.0, read_noise_dn, signal.shape)
     shot_bg = background_dn / poisson_gain if poisson_gain is not None else 0.0
     noise_sigma = math.sqrt(read_noise_dn**2 + max(shot_bg, 0.0))
     peak = float(signal.max())
     shot_peak = (peak + background_dn) / poisson_gain if poisson_gain is not None else 0.0
     peak_noise = math.sqrt(read_noise_dn**2 + max(shot_peak, 0.0))
     peak_snr = peak / peak_noise if peak_noise > 0.0 else math.inf
+    return image, noise_sigma, peak_snr
 
-    model_c = c - off
+
+def _limb_polyline(model_c: FloatArray, radius_px: float, sun: tuple[float, float],
+                   n_vertices: int) -> Polyline:
+    """The lit half of the limb around the model centre, normals inward, sigmas 1 px."""
     s = np.asarray(sun)
     perp = np.array([-s[1], s[0]])
     theta = -0.5 * math.pi + math.pi * (np.arange(n_vertices) + 0.5) / n_vertices
     radial = np.cos(theta)[:, None] * s[None, :] + np.sin(theta)[:, None] * perp[None, :]
-    limb = Polyline("limb", model_c[None, :] + radius_px * radial, -radial,
+    return Polyline("limb", model_c[None, :] + radius_px * radial, -radial,
                     np.ones(n_vertices))
-    term = (_terminator_polyline(model_c, radius_px, phase, sun, n_vertices)
-            if phase_deg > 0.0 else None)
-    return SphereScene(
-        image=np.ascontiguousarray(image, dtype=np.float64),
-        noise_sigma=float(noise_sigma),
-        peak_snr=float(peak_snr),
-        true_offset_vu=(float(off[0]), float(off[1])),
-        center_vu=(float(c[0]), float(c[1])),
-        model_center_vu=(float(model_c[0]), float(model_c[1])),
-        radius_px=float(radius_px),
-        phase_deg=float(phase_deg),
-        illumination_deg=float(illumination_deg),
-        law=law,
-        minnaert_k=None if minnaert_k is None else float(minnaert_k),
-        psf=psf if blur else "none",
-        psf_sigma_px=psf_sigma if blur else None,
-        limb=limb,
-        terminator=term,
-    )

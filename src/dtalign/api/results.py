@@ -101,8 +101,23 @@ def _readonly(name: str, value: object) -> NDArray[np.float64]:
     return view
 
 
-@dataclass(frozen=True)
-class LMRefineResult:
+class _Printed:
+    """A result printed field by field: a field added to it shows up too."""
+
+    __slots__ = ()
+
+    def summary(self) -> str:
+        """A short text summary: one line per field, the per-vertex arrays
+        as their shape and min / median / max (``repr`` gives the same)."""
+        return summary_text(self)
+
+    def __repr__(self) -> str:
+        return summary_text(self)
+
+
+# repr=False: the dataclass would otherwise write its own __repr__ over _Printed's.
+@dataclass(frozen=True, repr=False)
+class LMRefineResult(_Printed):
     """Outcome of :func:`dtalign.lm_subpixel_refine`.
 
     Attributes
@@ -155,18 +170,9 @@ class LMRefineResult:
         for name in ("covariance", "residuals_px", "weights"):
             object.__setattr__(self, name, _readonly(name, getattr(self, name)))
 
-    # Printing: field-generic, so a field added above shows up here too.
-    def summary(self) -> str:
-        """A short text summary: one line per field, the per-vertex arrays
-        as their shape and min / median / max (``repr`` gives the same)."""
-        return summary_text(self)
 
-    def __repr__(self) -> str:
-        return summary_text(self)
-
-
-@dataclass(frozen=True)
-class RidgeRefineResult:
+@dataclass(frozen=True, repr=False)
+class RidgeRefineResult(_Printed):
     """Outcome of :func:`dtalign.gradient_ridge_refine`.
 
     Attributes
@@ -190,14 +196,6 @@ class RidgeRefineResult:
     converged: bool
     applied: bool
 
-    # Printing: field-generic, so a field added above shows up here too.
-    def summary(self) -> str:
-        """A short text summary: one line per field, the per-vertex arrays
-        as their shape and min / median / max (``repr`` gives the same)."""
-        return summary_text(self)
-
-    def __repr__(self) -> str:
-        return summary_text(self)
 
 @dataclass(frozen=True)
 class CoarseSearchResult:

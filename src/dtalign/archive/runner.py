@@ -622,40 +622,14 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
 
     try:
         if warm:  # inside the try: a Ctrl-C during a long first compile is handled too
-            from ._plugin import WarmNumba
-
-            t0 = time.perf_counter()
-            client.register_plugin(WarmNumba())
-            summary.warm_s = time.perf_counter() - t0
+            _warm(client, summary)
         submit(max_pending)
         for fut in completed:
-            chunk = futures.pop(fut)
-            if fut.status == "finished":
-                writer.add_finished(fut, chunk)
-            elif fut.status == "error":  # the task never returned: KilledWorker and the like
-                writer.add_failed(chunk, fut.exception())
-                fut.release()
-            else:  # "cancelled": nothing is stored; the items run again next time
-                fut.release()
-            bar.update(len(chunk))
-            if writer.failed_so_far:
-                bar.set_postfix_str(f"{writer.failed_so_far} failed")
+            _collect(fut, futures.pop(fut), writer, bar)
             submit(1)
         writer.flush()
     except BaseException as exc:
-        summary.interrupted = isinstance(exc, KeyboardInterrupt)
-        # Everything that finished is kept, whatever stopped the run: the rows
-        # still on the workers are fetched, unless that fails too (a second
-        # Ctrl-C, a lost scheduler): those items then run again next time.
-        try:
-            writer.fetch()
-        except BaseException:
-            writer.abandon()
-        writer.flush()
-        if getattr(client, "_dtalign_owned", False):  # our LocalCluster: it closes next
-            _quiet_logs()
-            with contextlib.suppress(Exception):
-                client.run(_quiet_logs)
+        _keep_finished(client, writer, summary, exc)
         # Free the cluster of this run's tasks (on our own, this also leaves the
         # scheduler nothing to report to a client that is closing).
         client.cancel(list(futures))
@@ -663,3 +637,44 @@ def _execute(client: Any, todo: list[Item], store: Store, summary: RunSummary, *
         raise
     finally:
         bar.close()
+
+
+def _warm(client: Any, summary: RunSummary) -> None:
+    """Load (or compile) the kernels on every worker, now and on those that join later."""
+    from ._plugin import WarmNumba
+
+    t0 = time.perf_counter()
+    client.register_plugin(WarmNumba())
+    summary.warm_s = time.perf_counter() - t0
+
+
+def _collect(fut: Any, chunk: list[Item], writer: _Writer, bar: Any) -> None:
+    """A completed task's rows (or its failure) to the writer, and the bar moved on."""
+    if fut.status == "finished":
+        writer.add_finished(fut, chunk)
+    elif fut.status == "error":  # the task never returned: KilledWorker and the like
+        writer.add_failed(chunk, fut.exception())
+        fut.release()
+    else:  # "cancelled": nothing is stored; the items run again next time
+        fut.release()
+    bar.update(len(chunk))
+    if writer.failed_so_far:
+        bar.set_postfix_str(f"{writer.failed_so_far} failed")
+
+
+def _keep_finished(client: Any, writer: _Writer, summary: RunSummary,
+                   exc: BaseException) -> None:
+    """On an error or Ctrl-C: store what finished, and quiet our own cluster's closing."""
+    summary.interrupted = isinstance(exc, KeyboardInterrupt)
+    # Everything that finished is kept, whatever stopped the run: the rows
+    # still on the workers are fetched, unless that fails too (a second
+    # Ctrl-C, a lost scheduler): those items then run again next time.
+    try:
+        writer.fetch()
+    except BaseException:
+        writer.abandon()
+    writer.flush()
+    if getattr(client, "_dtalign_owned", False):  # our LocalCluster: it closes next
+        _quiet_logs()
+        with contextlib.suppress(Exception):
+            client.run(_quiet_logs)

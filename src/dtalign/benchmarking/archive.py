@@ -54,6 +54,8 @@ import shutil
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -132,6 +134,116 @@ def _comparable(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(out, key=lambda r: (r["item_id"], r["polyline_index"]))
 
 
+@dataclass
+class _Pairs:
+    """What the timed (serial, cluster) pairs measured, an entry per pair."""
+
+    t_serial: list[float] = field(default_factory=list)
+    t_cluster: list[float] = field(default_factory=list)
+    t_single: list[float] = field(default_factory=list)  # tasks of one frame
+    cpu_serial: list[float] = field(default_factory=list)  # this process (the idle scheduler's thread included)
+    cpu_cluster: list[float] = field(default_factory=list)  # this process (scheduler, client, store) + workers
+    cpu_single: list[float] = field(default_factory=list)
+    store_s: list[float] = field(default_factory=list)
+    c_serial: list[float] = field(default_factory=list)  # the SHA-256 control
+    c_cluster: list[float] = field(default_factory=list)
+    f_serial: list[float] = field(default_factory=list)  # the floating-point control
+    f_cluster: list[float] = field(default_factory=list)
+    agree: bool = True  # every stored row equals the serial loop's
+    summary: Any = None  # the last campaign's summary
+
+
+def _write_campaign(tmp: Path) -> tuple[list[Any], list[dict[str, Any]]]:
+    """The campaign's items, written to disk, and the serial loop's rows (its warm-up)."""
+    from ..archive import fit_item, make_example, read_manifest
+
+    _progress(f"archive: writing {ARCHIVE_FRAMES} frames of {ARCHIVE_SIZE}^2 ...")
+    items = read_manifest(make_example(tmp / "campaign", frames=ARCHIVE_FRAMES,
+                                       size=ARCHIVE_SIZE))
+    # The frames just written (256 MiB) are on disk before any timing:
+    # left dirty, the kernel writes them back about 30 s later
+    # (vm.dirty_expire_centisecs), in the middle of a timed pair, and a
+    # store part's fsync then waits for that writeback (286 ms once,
+    # against about 10 ms); the serial loop syncs nothing and never pays.
+    if hasattr(os, "sync"):
+        os.sync()
+    serial_rows = [r for i in items for r in fit_item(i)["results"]]  # warm, and the truth
+    return items, serial_rows
+
+
+def _warm(client: Any, items: list[Any], tmp: Path) -> None:
+    """One untimed campaign and control round, as the serial loop had one."""
+    from ..archive import run
+
+    # The workers' first frames pay for first-touch allocations of
+    # image-sized arrays (and the run registers the plugin that warms each
+    # worker's kernels).
+    run(items, tmp / "store-warm", client, progress=False, warm=True)
+    client.gather(client.map(_control_task, range(4), pure=False))
+    client.gather(client.map(_fp_control_task, range(4), pure=False))
+    _control_task(0)
+    _fp_control_task(0)
+
+
+def _on_cluster(client: Any, call: Callable[[], Any]) -> tuple[Any, float, float]:
+    """``call()``'s value, wall seconds, and CPU seconds here and in the workers."""
+    w0 = client.run(_cpu_s)
+    c0, t0 = _cpu_s(), time.perf_counter()
+    value = call()
+    wall = time.perf_counter() - t0
+    c1, w1 = _cpu_s(), client.run(_cpu_s)
+    return value, wall, c1 - c0 + sum(w1.values()) - sum(w0.values())
+
+
+def _control(client: Any, task: Callable[[int], Any], serial: list[float],
+             cluster: list[float]) -> None:
+    """A control's tasks timed serially here, then through the cluster."""
+    t0 = time.perf_counter()
+    for j in range(_CONTROL_TASKS):
+        task(j)
+    serial.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    client.gather(client.map(task, range(_CONTROL_TASKS), pure=False))
+    cluster.append(time.perf_counter() - t0)
+
+
+def _stored_as_serial(summary: Any, store: Path, n_items: int,
+                      serial_rows: list[dict[str, Any]]) -> bool:
+    """Whether a run did every item and stored the serial loop's rows."""
+    from ..archive import Store
+
+    return summary.done == n_items and (
+        _comparable(Store(store).results().to_pylist()) == _comparable(serial_rows))
+
+
+def _pair(k: int, items: list[Any], tmp: Path, client: Any,
+          serial_rows: list[dict[str, Any]], p: _Pairs) -> None:
+    """Pair ``k``: the serial loop, the campaign (run's tasks, then a frame a task), the controls."""
+    from ..archive import fit_item, run
+
+    c0, t0 = _cpu_s(), time.perf_counter()
+    for item in items:
+        fit_item(item)
+    p.t_serial.append(time.perf_counter() - t0)
+    p.cpu_serial.append(_cpu_s() - c0)
+    store, single_store = tmp / f"store-{k}", tmp / f"store-{k}-single"
+    summary, wall, cpu = _on_cluster(
+        client, lambda: run(items, store, client, progress=False, warm=False))
+    p.t_cluster.append(wall)
+    p.cpu_cluster.append(cpu)
+    single, wall, cpu = _on_cluster(
+        client, lambda: run(items, single_store, client, progress=False, warm=False,
+                            items_per_task=1))
+    p.t_single.append(wall)
+    p.cpu_single.append(cpu)
+    p.agree = p.agree and _stored_as_serial(single, single_store, len(items), serial_rows)
+    p.store_s.append(summary.store_s)
+    _control(client, _control_task, p.c_serial, p.c_cluster)
+    _control(client, _fp_control_task, p.f_serial, p.f_cluster)
+    p.agree = p.agree and _stored_as_serial(summary, store, len(items), serial_rows)
+    p.summary = summary
+
+
 def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
     """The two campaign rows (or one ``info`` row when Dask or pyarrow is missing).
 
@@ -145,132 +257,70 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
         import pyarrow  # noqa: F401
     except ImportError as exc:
         return _skipped(f"needs dtalign[dask] ({exc.name} is missing)")
-    from ..archive import Store, fit_item, local_cluster, make_example, read_manifest, run
+    from ..archive import local_cluster, run
 
     tmp = Path(tempfile.mkdtemp(prefix="dtalign-bench-archive-"))
     try:
-        _progress(f"archive: writing {ARCHIVE_FRAMES} frames of {ARCHIVE_SIZE}^2 ...")
-        items = read_manifest(make_example(tmp / "campaign", frames=ARCHIVE_FRAMES,
-                                           size=ARCHIVE_SIZE))
-        # The frames just written (256 MiB) are on disk before any timing:
-        # left dirty, the kernel writes them back about 30 s later
-        # (vm.dirty_expire_centisecs), in the middle of a timed pair, and a
-        # store part's fsync then waits for that writeback (286 ms once,
-        # against about 10 ms); the serial loop syncs nothing and never pays.
-        if hasattr(os, "sync"):
-            os.sync()
-        serial_rows = [r for i in items for r in fit_item(i)["results"]]  # warm, and the truth
+        items, serial_rows = _write_campaign(tmp)
         _progress("archive: starting a LocalCluster of 2 worker processes ...")
         load_average = os.getloadavg()[0]
         with local_cluster(2) as cluster, distributed.Client(cluster) as client:
-            # One untimed campaign, as the serial loop had one: the workers' first
-            # frames pay for first-touch allocations of image-sized arrays (and
-            # the run registers the plugin that warms each worker's kernels).
-            run(items, tmp / "store-warm", client, progress=False, warm=True)
-            client.gather(client.map(_control_task, range(4), pure=False))
-            client.gather(client.map(_fp_control_task, range(4), pure=False))
-            _control_task(0)
-            _fp_control_task(0)
-            f_serial: list[float] = []
-            f_cluster: list[float] = []
-            t_serial: list[float] = []
-            t_cluster: list[float] = []
-            t_single: list[float] = []
-            cpu_single: list[float] = []
-            c_serial: list[float] = []
-            c_cluster: list[float] = []
-            store_s: list[float] = []
-            cpu_serial: list[float] = []  # this process (the idle scheduler's thread included)
-            cpu_cluster: list[float] = []  # this process (scheduler, client, store) + workers
-            agree = True
+            _warm(client, items, tmp)
+            p = _Pairs()
             cpu0 = client.run(_cpu_s)
             with _Load() as load:
                 t_load = time.monotonic()
                 for k in range(repeats):
-                    c0, t0 = _cpu_s(), time.perf_counter()
-                    for item in items:
-                        fit_item(item)
-                    t_serial.append(time.perf_counter() - t0)
-                    cpu_serial.append(_cpu_s() - c0)
-                    store = tmp / f"store-{k}"
-                    w0 = client.run(_cpu_s)
-                    c0, t0 = _cpu_s(), time.perf_counter()
-                    summary = run(items, store, client, progress=False, warm=False)
-                    t_cluster.append(time.perf_counter() - t0)
-                    c1, w1 = _cpu_s(), client.run(_cpu_s)
-                    cpu_cluster.append(c1 - c0 + sum(w1.values()) - sum(w0.values()))
-                    w0 = client.run(_cpu_s)
-                    c0, t0 = _cpu_s(), time.perf_counter()
-                    single = run(items, tmp / f"store-{k}-single", client, progress=False,
-                                 warm=False, items_per_task=1)
-                    t_single.append(time.perf_counter() - t0)
-                    c1, w1 = _cpu_s(), client.run(_cpu_s)
-                    cpu_single.append(c1 - c0 + sum(w1.values()) - sum(w0.values()))
-                    agree = agree and single.done == len(items) and (
-                        _comparable(Store(tmp / f"store-{k}-single").results().to_pylist())
-                        == _comparable(serial_rows))
-                    store_s.append(summary.store_s)
-                    t0 = time.perf_counter()
-                    for j in range(_CONTROL_TASKS):
-                        _control_task(j)
-                    c_serial.append(time.perf_counter() - t0)
-                    t0 = time.perf_counter()
-                    client.gather(client.map(_control_task, range(_CONTROL_TASKS), pure=False))
-                    c_cluster.append(time.perf_counter() - t0)
-                    t0 = time.perf_counter()
-                    for j in range(_CONTROL_TASKS):
-                        _fp_control_task(j)
-                    f_serial.append(time.perf_counter() - t0)
-                    t0 = time.perf_counter()
-                    client.gather(client.map(_fp_control_task, range(_CONTROL_TASKS),
-                                             pure=False))
-                    f_cluster.append(time.perf_counter() - t0)
-                    stored = Store(store).results().to_pylist()
-                    agree = agree and summary.done == len(items) and (
-                        _comparable(stored) == _comparable(serial_rows))
+                    _pair(k, items, tmp, client, serial_rows, p)
                 workers_cpu = sum(client.run(_cpu_s).values()) - sum(cpu0.values())
                 t_load = time.monotonic() - t_load
         # The start-up included: a run that starts, warms and closes its own cluster.
         t0 = time.perf_counter()
         cold = run(items, tmp / "store-cold", workers=2, progress=False)
         t_cold = time.perf_counter() - t0
-        agree = agree and cold.done == len(items) and (
-            _comparable(Store(tmp / "store-cold").results().to_pylist())
-            == _comparable(serial_rows))
+        p.agree = p.agree and _stored_as_serial(cold, tmp / "store-cold", len(items),
+                                                serial_rows)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    serial, cluster_t = statistics.median(t_serial), statistics.median(t_cluster)
-    ratio = serial / cluster_t
-    per_item = serial / len(items)
-    store_item = statistics.median(store_s) / len(items)
-    fraction = store_item / per_item
     other = None if load.cores is None else max(0.0, load.cores - workers_cpu / t_load)
+    return _rows(p, len(items), t_cold, cold.warm_s, load_average, other)
+
+
+def _rows(p: _Pairs, n_items: int, t_cold: float, cold_warm_s: float, load_average: float,
+          other: float | None) -> list[dict[str, Any]]:
+    """The campaign row and the store row, from the pairs' medians; says the first."""
+    serial, cluster_t = statistics.median(p.t_serial), statistics.median(p.t_cluster)
+    ratio = serial / cluster_t
+    per_item = serial / n_items
+    store_item = statistics.median(p.store_s) / n_items
+    fraction = store_item / per_item
+    summary = p.summary
     rows = [
         {"name": "archive_32_frames", "kind": "batch",
          "description": f"dtalign.archive.run: {ARCHIVE_FRAMES} frames {ARCHIVE_SIZE}^2 x 3 "
                         "polylines, serial loop vs LocalCluster of 2 processes, "
                         f"{summary.items_per_task} frames per task (run's default; cluster "
                         f"started and warmed beforehand; with start-up {serial / t_cold:.2f}x; "
-                        f"a frame per task {serial / statistics.median(t_single):.2f}x)",
+                        f"a frame per task {serial / statistics.median(p.t_single):.2f}x)",
          "reference_s": serial, "dtalign_s": cluster_t, "ratio": ratio,
-         "ratio_of_minima": min(t_serial) / min(t_cluster), "target": ARCHIVE_TARGET,
-         "passed": agree and ratio >= ARCHIVE_TARGET, "results_agree": agree,
-         "control_ratio": statistics.median(c_serial) / statistics.median(c_cluster),
-         "control_times_s": [c_serial, c_cluster],
-         "fp_control_ratio": statistics.median(f_serial) / statistics.median(f_cluster),
-         "fp_control_times_s": [f_serial, f_cluster],
-         "reference_times_s": t_serial, "dtalign_times_s": t_cluster,
-         "pair_ratios": [a / b for a, b in zip(t_serial, t_cluster, strict=True)],
+         "ratio_of_minima": min(p.t_serial) / min(p.t_cluster), "target": ARCHIVE_TARGET,
+         "passed": p.agree and ratio >= ARCHIVE_TARGET, "results_agree": p.agree,
+         "control_ratio": statistics.median(p.c_serial) / statistics.median(p.c_cluster),
+         "control_times_s": [p.c_serial, p.c_cluster],
+         "fp_control_ratio": statistics.median(p.f_serial) / statistics.median(p.f_cluster),
+         "fp_control_times_s": [p.f_serial, p.f_cluster],
+         "reference_times_s": p.t_serial, "dtalign_times_s": p.t_cluster,
+         "pair_ratios": [a / b for a, b in zip(p.t_serial, p.t_cluster, strict=True)],
          # What two otherwise idle cores would allow: the CPU both sides used
          # (the sharing of the cores between sessions does not change it much).
-         "cpu_ceiling_ratio": 2 * statistics.median(cpu_serial) / statistics.median(cpu_cluster),
-         "cpu_serial_s": cpu_serial, "cpu_cluster_s": cpu_cluster,
+         "cpu_ceiling_ratio": 2 * statistics.median(p.cpu_serial) / statistics.median(p.cpu_cluster),
+         "cpu_serial_s": p.cpu_serial, "cpu_cluster_s": p.cpu_cluster,
          "items_per_task": summary.items_per_task,
-         "single_s": statistics.median(t_single),
-         "single_ratio": serial / statistics.median(t_single), "single_times_s": t_single,
-         "single_cpu_ceiling_ratio": 2 * statistics.median(cpu_serial)
-         / statistics.median(cpu_single), "cpu_single_s": cpu_single,
-         "cold_s": t_cold, "cold_ratio": serial / t_cold, "cold_warm_s": cold.warm_s,
+         "single_s": statistics.median(p.t_single),
+         "single_ratio": serial / statistics.median(p.t_single), "single_times_s": p.t_single,
+         "single_cpu_ceiling_ratio": 2 * statistics.median(p.cpu_serial)
+         / statistics.median(p.cpu_single), "cpu_single_s": p.cpu_single,
+         "cold_s": t_cold, "cold_ratio": serial / t_cold, "cold_warm_s": cold_warm_s,
          "load_average": load_average, "other_load_cores": other},
         {"name": "archive_store_per_item", "kind": "archive",
          "description": "client time writing the store per item, vs one item's serial time",
@@ -278,7 +328,7 @@ def measure_archive(repeats: int = 5) -> list[dict[str, Any]]:
          f"store {store_item * 1e3:.3f} ms ({fraction * 100:.2f} %)",
          "target": f"<= {STORE_OVERHEAD_TARGET * 100:g} %",
          "passed": fraction <= STORE_OVERHEAD_TARGET, "store_s_per_item": store_item,
-         "item_s": per_item, "store_fraction": fraction, "store_times_s": store_s},
+         "item_s": per_item, "store_fraction": fraction, "store_times_s": p.store_s},
     ]
     _progress(f"archive_32_frames: {ratio:.2f}x in tasks of {summary.items_per_task} "
               f"({rows[0]['single_ratio']:.2f}x in tasks of one frame; control "

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -282,12 +282,13 @@ def refine_with_profile(
     if kernels is None:
         kernels = loop.profile_kernels
     t_start = time.perf_counter()
-    pb = _problem(image, profile, vertices_vu, dt_offset_vu, rotation_rad, pivot_vu, kernels)
-    d0 = pb.d0
+    strips = _Strips.of(image, profile, vertices_vu, dt_offset_vu, rotation_rad, pivot_vu,
+                        kernels)
+    d0 = strips.d0
     known = profile.psf_sigma_px is not None
     sigma = SIGMA_START_PX if profile.psf_sigma_px is None else float(profile.psf_sigma_px)
     # contrast-weighted step fraction: is there an edge at all?
-    contrast = np.ptp(pb.values[:, pb.j0 : pb.j0 + pb.nb], axis=1)
+    contrast = np.ptp(strips.values[:, strips.j0 : strips.j0 + strips.nb], axis=1)
     step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
     # only a limb is meant to step: a terminator is a kink (cos i through 0), a ring's
     # profile whatever its model says, and neither is soft for lacking a step
@@ -295,16 +296,9 @@ def refine_with_profile(
 
     params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
     iterations = 0
-    if not known and pb.verts.shape[0] > 0:
-        # the sigma is estimated on a subset with the shape free (a wrong law
-        # would bias it), then held
-        stride = max(1, pb.verts.shape[0] // SIGMA_VERTICES)
-        idx = np.arange(0, pb.verts.shape[0], stride, dtype=np.int64)
-        p_a, it_a, _, _, _, _, _ = _run(pb, idx, params, True, SIGMA_TOLERANCE)
-        iterations += int(it_a)
-        params = np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5],
-                           p_a[6]])
-    p, it, conv, inv, scale, _, npx = _run(pb, None, params, False, TOLERANCE_PX)
+    if not known and strips.verts.shape[0] > 0:
+        params, iterations = _estimate_sigma(strips, params)
+    p, it, conv, inv, scale, _, npx = strips.run(None, params, False)
     iterations += int(it)
     off = (float(p[0]), float(p[1]))
     walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
@@ -323,82 +317,104 @@ def refine_with_profile(
     )
 
 
-class _Problem(NamedTuple):
-    """One refinement's fixed inputs, as the kernels take them."""
-
-    image: FloatArray
-    verts: FloatArray  #: the vertices at the DT-LM rotation
-    normals: FloatArray
-    curv: FloatArray
-    values: FloatArray
-    shape: FloatArray  #: the law-correction shape, (N, 0) without one
-    use_shape: bool
-    tau: FloatArray
-    o0: float  #: the profile table's first offset
-    h: float  #: its step
-    j0: int  #: the table columns the strips reach: j0 .. j0 + nb - 1
-    nb: int
-    d0: tuple[float, float]  #: the DT-LM offset, the start
-    kernels: Any
-
-
-def _problem(image: FloatArray, profile: EdgeProfile, vertices_vu: ArrayLike,
-             dt_offset_vu: tuple[float, float], rotation_rad: float,
-             pivot_vu: tuple[float, float] | None, kernels: Any) -> _Problem:
-    verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
-    normals = np.ascontiguousarray(profile.normals_vu, dtype=np.float64)
-    if rotation_rad != 0.0:
-        verts = _rotated(verts, rotation_rad, pivot_vu)
-        normals = _rotated(normals, rotation_rad, None)
-    values = np.ascontiguousarray(profile.values)
-    shape = (np.ascontiguousarray(profile.shape_values) if profile.shape_values is not None
-             else np.zeros((values.shape[0], 0)))
+def _table_window(profile: EdgeProfile) -> tuple[float, float, int, int]:
+    """``(o0, h, j0, j1)``: the profile table's first offset and step, and the first
+    and last of its columns that a strip (plus the table's margin) reaches."""
     h = profile.step_px
     o0 = float(profile.offsets_px[0])
     reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
     j0 = max(0, int(math.floor((-reach - o0) / h)))
-    j1 = min(values.shape[1] - 1, int(math.ceil((reach - o0) / h)))
-    return _Problem(
-        image=image, verts=verts, normals=normals,
-        curv=np.ascontiguousarray(profile.curvature_px), values=values, shape=shape,
-        use_shape=profile.shape_values is not None, tau=_tau_max(verts), o0=o0, h=h, j0=j0,
-        nb=j1 - j0 + 1, d0=(float(dt_offset_vu[0]), float(dt_offset_vu[1])), kernels=kernels,
-    )
+    j1 = min(np.shape(profile.values)[1] - 1, int(math.ceil((reach - o0) / h)))
+    return o0, h, j0, j1
 
 
-def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool,
-         tolerance: float) -> Any:
-    """The kernels' refinement over the vertices ``idx`` (all when None) from
-    ``params``: ``(params, iterations, converged, inverse, scale, _, n_pixels)``."""
-    k = pb.kernels
-    arrays: tuple[FloatArray, ...] = (pb.verts, pb.normals, pb.curv, pb.values, pb.shape, pb.tau)
-    if idx is not None:
-        arrays = tuple(np.ascontiguousarray(a[idx]) for a in arrays)
-    v, nrm, cv, val, shp, tm = arrays
-    hgt, wid = pb.image.shape
-    kk, ii, jj = k.select_pixels(hgt, wid, np.ascontiguousarray(v + np.asarray(pb.d0)), nrm, tm,
-                                 HALF_WIDTH_PX)
-    obs = np.ascontiguousarray(pb.image[ii, jj])
-    pv = ii.astype(np.float64)
-    pu = jj.astype(np.float64)
-    if params[2] == 0.0:  # the linear gain and background at the start
-        b, c, d, t0, ht = k.tables(val, pb.o0, pb.h, pb.j0, pb.nb, params[4])
-        r, _ = k.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False, t0, ht,
-                          np.array([pb.d0[0], pb.d0[1], 1.0, 0.0, params[4], 0.0, 0.0]))
-        model = obs - r
-        a = np.stack([model, np.ones_like(model)], axis=1)
-        sol = np.linalg.lstsq(a, obs, rcond=None)[0]
-        params = params.copy()
-        params[2], params[3] = float(sol[0]), float(sol[1])
-    active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if pb.use_shape else [])
-              + ([6] if FIT_SLOPE else []))
-    out = k.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, pb.o0, pb.h, pb.j0, pb.nb, params,
-                   np.asarray(active, dtype=np.int64), MAX_ITERATIONS, tolerance, TUKEY_C)
-    return (*out, obs.shape[0])
+@dataclass(frozen=True)
+class _Strips:
+    """The refinement's problem: the image, the polyline at the DT-LM rotation with its
+    profile's tables, and the DT-LM offset each pass starts from."""
+
+    image: FloatArray
+    kernels: Any
+    verts: FloatArray
+    normals: FloatArray
+    curv: FloatArray
+    values: FloatArray
+    shape: FloatArray  # the shape term's table; no columns without one
+    tau: FloatArray
+    use_shape: bool
+    o0: float
+    h: float
+    j0: int
+    nb: int  # table columns used, from j0
+    d0: tuple[float, float]
+
+    @classmethod
+    def of(cls, image: FloatArray, profile: EdgeProfile, vertices_vu: FloatArray,
+           dt_offset_vu: tuple[float, float], rotation_rad: float,
+           pivot_vu: tuple[float, float] | None, kernels: Any) -> _Strips:
+        verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
+        normals = np.ascontiguousarray(profile.normals_vu, dtype=np.float64)
+        if rotation_rad != 0.0:
+            verts = _rotated(verts, rotation_rad, pivot_vu)
+            normals = _rotated(normals, rotation_rad, None)
+        values = np.ascontiguousarray(profile.values)
+        shape = (np.ascontiguousarray(profile.shape_values) if profile.shape_values is not None
+                 else np.zeros((values.shape[0], 0)))
+        o0, h, j0, j1 = _table_window(profile)
+        return cls(image, kernels, verts, normals, np.ascontiguousarray(profile.curvature_px),
+                   values, shape, _tau_max(verts), profile.shape_values is not None, o0, h, j0,
+                   j1 - j0 + 1, (float(dt_offset_vu[0]), float(dt_offset_vu[1])))
+
+    def run(self, idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool,
+            tolerance: float = TOLERANCE_PX) -> Any:
+        """One Gauss-Newton pass over the vertices ``idx`` (all when None): the kernel's
+        outputs and the number of pixels."""
+        kernels, d0 = self.kernels, self.d0
+        if idx is None:
+            v, nrm, cv, val, shp, tm = (self.verts, self.normals, self.curv, self.values,
+                                        self.shape, self.tau)
+        else:
+            v, nrm, cv, val, shp, tm = (
+                np.ascontiguousarray(a[idx])
+                for a in (self.verts, self.normals, self.curv, self.values, self.shape, self.tau))
+        kk, ii, jj = kernels.select_pixels(self.image.shape[0], self.image.shape[1],
+                                           np.ascontiguousarray(v + np.asarray(d0)),
+                                           nrm, tm, HALF_WIDTH_PX)
+        obs = np.ascontiguousarray(self.image[ii, jj])
+        pv = ii.astype(np.float64)
+        pu = jj.astype(np.float64)
+        if params[2] == 0.0:  # the linear gain and background at the start
+            b, c, d, t0, ht = kernels.tables(val, self.o0, self.h, self.j0, self.nb, params[4])
+            r, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False, t0, ht,
+                                    np.array([d0[0], d0[1], 1.0, 0.0, params[4], 0.0, 0.0]))
+            model = obs - r
+            a = np.stack([model, np.ones_like(model)], axis=1)
+            sol = np.linalg.lstsq(a, obs, rcond=None)[0]
+            params = params.copy()
+            params[2], params[3] = float(sol[0]), float(sol[1])
+        # the sigma is estimated with the shape free (a wrong law would bias it), then held
+        active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if self.use_shape else [])
+                  + ([6] if FIT_SLOPE else []))
+        out = kernels.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, self.o0, self.h, self.j0,
+                             self.nb, params, np.asarray(active, dtype=np.int64),
+                             MAX_ITERATIONS, tolerance, TUKEY_C)
+        return (*out, obs.shape[0])
 
 
-def _rejection(n_pixels: int, converged: bool, iterations: int, walk: float, gain: float) -> str:
-    """Why a refinement is discarded ("" when it is accepted)."""
+def _estimate_sigma(strips: _Strips, params: FloatArray) -> tuple[FloatArray, int]:
+    """The PSF sigma fitted on a subset of the vertices: the full pass's start
+    parameters (back at the DT-LM offset), and the iterations it took."""
+    n = strips.verts.shape[0]
+    idx = np.arange(0, n, max(1, n // SIGMA_VERTICES), dtype=np.int64)
+    p_a, it_a, _, _, _, _, _ = strips.run(idx, params, True, SIGMA_TOLERANCE)
+    d0 = strips.d0
+    return (np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5], p_a[6]]),
+            int(it_a))
+
+
+def _rejection(n_pixels: int, converged: bool, iterations: int, walk: float,
+               gain: float) -> str:
+    """Why the refinement is not accepted ("" when it is)."""
     if n_pixels == 0:
         return "no pixels in the strips along the normals (is the polyline in the image?)"
     if not converged:
@@ -445,11 +461,7 @@ def profile_samples(
     r = refinement
     params = np.array([r.offset_vu[0], r.offset_vu[1], r.gain, r.background, r.psf_sigma_px,
                        r.shape_amplitude, r.background_slope])
-    h = profile.step_px
-    o0 = float(profile.offsets_px[0])
-    reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
-    j0 = max(0, int(math.floor((-reach - o0) / h)))
-    j1 = min(profile.values.shape[1] - 1, int(math.ceil((reach - o0) / h)))
+    o0, h, j0, j1 = _table_window(profile)
     out = []
     tau = _tau_max(verts)
     for k in (int(i) for i in indices):

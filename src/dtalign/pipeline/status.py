@@ -62,7 +62,14 @@ __all__ = [
 logger = logging.getLogger("dtalign")
 
 
-class FitStatus(str, enum.Enum):
+class _Text(str, enum.Enum):
+    """An enum whose members print as their string values (``str(FitStatus.OK) == "ok"``)."""
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class FitStatus(_Text):
     """Overall verdict on a fit; compares equal to its string value.
 
     ``OK``
@@ -88,11 +95,8 @@ class FitStatus(str, enum.Enum):
     AMBIGUOUS = "ambiguous"
     FAILED = "failed"
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class FitReason(str, enum.Enum):
+class FitReason(_Text):
     """One condition found in a fit; compares equal to its string value.
 
     A fit lists its reasons in the order below: the likeliest cause first.
@@ -175,9 +179,6 @@ class FitReason(str, enum.Enum):
     NOT_CONVERGED = "not_converged"
     AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
     RANK_DEFICIENT = "rank_deficient"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 #: The status each reason implies (a fit's status is the worst of them).
