@@ -414,6 +414,10 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
                      help="with --sphere: which edge the polyline is (default limb)")
     fit.add_argument("--psf-sigma", type=float, metavar="PX",
                      help="with --sphere: the PSF's Gaussian sigma (default: estimated)")
+    # the choices are dtalign.api.profiles.EDGE_KINDS (tests/test_terminator.py checks)
+    fit.add_argument("--edge-kind", choices=("limb", "terminator", "ring", "other"),
+                     help="what kind of edge the polyline is (with --sphere: --edge's); a "
+                     "terminator without --sphere is reported suspect")
     fit.add_argument("--json", action="store_true", help="print JSON instead of a table")
     fit.add_argument("-o", "--output", metavar="FILE", help="write the table or JSON to FILE")
     _add_plot_options(
@@ -776,6 +780,7 @@ def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
         tikhonov_alpha=args.tikhonov,
         final_gradient_ridge=args.ridge,
         edge_profile=profile,
+        edge_kind=args.edge_kind,
     )
     return image, poly, fit
 

@@ -29,10 +29,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..api import checks as check
 from ..api import loop
-from ..api.profiles import EdgeProfile
+from ..api.profiles import EDGE_KINDS, EdgeProfile
 
 __all__ = [
     "HALF_WIDTH_PX",
+    "edge_kind_of",
     "profile_samples",
     "MAX_WALK_PX",
     "SOFT_EDGE_STEP_JUMP",
@@ -52,6 +53,27 @@ HALF_WIDTH_PX = 3.5
 #: moderate phase and ~1.2 px at low phase, so a longer walk means the
 #: model does not describe the image.
 MAX_WALK_PX = 2.0
+
+#: The terminator's start: the DT puts a Lambert terminator (a kink in
+#: brightness, not an edge) where the brightness ramp crosses the edge
+#: threshold, 4-15 px on the lit side of the geometric terminator on the
+#: rendered scenes (:ref:`profiles-terminator`), beyond the strip's reach.
+#: So a terminator's refinement starts from a scan of the profile model
+#: along the polyline's mean normal, from this far on the dark side of the
+#: DT lock ...
+SCAN_DARK_PX = 20.0
+#: ... to this far on its lit side ...
+SCAN_LIT_PX = 4.0
+#: ... in steps of this (a quarter of the strip's width: the correlation's
+#: peak is a few steps wide), refined by a parabola through the best three.
+SCAN_STEP_PX = 0.5
+
+#: A terminator's fit whose walk from its start exceeds :data:`MAX_WALK_PX`
+#: (the scan places it along the mean normal only: at high phase the DT
+#: lock is also off across it) is run again from where it went, with the
+#: strips centred there, at most this many times in all; the walk limit
+#: holds for the last run.
+TERMINATOR_RECENTRES = 4
 
 #: Table margin beyond the strip, pixels: the walk the table still models
 #: exactly (beyond it the profile is held flat).
@@ -100,7 +122,7 @@ class ProfileRefinement:
     offset_vu : tuple of float
         The refined offset (whether accepted or not).
     dt_offset_vu : tuple of float
-        The DT-LM offset it started from.
+        The DT-LM offset.
     accepted : bool
         True when the fit's pose is this refinement's.
     reason : str
@@ -137,6 +159,10 @@ class ProfileRefinement:
         :data:`SOFT_EDGE_STEP_JUMP`); never set for other edge kinds.
     time_s : float
         Wall time of the refinement.
+    start_offset_vu : tuple of float or None
+        Where the Gauss-Newton started when not at the DT-LM offset: a
+        terminator's scan (:data:`SCAN_DARK_PX`); None otherwise. The walk
+        limit :data:`MAX_WALK_PX` is measured from it.
     """
 
     offset_vu: tuple[float, float]
@@ -158,6 +184,7 @@ class ProfileRefinement:
     step_jump: float
     soft_edge: bool
     time_s: float
+    start_offset_vu: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (a value that is not finite is ``None``, as in
@@ -178,6 +205,8 @@ class ProfileRefinement:
             "covariance": [[num(x) for x in row] for row in self.covariance],
             "step_jump": num(self.step_jump), "soft_edge": self.soft_edge,
             "time_s": self.time_s,
+            "start_offset_vu": (None if self.start_offset_vu is None
+                                else [num(x) for x in self.start_offset_vu]),
         }
 
     @classmethod
@@ -200,6 +229,8 @@ class ProfileRefinement:
             n_pixels=int(d["n_pixels"]), residual_scale=num(d["residual_scale"]),
             covariance=(pair(cov[0]), pair(cov[1])), step_jump=num(d["step_jump"]),
             soft_edge=bool(d["soft_edge"]), time_s=float(d["time_s"]),
+            start_offset_vu=(None if d.get("start_offset_vu") is None
+                             else pair(d["start_offset_vu"])),
         )
 
 
@@ -218,6 +249,26 @@ def check_edge_profile(value: Any, normals_vu: FloatArray) -> EdgeProfile:
             f"{dots[k]:.3g}): the profile must run along the polyline's normals"
         )
     return value
+
+
+def edge_kind_of(edge_kind: Any, profile: EdgeProfile | None) -> str | None:
+    """The kind of edge a polyline is: ``edge_kind`` (one of
+    :data:`~dtalign.api.profiles.EDGE_KINDS`, or None: not declared), or
+    the checked ``profile``'s ``edge`` when ``edge_kind`` is None.
+
+    Raises
+    ------
+    ValueError
+        If ``edge_kind`` is not an edge kind, or differs from the profile's ``edge``.
+    """
+    if edge_kind is not None and (not isinstance(edge_kind, str) or edge_kind not in EDGE_KINDS):
+        raise ValueError(f"edge_kind must be one of {EDGE_KINDS} or None, got {edge_kind!r}")
+    if profile is None:
+        return edge_kind
+    if edge_kind is not None and edge_kind != profile.edge:
+        raise ValueError(f"edge_kind {edge_kind!r} conflicts with edge_profile.edge "
+                         f"{profile.edge!r}: give one kind (or leave edge_kind None)")
+    return profile.edge
 
 
 def _tau_max(verts: FloatArray) -> FloatArray:
@@ -283,9 +334,13 @@ def refine_with_profile(
         kernels = loop.profile_kernels
     t_start = time.perf_counter()
     pb = _problem(image, profile, vertices_vu, dt_offset_vu, rotation_rad, pivot_vu, kernels)
-    d0 = pb.d0
     known = profile.psf_sigma_px is not None
     sigma = SIGMA_START_PX if profile.psf_sigma_px is None else float(profile.psf_sigma_px)
+    start = None
+    if profile.edge == "terminator" and pb.verts.shape[0] > 0:
+        start = _scan_start(pb, sigma)
+        pb = pb._replace(d0=start)
+    d0 = pb.d0
     # contrast-weighted step fraction: is there an edge at all?
     contrast = np.ptp(pb.values[:, pb.j0 : pb.j0 + pb.nb], axis=1)
     step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
@@ -304,14 +359,26 @@ def refine_with_profile(
         iterations += int(it_a)
         params = np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5],
                            p_a[6]])
-    p, it, conv, inv, scale, _, npx = _run(pb, None, params, False, TOLERANCE_PX)
-    iterations += int(it)
-    off = (float(p[0]), float(p[1]))
-    walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
+    for _ in range(1 if start is None else TERMINATOR_RECENTRES):
+        p, it, conv, inv, scale, _, npx = _run(pb, None, params, False, TOLERANCE_PX)
+        iterations += int(it)
+        off = (float(p[0]), float(p[1]))
+        walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
+        if walk <= MAX_WALK_PX or not conv:
+            break
+        # a terminator's scan runs along the mean normal only: the strips are
+        # centred again where the fit went, and the fit run again from there
+        pb = pb._replace(d0=off)
+        d0 = off
+        params = np.array([off[0], off[1], 0.0, 0.0, float(p[4]), 0.0, 0.0])
     cov = np.asarray(inv)[:2, :2] * float(scale) ** 2
-    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]))
+    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]),
+                        "the DT lock" if start is None else "the terminator scan's start")
+    dt = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
+    if start is not None:
+        walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
     return ProfileRefinement(
-        offset_vu=off, dt_offset_vu=d0, accepted=not reason, reason=reason,
+        offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
         gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
         shape_amplitude=float(p[5]),
         psf_sigma_px=float(p[4]),
@@ -319,8 +386,51 @@ def refine_with_profile(
         n_pixels=int(npx), residual_scale=float(scale),
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
         step_jump=float(step_jump), soft_edge=bool(soft),
-        time_s=time.perf_counter() - t_start,
+        time_s=time.perf_counter() - t_start, start_offset_vu=start,
     )
+
+
+def _scan_start(pb: _Problem, sigma: float) -> tuple[float, float]:
+    """A terminator's start: the offset along the polyline's mean normal,
+    from :data:`SCAN_DARK_PX` behind the DT lock to :data:`SCAN_LIT_PX`
+    ahead, whose strips' pixels correlate best with the profile model
+    (gain and background free: the correlation; a strip wholly on the dark
+    side correlates with nothing, one wholly on the ramp less than the kink
+    does)."""
+    k = pb.kernels
+    nbar = pb.normals.sum(axis=0)
+    norm = math.hypot(float(nbar[0]), float(nbar[1]))
+    if not norm > 0.0:
+        return pb.d0
+    nbar = nbar / norm
+    b, c, d, t0, ht = k.tables(pb.values, pb.o0, pb.h, pb.j0, pb.nb, sigma)
+    hgt, wid = pb.image.shape
+    ts = np.arange(-SCAN_DARK_PX, SCAN_LIT_PX + 0.5 * SCAN_STEP_PX, SCAN_STEP_PX)
+    scores = np.full(ts.shape[0], -np.inf)
+    for q, t in enumerate(ts):
+        off = np.asarray(pb.d0) + t * nbar
+        kk, ii, jj = k.select_pixels(hgt, wid, np.ascontiguousarray(pb.verts + off), pb.normals,
+                                     pb.tau, HALF_WIDTH_PX)
+        if ii.shape[0] < 3:
+            continue
+        obs = np.ascontiguousarray(pb.image[ii, jj])
+        r, _ = k.evaluate(obs, kk, ii.astype(np.float64), jj.astype(np.float64), pb.verts,
+                          pb.normals, pb.curv, b, c, d, b, c, d, False, t0, ht,
+                          np.array([off[0], off[1], 1.0, 0.0, sigma, 0.0, 0.0]))
+        model = obs - r
+        sm, so = float(model.std()), float(obs.std())
+        if sm > 0.0 and so > 0.0:
+            scores[q] = float(((model - model.mean()) * (obs - obs.mean())).mean() / (sm * so))
+    if not np.isfinite(scores).any():
+        return pb.d0
+    q = int(np.argmax(scores))
+    t = float(ts[q])
+    if 0 < q < ts.shape[0] - 1 and np.isfinite(scores[q - 1 : q + 2]).all():
+        y0, y1, y2 = scores[q - 1], scores[q], scores[q + 1]
+        den = y0 - 2.0 * y1 + y2
+        if den < 0.0:
+            t += 0.5 * SCAN_STEP_PX * float(y0 - y2) / float(den)
+    return (pb.d0[0] + t * float(nbar[0]), pb.d0[1] + t * float(nbar[1]))
 
 
 class _Problem(NamedTuple):
@@ -397,14 +507,15 @@ def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_si
     return (*out, obs.shape[0])
 
 
-def _rejection(n_pixels: int, converged: bool, iterations: int, walk: float, gain: float) -> str:
-    """Why a refinement is discarded ("" when it is accepted)."""
+def _rejection(n_pixels: int, converged: bool, iterations: int, walk: float, gain: float,
+               start: str = "the DT lock") -> str:
+    """Why a refinement is discarded ("" when it is accepted); ``walk`` is from ``start``."""
     if n_pixels == 0:
         return "no pixels in the strips along the normals (is the polyline in the image?)"
     if not converged:
         return f"did not converge in {iterations} Gauss-Newton iterations"
     if not walk <= MAX_WALK_PX:
-        return f"walked {walk:.3g} px from the DT lock (more than {MAX_WALK_PX:g} px)"
+        return f"walked {walk:.3g} px from {start} (more than {MAX_WALK_PX:g} px)"
     if not gain > 0.0:
         return f"fitted a non-positive gain ({gain:.3g}): the profile does not match the image"
     return ""

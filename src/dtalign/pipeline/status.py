@@ -71,8 +71,10 @@ class FitStatus(str, enum.Enum):
         geometry observes.
     ``SUSPECT``
         The pose is a measurement but should be checked: an edge profile's
-        refinement was discarded (:attr:`FitReason.PROFILE_REJECTED`) or a
-        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`).
+        refinement was discarded (:attr:`FitReason.PROFILE_REJECTED`), a
+        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`), or a
+        terminator was fitted without a profile
+        (:attr:`FitReason.TERMINATOR_WITHOUT_PROFILE`).
     ``AMBIGUOUS``
         Another basin, across the edge, fits the image about as well
         (:attr:`FitReason.AMBIGUOUS`): the pose may be the wrong one of two.
@@ -133,6 +135,17 @@ class FitReason(str, enum.Enum):
         :data:`~dtalign.pipeline.profile_fit.SOFT_EDGE_STEP_JUMP`), so the
         edge's position rests on the modelled roll-off alone and on the
         reflectance law being right.
+    ``TERMINATOR_WITHOUT_PROFILE`` (suspect)
+        The polyline is declared a terminator (``edge_kind="terminator"``)
+        and was fitted without an :class:`~dtalign.EdgeProfile`: a Lambert
+        terminator is a kink in brightness (``cos i`` through 0), not an
+        edge, so the DT puts it wherever the brightness ramp crosses the
+        edge threshold, which depends on the noise and the albedo, not on
+        where the terminator is. On rendered Lambert terminators
+        (:ref:`profiles-terminator`) the plain fit's error has median
+        :data:`TERMINATOR_PLAIN_MEDIAN_PX` and 90th percentile
+        :data:`TERMINATOR_PLAIN_P90_PX` px. Give the sphere's profile
+        (:func:`dtalign.sphere_edge_profile` with ``edge="terminator"``).
     ``NOT_CONVERGED`` (note: the status stays ``OK``)
         The pose has not settled: the LM stopped (iteration cap or damping
         bound) before an accepted step fell below ``step_tolerance_px``,
@@ -172,6 +185,7 @@ class FitReason(str, enum.Enum):
     AMBIGUOUS = "ambiguous"
     PROFILE_REJECTED = "profile_rejected"
     SOFT_EDGE = "soft_edge"
+    TERMINATOR_WITHOUT_PROFILE = "terminator_without_profile"
     NOT_CONVERGED = "not_converged"
     AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
     RANK_DEFICIENT = "rank_deficient"
@@ -179,6 +193,14 @@ class FitReason(str, enum.Enum):
     def __str__(self) -> str:
         return self.value
 
+
+#: The error of plain (profile-less) fits of rendered Lambert terminators,
+#: px: median and 90th percentile over the seeded scenes of
+#: ``benchmarks/terminator_error.py`` (:ref:`profiles-terminator`: diameter
+#: 100-240 px, phase 35-150 deg, any light direction, noise-free and noisy,
+#: window (8, 8)). What :attr:`FitReason.TERMINATOR_WITHOUT_PROFILE` warns of.
+TERMINATOR_PLAIN_MEDIAN_PX = 4.4
+TERMINATOR_PLAIN_P90_PX = 12.6
 
 #: The status each reason implies (a fit's status is the worst of them).
 SEVERITY: dict[FitReason, FitStatus] = {
@@ -192,6 +214,7 @@ SEVERITY: dict[FitReason, FitStatus] = {
     FitReason.RANK_DEFICIENT: FitStatus.OK,
     FitReason.PROFILE_REJECTED: FitStatus.SUSPECT,
     FitReason.SOFT_EDGE: FitStatus.SUSPECT,
+    FitReason.TERMINATOR_WITHOUT_PROFILE: FitStatus.SUSPECT,
 }
 
 _ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.AMBIGUOUS, FitStatus.FAILED)
@@ -202,7 +225,8 @@ STATUS_MEANING: dict[FitStatus, str] = {
     FitStatus.OK: "the pose is a measurement; the fit may carry notes (reasons whose "
     "status is ``ok``).",
     FitStatus.SUSPECT: "the pose is a measurement that should be checked: an edge "
-    "profile's refinement was discarded, or a limb has no usable edge.",
+    "profile's refinement was discarded, a limb has no usable edge, or a terminator was "
+    "fitted without a profile.",
     FitStatus.AMBIGUOUS: "another basin across the edge fits the image about as well: "
     "the pose may be the wrong one of two.",
     FitStatus.FAILED: "the pose is not a measurement of the image: do not use it.",
@@ -233,6 +257,12 @@ REASON_MEANING: dict[FitReason, str] = {
     FitReason.SOFT_EDGE: "the limb profile has no usable edge (its brightness rolls off to "
     "the limb, as a Lambert limb at low phase): the position rests on the modelled roll-off "
     "and on the reflectance law being right.",
+    FitReason.TERMINATOR_WITHOUT_PROFILE: "the polyline is declared a terminator and was "
+    "fitted without an edge profile: the DT puts a terminator (a kink in brightness, not an "
+    f"edge) where the ramp crosses the edge threshold: on rendered Lambert terminators the "
+    f"error has median {TERMINATOR_PLAIN_MEDIAN_PX:g} px and 90th percentile "
+    f"{TERMINATOR_PLAIN_P90_PX:g} px. Give "
+    "``sphere_edge_profile(..., edge=\"terminator\")``. See :ref:`profiles-terminator`.",
     FitReason.NOT_CONVERGED: "the pose has not settled: the LM stopped before its step "
     "tolerance and its pose still moved more than 0.25 sigma over its last 5 iterations. "
     "Raise ``max_iterations``. See `Converged, settled, and the iteration cap`_.",
@@ -385,6 +415,8 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
             out.append(FitReason.PROFILE_REJECTED)
         if profile.soft_edge:
             out.append(FitReason.SOFT_EDGE)
+    elif getattr(fit, "edge_kind", None) == "terminator":
+        out.append(FitReason.TERMINATOR_WITHOUT_PROFILE)
     if not settled(fit):
         out.append(FitReason.NOT_CONVERGED)
     if ambiguity is not None and ambiguity.ambiguous and ambiguity.along_unobservable:
@@ -452,6 +484,13 @@ def _explain(fit: Any, reason: FitReason) -> str:
         return (
             f"profile refinement rejected: {fit.profile.reason}; the pose is the DT-LM's "
             "(biased by the edge DT's photometric offset)"
+        )
+    if reason is FitReason.TERMINATOR_WITHOUT_PROFILE:
+        return (
+            "terminator without a profile: the DT puts a terminator where the brightness ramp "
+            f"crosses the edge threshold (on rendered Lambert terminators the median error is "
+            f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px); fit it with "
+            "sphere_edge_profile(..., edge='terminator')"
         )
     if reason is FitReason.SOFT_EDGE:
         return (
@@ -538,5 +577,6 @@ def log_fits(fits: Sequence[Any], label: str = "polylines") -> None:
         # clean fit (most of a batch) costs a few reads here, not the full check
         if (info or lm.degenerate or fit.at_window_edge
                 or 2 * lm.inlier_count < lm.residuals_px.shape[0]
-                or getattr(fit, "profile", None) is not None):
+                or getattr(fit, "profile", None) is not None
+                or getattr(fit, "edge_kind", None) == "terminator"):
             log_fit(fit, f"{label}[{i}]")
