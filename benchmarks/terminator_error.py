@@ -36,7 +36,7 @@ READ_NOISE_DN = 1.0
 WINDOW = (8, 8)
 
 
-def scene(rng: np.random.Generator, noisy: bool, seed: int) -> Any:
+def scene(rng: np.random.Generator, noisy: bool, seed: int, psf: float | None = None) -> Any:
     """One seeded scene: diameter 100-240 px, phase 35-150 deg, any light direction."""
     diameter = rng.uniform(100.0, 240.0)
     phase = rng.uniform(35.0, 150.0)
@@ -46,10 +46,11 @@ def scene(rng: np.random.Generator, noisy: bool, seed: int) -> Any:
     noise = dict(poisson_gain=POISSON_GAIN, read_noise_dn=READ_NOISE_DN) if noisy else {}
     return render_sphere(shape=SHAPE, center_vu=tuple(centre), radius_px=diameter / 2.0,
                          phase_deg=phase, illumination_deg=ill, offset_vu=tuple(offset),
-                         albedo_dn=200.0, background_dn=10.0, seed=seed, **noise)
+                         albedo_dn=200.0, background_dn=10.0, seed=seed, psf_sigma_px=psf,
+                         **noise)
 
 
-def measure(sc: Any) -> dict[str, Any]:
+def measure(sc: Any, profile_psf: float | None = 0.0) -> dict[str, Any]:
     """The plain and profile fits of one scene's terminator, declared as one."""
     T = sc.terminator
     truth = np.asarray(sc.true_offset_vu)
@@ -60,7 +61,7 @@ def measure(sc: Any) -> dict[str, Any]:
     prof = sphere_edge_profile(T.vertices_vu, center_vu=sc.model_center_vu,
                                radius_px=sc.radius_px, phase_deg=sc.phase_deg,
                                illumination_deg=sc.illumination_deg, edge="terminator",
-                               psf_sigma_px=0.0)
+                               psf_sigma_px=profile_psf)
     t2 = time.perf_counter()
     fit = fit_polyline(sc.image, T.vertices_vu, T.normals_vu, T.sigmas,
                        search_window_vu=WINDOW, edge_profile=prof)
@@ -78,12 +79,16 @@ def measure(sc: Any) -> dict[str, Any]:
     }
 
 
-def rows(n_scenes: int, seed: int) -> list[dict[str, Any]]:
-    """``n_scenes`` scenes from ``seed``, noise-free and noisy alternately."""
+def rows(n_scenes: int, seed: int, psf: float | None = None,
+         psf_given: bool = True) -> list[dict[str, Any]]:
+    """``n_scenes`` scenes from ``seed``, noise-free and noisy alternately,
+    rendered with a Gaussian PSF of sigma ``psf`` (None: none), told to the
+    profile when ``psf_given`` (else estimated by the fit)."""
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n_scenes):
-        r = measure(scene(rng, i % 2 == 1, seed * 1000 + i))
+        r = measure(scene(rng, i % 2 == 1, seed * 1000 + i, psf),
+                    (psf or 0.0) if psf_given else None)
         r["noise"] = "noisy" if i % 2 else "noise-free"
         out.append(r)
     return out
@@ -121,9 +126,9 @@ def table(groups: list[tuple[str, list[dict[str, Any]]]]) -> str:
     return "\n".join([line, fmt(head), line, *map(fmt, body), line])
 
 
-def run(n_scenes: int, seed: int) -> str:
+def run(n_scenes: int, seed: int, psf: float | None = None, psf_given: bool = True) -> str:
     t0 = time.perf_counter()
-    rs = rows(n_scenes, seed)
+    rs = rows(n_scenes, seed, psf, psf_given)
     groups = [("all", rs), ("noise-free", [r for r in rs if r["noise"] == "noise-free"]),
               ("noisy", [r for r in rs if r["noise"] == "noisy"]),
               ("phase 35-90", [r for r in rs if r["phase"] < 90]),
@@ -131,7 +136,9 @@ def run(n_scenes: int, seed: int) -> str:
     worst = sorted(rs, key=lambda r: -r["profile"])[:3]
     tail = "; ".join(f"{r['profile']:.2f} px {r['status']} ({', '.join(r['reasons'])})"
                      for r in worst)
-    return (f"seed {seed}, {n_scenes} scenes, {time.perf_counter() - t0:.0f} s\n\n"
+    told = "given" if psf_given else "estimated"
+    return (f"seed {seed}, {n_scenes} scenes, PSF sigma {psf or 0:g} px ({told}), "
+            f"{time.perf_counter() - t0:.0f} s\n\n"
             f"{table(groups)}\n\nworst profile fits: {tail}")
 
 
@@ -139,8 +146,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--scenes", type=int, default=48)
     ap.add_argument("--seed", type=int, default=2028)
+    ap.add_argument("--psf", type=float, default=None, help="render with this Gaussian PSF sigma")
+    ap.add_argument("--psf-estimated", action="store_true",
+                    help="do not tell the profile the PSF: the fit estimates it")
     args = ap.parse_args(argv)
-    print(run(args.scenes, args.seed))
+    print(run(args.scenes, args.seed, args.psf, not args.psf_estimated))
     return 0
 
 

@@ -350,6 +350,16 @@ def refine_with_profile(
 
     params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
     iterations = 0
+    if start is not None and not known:
+        # a terminator's strips are placed first, with the sigma held at its
+        # start: estimated 2-5 px from the kink (the scan's start at high
+        # phase), the sigma would absorb the misplacement
+        pb, _, placed = _recentred(pb, params)
+        iterations += int(placed[1])
+        if placed[2]:
+            pb = pb._replace(d0=(float(placed[0][0]), float(placed[0][1])))
+        d0 = pb.d0
+        params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
     if not known and pb.verts.shape[0] > 0:
         # the sigma is estimated on a subset with the shape free (a wrong law
         # would bias it), then held
@@ -359,21 +369,18 @@ def refine_with_profile(
         iterations += int(it_a)
         params = np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5],
                            p_a[6]])
-    for _ in range(1 if start is None else TERMINATOR_RECENTRES):
-        p, it, conv, inv, scale, _, npx = _run(pb, None, params, False, TOLERANCE_PX)
-        iterations += int(it)
-        off = (float(p[0]), float(p[1]))
-        walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
-        if walk <= MAX_WALK_PX or not conv:
-            break
-        # a terminator's scan runs along the mean normal only: the strips are
-        # centred again where the fit went, and the fit run again from there
-        pb = pb._replace(d0=off)
-        d0 = off
-        params = np.array([off[0], off[1], 0.0, 0.0, float(p[4]), 0.0, 0.0])
+    if start is None:
+        out = _run(pb, None, params, False, TOLERANCE_PX)
+    else:
+        pb, _, out = _recentred(pb, params)
+    p, it, conv, inv, scale, _, npx = out
+    iterations += int(it)
+    d0 = pb.d0
+    off = (float(p[0]), float(p[1]))
+    walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
     cov = np.asarray(inv)[:2, :2] * float(scale) ** 2
     reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]),
-                        "the DT lock" if start is None else "the terminator scan's start")
+                        "the DT lock" if start is None else "where its last run started")
     dt = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
     if start is not None:
         walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
@@ -388,6 +395,27 @@ def refine_with_profile(
         step_jump=float(step_jump), soft_edge=bool(soft),
         time_s=time.perf_counter() - t_start, start_offset_vu=start,
     )
+
+
+def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, Any]:
+    """A terminator's offset fit from ``params`` (the sigma held): run again
+    with the strips centred where it went while it walks more than
+    :data:`MAX_WALK_PX` (the scan places it along the mean normal only; at
+    high phase the DT lock is off across it too), at most
+    :data:`TERMINATOR_RECENTRES` runs. Returns the last run's problem (its
+    strips' centre ``d0``), its start parameters and its :func:`_run`
+    output with the iterations of every run."""
+    total = 0
+    for _ in range(TERMINATOR_RECENTRES):
+        out = _run(pb, None, params, False, TOLERANCE_PX)
+        total += int(out[1])
+        p, conv = out[0], bool(out[2])
+        off = (float(p[0]), float(p[1]))
+        if math.hypot(off[0] - pb.d0[0], off[1] - pb.d0[1]) <= MAX_WALK_PX or not conv:
+            break
+        pb = pb._replace(d0=off)
+        params = np.array([off[0], off[1], 0.0, 0.0, float(p[4]), 0.0, 0.0])
+    return pb, params, (out[0], total, *out[2:])
 
 
 def _scan_start(pb: _Problem, sigma: float) -> tuple[float, float]:
