@@ -130,8 +130,7 @@ class PolylineFit:
         the DT-LM one.
     edge_kind : str or None
         What kind of edge the polyline was declared to be
-        (:attr:`~dtalign.api.options.FitOptions.edge_kind`, or its
-        profile's ``edge``); None when not declared. A ``"terminator"``
+        (``FitOptions.edge_kind``, or its profile's ``edge``); None when not declared. A ``"terminator"``
         without a profile carries
         :attr:`~dtalign.pipeline.status.FitReason.TERMINATOR_WITHOUT_PROFILE`.
 

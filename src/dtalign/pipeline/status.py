@@ -43,6 +43,8 @@ from ..api.constants import POLARITY_PENALTY_RESIDUAL
 __all__ = [
     "SETTLE_ITERATIONS",
     "SETTLE_SIGMAS",
+    "TERMINATOR_PLAIN_MEDIAN_PX",
+    "TERMINATOR_PLAIN_P90_PX",
     "FitReason",
     "FitStatus",
     "Settling",
