@@ -25,13 +25,18 @@ from dtalign.scenes import render_sphere
 WINDOW = (8, 8)
 
 
-def _scene(rng, noisy, seed):
+def _draws(rng):
     # benchmarks/terminator_error.py's scene(), draw for draw
     diameter = rng.uniform(100.0, 240.0)
     phase = rng.uniform(35.0, 150.0)
     ill = rng.uniform(0.0, 360.0)
     offset = rng.uniform(-0.5, 0.5, 2) + rng.integers(-2, 3, 2)
     centre = np.array((300, 300)) / 2.0 + rng.uniform(-0.5, 0.5, 2)
+    return diameter, phase, ill, offset, centre
+
+
+def _scene(rng, noisy, seed):
+    diameter, phase, ill, offset, centre = _draws(rng)
     noise = dict(poisson_gain=20.0, read_noise_dn=1.0) if noisy else {}
     return render_sphere(shape=(300, 300), center_vu=tuple(centre), radius_px=diameter / 2.0,
                          phase_deg=phase, illumination_deg=ill, offset_vu=tuple(offset),
@@ -179,3 +184,46 @@ def test_terminator_target_on_a_seeded_subset():
     assert np.median(prof_err) <= 0.2
     assert np.percentile(prof_err, 90) <= 0.5
     assert np.median(plain_err) > 2.0
+
+
+def test_campaign_records_the_edge_kind(tmp_path, one):
+    from dtalign.archive import fit_item, read_manifest
+    from dtalign.archive.store import RESULT_COLUMNS
+    from dtalign.io import save_polyline_csv
+
+    assert "edge_kind" in [name for name, _, _ in RESULT_COLUMNS]
+    np.save(tmp_path / "s.npy", one.image)
+    save_polyline_csv(tmp_path / "s.csv", one.terminator)
+    sphere = {"center_vu": list(one.model_center_vu), "radius_px": one.radius_px,
+              "phase_deg": one.phase_deg, "illumination_deg": one.illumination_deg,
+              "edge": "terminator", "psf_sigma_px": 0.0}
+    (tmp_path / "m.jsonl").write_text(
+        json.dumps({"id": "plain", "image": "s.npy", "polylines": ["s.csv"], "window": 8,
+                    "options": {"edge_kind": "terminator"}}) + "\n"
+        + json.dumps({"id": "sphere", "image": "s.npy", "polylines": ["s.csv"], "window": 8,
+                      "spheres": [sphere]}) + "\n"
+        + json.dumps({"id": "none", "image": "s.npy", "polylines": ["s.csv"], "window": 8})
+        + "\n")
+    plain, sphere_row, none = (fit_item(it)["results"][0]
+                               for it in read_manifest(tmp_path / "m.jsonl"))
+    assert plain["edge_kind"] == "terminator" and plain["status"] == "suspect"
+    assert "terminator_without_profile" in plain["reasons"]
+    assert sphere_row["edge_kind"] == "terminator" and sphere_row["profile_accepted"] is True
+    assert none["edge_kind"] is None
+
+
+def test_a_barely_measured_terminator_is_not_ok():
+    # scene 33 of the benchmark's seed 2028 (noisy, phase 91 deg): the terminator is
+    # nearly straight, the refinement 1.56 px off along it, with a one-sigma of 0.93 px
+    rng = np.random.default_rng(SUBSET_SEED)
+    for _ in range(33):
+        _draws(rng)
+    sc = _scene(rng, True, SUBSET_SEED * 1000 + 33)
+    T = sc.terminator
+    fit = fit_polyline(sc.image, T.vertices_vu, T.normals_vu, T.sigmas, search_window_vu=WINDOW,
+                       edge_profile=_profile(sc))
+    assert fit.profile.accepted and _err(fit, sc) > 1.0
+    assert FitReason.TERMINATOR_IMPRECISE in fit.reasons and fit.status != "ok"
+    assert "terminator imprecise" in fit.status_message
+    # the reason is a terminator's: the same refinement on a polyline of another kind has none
+    assert FitReason.TERMINATOR_IMPRECISE not in dataclasses.replace(fit, edge_kind=None).reasons

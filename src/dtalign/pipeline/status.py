@@ -45,6 +45,7 @@ __all__ = [
     "SETTLE_SIGMAS",
     "TERMINATOR_PLAIN_MEDIAN_PX",
     "TERMINATOR_PLAIN_P90_PX",
+    "TERMINATOR_SIGMA_LIMIT_PX",
     "FitReason",
     "FitStatus",
     "Settling",
@@ -148,6 +149,13 @@ class FitReason(str, enum.Enum):
         :data:`TERMINATOR_PLAIN_MEDIAN_PX` and 90th percentile
         :data:`TERMINATOR_PLAIN_P90_PX` px. Give the sphere's profile
         (:func:`dtalign.sphere_edge_profile` with ``edge="terminator"``).
+    ``TERMINATOR_IMPRECISE`` (suspect)
+        A terminator's profile refinement was accepted but its own one-sigma
+        exceeds :data:`TERMINATOR_SIGMA_LIMIT_PX` along some direction: near
+        phase 90 deg the terminator is nearly straight and its along-edge
+        shift barely measured (on the seeded scenes of
+        :ref:`profiles-terminator` the only accepted profile fit more than
+        1 px off, 1.56 px at phase 91 deg, reported 0.93 px).
     ``NOT_CONVERGED`` (note: the status stays ``OK``)
         The pose has not settled: the LM stopped (iteration cap or damping
         bound) before an accepted step fell below ``step_tolerance_px``,
@@ -188,6 +196,7 @@ class FitReason(str, enum.Enum):
     PROFILE_REJECTED = "profile_rejected"
     SOFT_EDGE = "soft_edge"
     TERMINATOR_WITHOUT_PROFILE = "terminator_without_profile"
+    TERMINATOR_IMPRECISE = "terminator_imprecise"
     NOT_CONVERGED = "not_converged"
     AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
     RANK_DEFICIENT = "rank_deficient"
@@ -206,6 +215,12 @@ class FitReason(str, enum.Enum):
 TERMINATOR_PLAIN_MEDIAN_PX = 4.6
 TERMINATOR_PLAIN_P90_PX = 13.8
 
+#: A terminator's accepted profile refinement whose own one-sigma (the
+#: square root of its covariance's largest eigenvalue) exceeds this, px, is
+#: suspect (:attr:`FitReason.TERMINATOR_IMPRECISE`): an ``ok`` terminator
+#: more than 1 px off would then be more than two of its sigmas off.
+TERMINATOR_SIGMA_LIMIT_PX = 0.5
+
 #: The status each reason implies (a fit's status is the worst of them).
 SEVERITY: dict[FitReason, FitStatus] = {
     FitReason.DEGENERATE: FitStatus.FAILED,
@@ -219,6 +234,7 @@ SEVERITY: dict[FitReason, FitStatus] = {
     FitReason.PROFILE_REJECTED: FitStatus.SUSPECT,
     FitReason.SOFT_EDGE: FitStatus.SUSPECT,
     FitReason.TERMINATOR_WITHOUT_PROFILE: FitStatus.SUSPECT,
+    FitReason.TERMINATOR_IMPRECISE: FitStatus.SUSPECT,
 }
 
 _ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.AMBIGUOUS, FitStatus.FAILED)
@@ -267,6 +283,10 @@ REASON_MEANING: dict[FitReason, str] = {
     f"error has median {TERMINATOR_PLAIN_MEDIAN_PX:g} px and 90th percentile "
     f"{TERMINATOR_PLAIN_P90_PX:g} px. Give "
     "``sphere_edge_profile(..., edge=\"terminator\")``. See :ref:`profiles-terminator`.",
+    FitReason.TERMINATOR_IMPRECISE: "a terminator's profile refinement reports a one-sigma "
+    f"above {TERMINATOR_SIGMA_LIMIT_PX:g} px along some direction: the pose is barely measured "
+    "there (a terminator near phase 90 deg is nearly straight). See "
+    ":attr:`~dtalign.pipeline.PolylineFit.profile`.",
     FitReason.NOT_CONVERGED: "the pose has not settled: the LM stopped before its step "
     "tolerance and its pose still moved more than 0.25 sigma over its last 5 iterations. "
     "Raise ``max_iterations``. See `Converged, settled, and the iteration cap`_.",
@@ -419,6 +439,9 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
             out.append(FitReason.PROFILE_REJECTED)
         if profile.soft_edge:
             out.append(FitReason.SOFT_EDGE)
+        if (profile.accepted and getattr(fit, "edge_kind", None) == "terminator"
+                and _profile_sigma(profile) > TERMINATOR_SIGMA_LIMIT_PX):
+            out.append(FitReason.TERMINATOR_IMPRECISE)
     elif getattr(fit, "edge_kind", None) == "terminator":
         out.append(FitReason.TERMINATOR_WITHOUT_PROFILE)
     if not settled(fit):
@@ -426,6 +449,14 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
     if ambiguity is not None and ambiguity.ambiguous and ambiguity.along_unobservable:
         out.append(FitReason.AMBIGUOUS_ALONG_EDGE)
     return tuple(out)
+
+
+def _profile_sigma(profile: Any) -> float:
+    """The largest one-sigma of a profile refinement's offset, px (inf when not finite)."""
+    cov = np.asarray(profile.covariance, dtype=np.float64)
+    if not np.isfinite(cov).all():
+        return float("inf")
+    return float(np.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0)))
 
 
 def fit_reasons(fit: Any) -> tuple[FitReason, ...]:
@@ -495,6 +526,12 @@ def _explain(fit: Any, reason: FitReason) -> str:
             f"crosses the edge threshold (on rendered Lambert terminators the median error is "
             f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px); fit it with "
             "sphere_edge_profile(..., edge='terminator')"
+        )
+    if reason is FitReason.TERMINATOR_IMPRECISE:
+        return (
+            f"terminator imprecise: the profile refinement's one-sigma is "
+            f"{_profile_sigma(fit.profile):.3g} px along some direction (above "
+            f"{TERMINATOR_SIGMA_LIMIT_PX:g} px): the pose is barely measured there"
         )
     if reason is FitReason.SOFT_EDGE:
         return (
