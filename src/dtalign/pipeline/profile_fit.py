@@ -68,8 +68,9 @@ MAX_WALK_PX = 2.0
 SCAN_DARK_PX = 20.0
 #: ... to this far on its lit side ...
 SCAN_LIT_PX = 4.0
-#: ... in steps of this (a quarter of the strip's width: the correlation's
-#: peak is a few steps wide), refined by a parabola through the best three.
+#: ... in steps of this (a seventh of the strip's 7 px width: the
+#: correlation's peak spans several steps), refined by a parabola through
+#: the best three.
 SCAN_STEP_PX = 0.5
 
 #: A terminator's fit whose walk from its start exceeds :data:`MAX_WALK_PX`
@@ -165,8 +166,10 @@ class ProfileRefinement:
         Wall time of the refinement.
     start_offset_vu : tuple of float or None
         Where the Gauss-Newton started when not at the DT-LM offset: a
-        terminator's scan (:data:`SCAN_DARK_PX`); None otherwise. The walk
-        limit :data:`MAX_WALK_PX` is measured from it.
+        terminator's scan (:data:`SCAN_DARK_PX`); None otherwise. A
+        terminator's walk limit :data:`MAX_WALK_PX` is measured from where
+        its last run started (:data:`TERMINATOR_RECENTRES`); ``walk_px``
+        stays the distance from the DT-LM offset.
     """
 
     offset_vu: tuple[float, float]
