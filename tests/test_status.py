@@ -167,6 +167,8 @@ def test_status_values_are_documented_strings():
         "ambiguous", "not_converged", "ambiguous_along_edge", "rank_deficient",
         # the profile refinement's (issue 27)
         "profile_rejected", "soft_edge",
+        # a declared terminator's (issue 28)
+        "terminator_without_profile", "terminator_imprecise",
     }
     assert str(FitReason.DEGENERATE) == "degenerate" and FitStatus.FAILED == "failed"
 

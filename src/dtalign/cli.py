@@ -416,6 +416,10 @@ def _add_sphere_options(fit: argparse.ArgumentParser) -> None:
                      help="with --sphere: which edge the polyline is (default limb)")
     fit.add_argument("--psf-sigma", type=float, metavar="PX",
                      help="with --sphere: the PSF's Gaussian sigma (default: estimated)")
+    # the choices are dtalign.api.profiles.EDGE_KINDS (tests/test_terminator.py checks)
+    fit.add_argument("--edge-kind", choices=("limb", "terminator", "ring", "other"),
+                     help="what kind of edge the polyline is (with --sphere: --edge's); a "
+                     "terminator without --sphere is reported suspect")
 
 
 def _add_overlay(sub: Any) -> None:
@@ -758,6 +762,7 @@ def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
         tikhonov_alpha=args.tikhonov,
         final_gradient_ridge=args.ridge,
         edge_profile=profile,
+        edge_kind=args.edge_kind,
     )
     return image, poly, fit
 

@@ -115,6 +115,18 @@ class FitOptions:
         terminator): after the DT-LM lock the offset is refined against the
         image's pixels with it (:mod:`dtalign.pipeline.profile_fit`). One
         polyline's own: the batch takes it from each polyline instead.
+    edge_kind : str or None
+        What kind of edge the polyline is, one of
+        :data:`dtalign.api.profiles.EDGE_KINDS` (``"limb"``,
+        ``"terminator"``, ``"ring"``, ``"other"``); None: not declared.
+        When an ``edge_profile`` is given its ``edge`` is the kind (giving
+        a different one is a ValueError). A ``"terminator"`` fitted
+        without a profile carries the reason
+        :attr:`~dtalign.pipeline.status.FitReason.TERMINATOR_WITHOUT_PROFILE`:
+        the DT puts a Lambert terminator wherever the brightness ramp
+        crosses the edge threshold (:ref:`profiles-terminator`). The batch
+        takes it from each polyline (an ``edge_kind`` attribute, or its
+        profile's ``edge``) when this is None.
     """
 
     fit_rotation: bool = False
@@ -133,6 +145,7 @@ class FitOptions:
     seeds: int = DEFAULT_SEEDS
     ambiguity: bool = True
     edge_profile: Any = field(default=None, repr=False)
+    edge_kind: str | None = None
 
     def lm_keywords(self) -> dict[str, Any]:
         """The LM's options as :func:`dtalign.lm_subpixel_refine` keywords."""

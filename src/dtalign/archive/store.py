@@ -82,6 +82,7 @@ RESULT_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("profile_accepted", "bool", "the edge-profile refinement was kept (null: no profile)"),
     ("profile_psf_sigma_px", "float64", "its PSF sigma, given or estimated (null: no profile)"),
     ("profile_walk_px", "float64", "its distance from the DT-LM offset (null: no profile)"),
+    ("edge_kind", "string", "the declared edge kind, or the profile's edge (null: not declared)"),
     ("noise_sigma", "float64", "noise sigma used (given or estimated)"),
     ("noise_sigma_estimated", "bool", "the noise sigma was estimated from the image"),
     ("fit_rotation", "bool", "the rotation was fitted"),

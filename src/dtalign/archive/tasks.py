@@ -69,6 +69,7 @@ def _profile(fit: Any) -> dict[str, Any]:
         "profile_accepted": None if prof is None else bool(prof.accepted),
         "profile_psf_sigma_px": None if prof is None else float(prof.psf_sigma_px),
         "profile_walk_px": None if prof is None else float(prof.walk_px),
+        "edge_kind": getattr(fit, "edge_kind", None),
     }
 
 

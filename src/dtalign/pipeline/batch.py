@@ -422,23 +422,37 @@ def _polyline_profile(item: Any) -> Any:
     return getattr(item, "edge_profile", None)
 
 
+def _polyline_edge_kind(item: Any, default: str | None) -> str | None:
+    """The edge kind a polyline declares (an ``edge_kind`` attribute), else ``default``
+    (the options' :attr:`~dtalign.api.options.FitOptions.edge_kind`)."""
+    kind = getattr(item, "edge_kind", None)
+    return default if kind is None else kind
+
+
 def _profiled(products: ImageProducts, fits: list[Any], profiles: list[Any], collect: bool,
-              label: str) -> list[Any]:
+              label: str, kinds: list[str | None] | None = None) -> list[Any]:
     """``fits`` refined with their polylines' edge profiles
-    (:func:`dtalign.pipeline.fit.with_profile`), as
-    :func:`~dtalign.pipeline.fit_polyline_products` does; a bad profile is
-    the polyline's error (raised, or collected in its place)."""
-    if all(p is None for p in profiles):
+    (:func:`dtalign.pipeline.fit.with_profile`) and marked with their edge
+    kinds (``kinds``, or each profile's ``edge``), as
+    :func:`~dtalign.pipeline.fit_polyline_products` does; a bad profile or
+    kind is the polyline's error (raised, or collected in its place)."""
+    if kinds is None:
+        kinds = [None] * len(fits)
+    if all(p is None for p in profiles) and all(k is None for k in kinds):
         return fits
     from .fit import with_profile
-    from .profile_fit import check_edge_profile
+    from .profile_fit import check_edge_profile, edge_kind_of
 
     out = list(fits)
-    for i, (fit, profile) in enumerate(zip(fits, profiles, strict=True)):
-        if profile is None or isinstance(fit, Exception):
+    for i, (fit, profile, kind) in enumerate(zip(fits, profiles, kinds, strict=True)):
+        if isinstance(fit, Exception):
             continue
         try:
-            out[i] = with_profile(fit, products, check_edge_profile(profile, fit.normals_vu))
+            checked = None if profile is None else check_edge_profile(profile, fit.normals_vu)
+            kind = edge_kind_of(kind, checked)
+            if checked is not None:
+                fit = with_profile(fit, products, checked)
+            out[i] = fit if kind is None else dataclasses.replace(fit, edge_kind=kind)
         except (TypeError, ValueError) as exc:
             if not collect:
                 raise _named(exc, f"{label}[{i}]", i) from exc
@@ -621,10 +635,11 @@ def fit_many(
     items = list(polylines)
     parts = [_polyline_parts(item, i) for i, item in enumerate(items)]
     profiles = [_polyline_profile(item) for item in items]
+    kinds = [_polyline_edge_kind(item, opts.edge_kind) for item in items]
 
     def body(abort: threading.Event) -> list[Any]:
         out = _fit_parts(products, parts, search_window_vu, opts, n, collect, abort, tick)
-        out = _profiled(products, out, profiles, collect, "polylines")
+        out = _profiled(products, out, profiles, collect, "polylines", kinds)
         # logged here, in the batch's thread: logging drops an exception raised
         # inside a handler's emit, a timeout's landing in the calling thread too
         _log(out, "polylines")
@@ -793,7 +808,7 @@ def _fit_batch(
 
 
 def _image_parts(item: Any, index: int
-                 ) -> tuple[Any, float | None, list[tuple[Any, Any, Any, Any]]]:
+                 ) -> tuple[Any, float | None, list[tuple[Any, Any, Any, Any, Any]]]:
     if isinstance(item, Sequence) and not isinstance(item, (str, bytes)) and len(item) == 3:
         image, noise, polys = item
     elif all(hasattr(item, a) for a in ("image", "noise_sigma", "polylines")):
@@ -806,9 +821,10 @@ def _image_parts(item: Any, index: int
         )
     if isinstance(polys, (str, bytes)) or not isinstance(polys, Iterable):
         raise TypeError(f"items[{index}] polylines must be an iterable of polylines")
-    # each polyline's parts and its edge profile (None without one)
-    return image, noise, [(*_polyline_parts(p, j), _polyline_profile(p))
-                          for j, p in enumerate(polys)]
+    # each polyline's parts, its edge profile (None without one) and its edge kind
+    # (None when not declared: the options' then)
+    return image, noise, [(*_polyline_parts(p, j), _polyline_profile(p),
+                           _polyline_edge_kind(p, None)) for j, p in enumerate(polys)]
 
 
 def _is_path(image: Any) -> bool:
@@ -816,7 +832,8 @@ def _is_path(image: Any) -> bool:
 
 
 def _fit_image(
-    job: tuple[Any, float | None, list[tuple[Any, Any, Any, Any]], Any, Any, FitOptions, bool],
+    job: tuple[Any, float | None, list[tuple[Any, Any, Any, Any, Any]], Any, Any, FitOptions,
+               bool],
     abort: threading.Event | None = None,
 ) -> list[Any]:
     """One image: loaded if a path, its products, then its polylines serially
@@ -829,7 +846,8 @@ def _fit_image(
     products = prepare_image(image, noise, config=config)
     fits = _fit_parts(products, [p[:3] for p in parts], window, options, 1, collect,
                       threading.Event() if abort is None else abort)
-    return _profiled(products, fits, [p[3] for p in parts], collect, "polylines")
+    return _profiled(products, fits, [p[3] for p in parts], collect, "polylines",
+                     [options.edge_kind if p[4] is None else p[4] for p in parts])
 
 
 @overload

@@ -56,7 +56,7 @@ from .observability import (
     observable_rank,
 )
 from .products import ImageProducts, _readonly, prepare_image
-from .profile_fit import ProfileRefinement, check_edge_profile, refine_with_profile
+from .profile_fit import ProfileRefinement, check_edge_profile, edge_kind_of, refine_with_profile
 from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
 
 __all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
@@ -128,6 +128,11 @@ class PolylineFit:
         None when no profile was given. When it is accepted,
         :attr:`offset_vu` is its offset and :attr:`dt_offset_vu` keeps
         the DT-LM one.
+    edge_kind : str or None
+        What kind of edge the polyline was declared to be
+        (``FitOptions.edge_kind``, or its profile's ``edge``); None when not declared. A ``"terminator"``
+        without a profile carries
+        :attr:`~dtalign.pipeline.status.FitReason.TERMINATOR_WITHOUT_PROFILE`.
 
     Whether to trust the fit is read from these fields by :attr:`status`,
     :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.pipeline.status`);
@@ -158,6 +163,7 @@ class PolylineFit:
     # not printed: the status and reasons say what it decided
     settling: Settling | None = field(default=None, repr=False)
     profile: ProfileRefinement | None = field(default=None, repr=False)
+    edge_kind: str | None = None
 
     @property
     def dt_offset_vu(self) -> tuple[float, float]:
@@ -535,6 +541,7 @@ class PolylineFit:
             **extra,
             "dt_offset_vu": [num(x) for x in self.dt_offset_vu],
             "profile": None if self.profile is None else self.profile.to_dict(),
+            "edge_kind": self.edge_kind,
         }
 
     @classmethod
@@ -596,6 +603,7 @@ class PolylineFit:
                 ambiguity=None if d["ambiguity"] is None else _ambiguity_from(d["ambiguity"]),
                 settling=None if d["settling"] is None else _settling_from(d["settling"]),
                 profile=None if prof is None else ProfileRefinement.from_dict(prof),
+                edge_kind=d.get("edge_kind"),
             )
         except KeyError as exc:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
@@ -739,6 +747,7 @@ def fit_polyline_products(
         if products.image is None:
             raise ValueError("edge_profile needs the image: these products were built "
                              "without it (use prepare_image)")
+    kind = edge_kind_of(opts.edge_kind, profile)
     # the seed (with its score surface, when the fit is to be examined), the LM
     # from it, then the examination and the settling
     t1 = time.perf_counter()
@@ -747,6 +756,8 @@ def fit_polyline_products(
     fit = finish(fit, shared, item, surface)
     if profile is not None:
         fit = with_profile(fit, products, profile)
+    if kind is not None:
+        fit = dataclasses.replace(fit, edge_kind=kind)
     _status.log_fit(fit)
     return fit
 

@@ -22,19 +22,24 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..api import checks as check
 from ..api import loop
-from ..api.profiles import EdgeProfile
+from ..api.profiles import EDGE_KINDS, EdgeProfile
 
 __all__ = [
     "HALF_WIDTH_PX",
+    "edge_kind_of",
     "profile_samples",
     "MAX_WALK_PX",
+    "SCAN_DARK_PX",
+    "SCAN_LIT_PX",
+    "SCAN_STEP_PX",
+    "TERMINATOR_RECENTRES",
     "SOFT_EDGE_STEP_JUMP",
     "ProfileRefinement",
     "refine_with_profile",
@@ -52,6 +57,28 @@ HALF_WIDTH_PX = 3.5
 #: moderate phase and ~1.2 px at low phase, so a longer walk means the
 #: model does not describe the image.
 MAX_WALK_PX = 2.0
+
+#: The terminator's start: the DT puts a Lambert terminator (a kink in
+#: brightness, not an edge) where the brightness ramp crosses the edge
+#: threshold, 4-15 px on the lit side of the geometric terminator on the
+#: rendered scenes (:ref:`profiles-terminator`), beyond the strip's reach.
+#: So a terminator's refinement starts from a scan of the profile model
+#: along the polyline's mean normal, from this far on the dark side of the
+#: DT lock ...
+SCAN_DARK_PX = 20.0
+#: ... to this far on its lit side ...
+SCAN_LIT_PX = 4.0
+#: ... in steps of this (a seventh of the strip's 7 px width: the
+#: correlation's peak spans several steps), refined by a parabola through
+#: the best three.
+SCAN_STEP_PX = 0.5
+
+#: A terminator's fit whose walk from its start exceeds :data:`MAX_WALK_PX`
+#: (the scan places it along the mean normal only: at high phase the DT
+#: lock is also off across it) is run again from where it went, with the
+#: strips centred there, at most this many times in all; the walk limit
+#: holds for the last run.
+TERMINATOR_RECENTRES = 4
 
 #: Table margin beyond the strip, pixels: the walk the table still models
 #: exactly (beyond it the profile is held flat).
@@ -100,7 +127,7 @@ class ProfileRefinement:
     offset_vu : tuple of float
         The refined offset (whether accepted or not).
     dt_offset_vu : tuple of float
-        The DT-LM offset it started from.
+        The DT-LM offset.
     accepted : bool
         True when the fit's pose is this refinement's.
     reason : str
@@ -137,6 +164,12 @@ class ProfileRefinement:
         :data:`SOFT_EDGE_STEP_JUMP`); never set for other edge kinds.
     time_s : float
         Wall time of the refinement.
+    start_offset_vu : tuple of float or None
+        Where the Gauss-Newton started when not at the DT-LM offset: a
+        terminator's scan (:data:`SCAN_DARK_PX`); None otherwise. A
+        terminator's walk limit :data:`MAX_WALK_PX` is measured from where
+        its last run started (:data:`TERMINATOR_RECENTRES`); ``walk_px``
+        stays the distance from the DT-LM offset.
     """
 
     offset_vu: tuple[float, float]
@@ -158,6 +191,7 @@ class ProfileRefinement:
     step_jump: float
     soft_edge: bool
     time_s: float
+    start_offset_vu: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (a value that is not finite is ``None``, as in
@@ -178,6 +212,8 @@ class ProfileRefinement:
             "covariance": [[num(x) for x in row] for row in self.covariance],
             "step_jump": num(self.step_jump), "soft_edge": self.soft_edge,
             "time_s": self.time_s,
+            "start_offset_vu": (None if self.start_offset_vu is None
+                                else [num(x) for x in self.start_offset_vu]),
         }
 
     @classmethod
@@ -200,6 +236,8 @@ class ProfileRefinement:
             n_pixels=int(d["n_pixels"]), residual_scale=num(d["residual_scale"]),
             covariance=(pair(cov[0]), pair(cov[1])), step_jump=num(d["step_jump"]),
             soft_edge=bool(d["soft_edge"]), time_s=float(d["time_s"]),
+            start_offset_vu=(None if d.get("start_offset_vu") is None
+                             else pair(d["start_offset_vu"])),
         )
 
 
@@ -218,6 +256,26 @@ def check_edge_profile(value: Any, normals_vu: FloatArray) -> EdgeProfile:
             f"{dots[k]:.3g}): the profile must run along the polyline's normals"
         )
     return value
+
+
+def edge_kind_of(edge_kind: Any, profile: EdgeProfile | None) -> str | None:
+    """The kind of edge a polyline is: ``edge_kind`` (one of
+    :data:`~dtalign.api.profiles.EDGE_KINDS`, or None: not declared), or
+    the checked ``profile``'s ``edge`` when ``edge_kind`` is None.
+
+    Raises
+    ------
+    ValueError
+        If ``edge_kind`` is not an edge kind, or differs from the profile's ``edge``.
+    """
+    if edge_kind is not None and (not isinstance(edge_kind, str) or edge_kind not in EDGE_KINDS):
+        raise ValueError(f"edge_kind must be one of {EDGE_KINDS} or None, got {edge_kind!r}")
+    if profile is None:
+        return edge_kind
+    if edge_kind is not None and edge_kind != profile.edge:
+        raise ValueError(f"edge_kind {edge_kind!r} conflicts with edge_profile.edge "
+                         f"{profile.edge!r}: give one kind (or leave edge_kind None)")
+    return profile.edge
 
 
 def _tau_max(verts: FloatArray) -> FloatArray:
@@ -282,13 +340,16 @@ def refine_with_profile(
     if kernels is None:
         kernels = loop.profile_kernels
     t_start = time.perf_counter()
-    strips = _Strips.of(image, profile, vertices_vu, dt_offset_vu, rotation_rad, pivot_vu,
-                        kernels)
-    d0 = strips.d0
+    pb = _problem(image, profile, vertices_vu, dt_offset_vu, rotation_rad, pivot_vu, kernels)
     known = profile.psf_sigma_px is not None
     sigma = SIGMA_START_PX if profile.psf_sigma_px is None else float(profile.psf_sigma_px)
+    start = None
+    if profile.edge == "terminator" and pb.verts.shape[0] > 0:
+        start = _scan_start(pb, sigma)
+        pb = pb._replace(d0=start)
+    d0 = pb.d0
     # contrast-weighted step fraction: is there an edge at all?
-    contrast = np.ptp(strips.values[:, strips.j0 : strips.j0 + strips.nb], axis=1)
+    contrast = np.ptp(pb.values[:, pb.j0 : pb.j0 + pb.nb], axis=1)
     step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
     # only a limb is meant to step: a terminator is a kink (cos i through 0), a ring's
     # profile whatever its model says, and neither is soft for lacking a step
@@ -296,16 +357,36 @@ def refine_with_profile(
 
     params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
     iterations = 0
-    if not known and strips.verts.shape[0] > 0:
-        params, iterations = _estimate_sigma(strips, params)
-    p, it, conv, inv, scale, _, npx = strips.run(None, params, False)
+    if start is not None and not known:
+        # a terminator's strips are placed first, with the sigma held at its
+        # start: estimated 2-5 px from the kink (the scan's start at high
+        # phase), the sigma would absorb the misplacement
+        pb, _, placed = _recentred(pb, params)
+        iterations += int(placed[1])
+        if placed[2]:
+            pb = pb._replace(d0=(float(placed[0][0]), float(placed[0][1])))
+        d0 = pb.d0
+        params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
+    if not known and pb.verts.shape[0] > 0:
+        params, it_a = _estimate_sigma(pb, params)
+        iterations += it_a
+    if start is None:
+        out = _run(pb, None, params, False, TOLERANCE_PX)
+    else:
+        pb, _, out = _recentred(pb, params)
+    p, it, conv, inv, scale, _, npx = out
     iterations += int(it)
+    d0 = pb.d0
     off = (float(p[0]), float(p[1]))
     walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
     cov = np.asarray(inv)[:2, :2] * float(scale) ** 2
-    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]))
+    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]),
+                        "the DT lock" if start is None else "where its last run started")
+    dt = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
+    if start is not None:
+        walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
     return ProfileRefinement(
-        offset_vu=off, dt_offset_vu=d0, accepted=not reason, reason=reason,
+        offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
         gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
         shape_amplitude=float(p[5]),
         psf_sigma_px=float(p[4]),
@@ -313,114 +394,169 @@ def refine_with_profile(
         n_pixels=int(npx), residual_scale=float(scale),
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
         step_jump=float(step_jump), soft_edge=bool(soft),
-        time_s=time.perf_counter() - t_start,
+        time_s=time.perf_counter() - t_start, start_offset_vu=start,
     )
 
 
-def _table_window(profile: EdgeProfile) -> tuple[float, float, int, int]:
-    """``(o0, h, j0, j1)``: the profile table's first offset and step, and the first
-    and last of its columns that a strip (plus the table's margin) reaches."""
+def _estimate_sigma(pb: _Problem, params: FloatArray) -> tuple[FloatArray, int]:
+    """The PSF sigma estimated on a subset of the vertices with the shape free
+    (a wrong law would bias it), then held: the start parameters of the full
+    run, and the iterations spent."""
+    stride = max(1, pb.verts.shape[0] // SIGMA_VERTICES)
+    idx = np.arange(0, pb.verts.shape[0], stride, dtype=np.int64)
+    p_a, it_a, _, _, _, _, _ = _run(pb, idx, params, True, SIGMA_TOLERANCE)
+    d0 = pb.d0
+    return np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5],
+                     p_a[6]]), int(it_a)
+
+
+def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, Any]:
+    """A terminator's offset fit from ``params`` (the sigma held): run again
+    with the strips centred where it went while it walks more than
+    :data:`MAX_WALK_PX` (the scan places it along the mean normal only; at
+    high phase the DT lock is off across it too), at most
+    :data:`TERMINATOR_RECENTRES` runs. Returns the last run's problem (its
+    strips' centre ``d0``), its start parameters and its :func:`_run`
+    output with the iterations of every run."""
+    total = 0
+    for _ in range(TERMINATOR_RECENTRES):
+        out = _run(pb, None, params, False, TOLERANCE_PX)
+        total += int(out[1])
+        p, conv = out[0], bool(out[2])
+        off = (float(p[0]), float(p[1]))
+        if math.hypot(off[0] - pb.d0[0], off[1] - pb.d0[1]) <= MAX_WALK_PX or not conv:
+            break
+        pb = pb._replace(d0=off)
+        params = np.array([off[0], off[1], 0.0, 0.0, float(p[4]), 0.0, 0.0])
+    return pb, params, (out[0], total, *out[2:])
+
+
+def _scan_start(pb: _Problem, sigma: float) -> tuple[float, float]:
+    """A terminator's start: the offset along the polyline's mean normal,
+    from :data:`SCAN_DARK_PX` behind the DT lock to :data:`SCAN_LIT_PX`
+    ahead, whose strips' pixels correlate best with the profile model
+    (gain and background free: the correlation; a strip wholly on the dark
+    side correlates with nothing, one wholly on the ramp less than the kink
+    does)."""
+    k = pb.kernels
+    nbar = pb.normals.sum(axis=0)
+    norm = math.hypot(float(nbar[0]), float(nbar[1]))
+    if not norm > 0.0:
+        return pb.d0
+    nbar = nbar / norm
+    b, c, d, t0, ht = k.tables(pb.values, pb.o0, pb.h, pb.j0, pb.nb, sigma)
+    hgt, wid = pb.image.shape
+    ts = np.arange(-SCAN_DARK_PX, SCAN_LIT_PX + 0.5 * SCAN_STEP_PX, SCAN_STEP_PX)
+    scores = np.full(ts.shape[0], -np.inf)
+    for q, t in enumerate(ts):
+        off = np.asarray(pb.d0) + t * nbar
+        kk, ii, jj = k.select_pixels(hgt, wid, np.ascontiguousarray(pb.verts + off), pb.normals,
+                                     pb.tau, HALF_WIDTH_PX)
+        if ii.shape[0] < 3:
+            continue
+        obs = np.ascontiguousarray(pb.image[ii, jj])
+        r, _ = k.evaluate(obs, kk, ii.astype(np.float64), jj.astype(np.float64), pb.verts,
+                          pb.normals, pb.curv, b, c, d, b, c, d, False, t0, ht,
+                          np.array([off[0], off[1], 1.0, 0.0, sigma, 0.0, 0.0]))
+        model = obs - r
+        sm, so = float(model.std()), float(obs.std())
+        if sm > 0.0 and so > 0.0:
+            scores[q] = float(((model - model.mean()) * (obs - obs.mean())).mean() / (sm * so))
+    if not np.isfinite(scores).any():
+        return pb.d0
+    q = int(np.argmax(scores))
+    t = float(ts[q])
+    if 0 < q < ts.shape[0] - 1 and np.isfinite(scores[q - 1 : q + 2]).all():
+        y0, y1, y2 = scores[q - 1], scores[q], scores[q + 1]
+        den = y0 - 2.0 * y1 + y2
+        if den < 0.0:
+            t += 0.5 * SCAN_STEP_PX * float(y0 - y2) / float(den)
+    return (pb.d0[0] + t * float(nbar[0]), pb.d0[1] + t * float(nbar[1]))
+
+
+class _Problem(NamedTuple):
+    """One refinement's fixed inputs, as the kernels take them."""
+
+    image: FloatArray
+    verts: FloatArray  #: the vertices at the DT-LM rotation
+    normals: FloatArray
+    curv: FloatArray
+    values: FloatArray
+    shape: FloatArray  #: the law-correction shape, (N, 0) without one
+    use_shape: bool
+    tau: FloatArray
+    o0: float  #: the profile table's first offset
+    h: float  #: its step
+    j0: int  #: the table columns the strips reach: j0 .. j0 + nb - 1
+    nb: int
+    d0: tuple[float, float]  #: the DT-LM offset, the start
+    kernels: Any
+
+
+def _problem(image: FloatArray, profile: EdgeProfile, vertices_vu: ArrayLike,
+             dt_offset_vu: tuple[float, float], rotation_rad: float,
+             pivot_vu: tuple[float, float] | None, kernels: Any) -> _Problem:
+    verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
+    normals = np.ascontiguousarray(profile.normals_vu, dtype=np.float64)
+    if rotation_rad != 0.0:
+        verts = _rotated(verts, rotation_rad, pivot_vu)
+        normals = _rotated(normals, rotation_rad, None)
+    values = np.ascontiguousarray(profile.values)
+    shape = (np.ascontiguousarray(profile.shape_values) if profile.shape_values is not None
+             else np.zeros((values.shape[0], 0)))
     h = profile.step_px
     o0 = float(profile.offsets_px[0])
     reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
     j0 = max(0, int(math.floor((-reach - o0) / h)))
-    j1 = min(np.shape(profile.values)[1] - 1, int(math.ceil((reach - o0) / h)))
-    return o0, h, j0, j1
+    j1 = min(values.shape[1] - 1, int(math.ceil((reach - o0) / h)))
+    return _Problem(
+        image=image, verts=verts, normals=normals,
+        curv=np.ascontiguousarray(profile.curvature_px), values=values, shape=shape,
+        use_shape=profile.shape_values is not None, tau=_tau_max(verts), o0=o0, h=h, j0=j0,
+        nb=j1 - j0 + 1, d0=(float(dt_offset_vu[0]), float(dt_offset_vu[1])), kernels=kernels,
+    )
 
 
-@dataclass(frozen=True)
-class _Strips:
-    """The refinement's problem: the image, the polyline at the DT-LM rotation with its
-    profile's tables, and the DT-LM offset each pass starts from."""
-
-    image: FloatArray
-    kernels: Any
-    verts: FloatArray
-    normals: FloatArray
-    curv: FloatArray
-    values: FloatArray
-    shape: FloatArray  # the shape term's table; no columns without one
-    tau: FloatArray
-    use_shape: bool
-    o0: float
-    h: float
-    j0: int
-    nb: int  # table columns used, from j0
-    d0: tuple[float, float]
-
-    @classmethod
-    def of(cls, image: FloatArray, profile: EdgeProfile, vertices_vu: FloatArray,
-           dt_offset_vu: tuple[float, float], rotation_rad: float,
-           pivot_vu: tuple[float, float] | None, kernels: Any) -> _Strips:
-        verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
-        normals = np.ascontiguousarray(profile.normals_vu, dtype=np.float64)
-        if rotation_rad != 0.0:
-            verts = _rotated(verts, rotation_rad, pivot_vu)
-            normals = _rotated(normals, rotation_rad, None)
-        values = np.ascontiguousarray(profile.values)
-        shape = (np.ascontiguousarray(profile.shape_values) if profile.shape_values is not None
-                 else np.zeros((values.shape[0], 0)))
-        o0, h, j0, j1 = _table_window(profile)
-        return cls(image, kernels, verts, normals, np.ascontiguousarray(profile.curvature_px),
-                   values, shape, _tau_max(verts), profile.shape_values is not None, o0, h, j0,
-                   j1 - j0 + 1, (float(dt_offset_vu[0]), float(dt_offset_vu[1])))
-
-    def run(self, idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool,
-            tolerance: float = TOLERANCE_PX) -> Any:
-        """One Gauss-Newton pass over the vertices ``idx`` (all when None): the kernel's
-        outputs and the number of pixels."""
-        kernels, d0 = self.kernels, self.d0
-        if idx is None:
-            v, nrm, cv, val, shp, tm = (self.verts, self.normals, self.curv, self.values,
-                                        self.shape, self.tau)
-        else:
-            v, nrm, cv, val, shp, tm = (
-                np.ascontiguousarray(a[idx])
-                for a in (self.verts, self.normals, self.curv, self.values, self.shape, self.tau))
-        kk, ii, jj = kernels.select_pixels(self.image.shape[0], self.image.shape[1],
-                                           np.ascontiguousarray(v + np.asarray(d0)),
-                                           nrm, tm, HALF_WIDTH_PX)
-        obs = np.ascontiguousarray(self.image[ii, jj])
-        pv = ii.astype(np.float64)
-        pu = jj.astype(np.float64)
-        if params[2] == 0.0:  # the linear gain and background at the start
-            b, c, d, t0, ht = kernels.tables(val, self.o0, self.h, self.j0, self.nb, params[4])
-            r, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False, t0, ht,
-                                    np.array([d0[0], d0[1], 1.0, 0.0, params[4], 0.0, 0.0]))
-            model = obs - r
-            a = np.stack([model, np.ones_like(model)], axis=1)
-            sol = np.linalg.lstsq(a, obs, rcond=None)[0]
-            params = params.copy()
-            params[2], params[3] = float(sol[0]), float(sol[1])
-        # the sigma is estimated with the shape free (a wrong law would bias it), then held
-        active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if self.use_shape else [])
-                  + ([6] if FIT_SLOPE else []))
-        out = kernels.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, self.o0, self.h, self.j0,
-                             self.nb, params, np.asarray(active, dtype=np.int64),
-                             MAX_ITERATIONS, tolerance, TUKEY_C)
-        return (*out, obs.shape[0])
+def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool,
+         tolerance: float) -> Any:
+    """The kernels' refinement over the vertices ``idx`` (all when None) from
+    ``params``: ``(params, iterations, converged, inverse, scale, _, n_pixels)``."""
+    k = pb.kernels
+    arrays: tuple[FloatArray, ...] = (pb.verts, pb.normals, pb.curv, pb.values, pb.shape, pb.tau)
+    if idx is not None:
+        arrays = tuple(np.ascontiguousarray(a[idx]) for a in arrays)
+    v, nrm, cv, val, shp, tm = arrays
+    hgt, wid = pb.image.shape
+    kk, ii, jj = k.select_pixels(hgt, wid, np.ascontiguousarray(v + np.asarray(pb.d0)), nrm, tm,
+                                 HALF_WIDTH_PX)
+    obs = np.ascontiguousarray(pb.image[ii, jj])
+    pv = ii.astype(np.float64)
+    pu = jj.astype(np.float64)
+    if params[2] == 0.0:  # the linear gain and background at the start
+        b, c, d, t0, ht = k.tables(val, pb.o0, pb.h, pb.j0, pb.nb, params[4])
+        r, _ = k.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False, t0, ht,
+                          np.array([pb.d0[0], pb.d0[1], 1.0, 0.0, params[4], 0.0, 0.0]))
+        model = obs - r
+        a = np.stack([model, np.ones_like(model)], axis=1)
+        sol = np.linalg.lstsq(a, obs, rcond=None)[0]
+        params = params.copy()
+        params[2], params[3] = float(sol[0]), float(sol[1])
+    active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if pb.use_shape else [])
+              + ([6] if FIT_SLOPE else []))
+    out = k.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, pb.o0, pb.h, pb.j0, pb.nb, params,
+                   np.asarray(active, dtype=np.int64), MAX_ITERATIONS, tolerance, TUKEY_C)
+    return (*out, obs.shape[0])
 
 
-def _estimate_sigma(strips: _Strips, params: FloatArray) -> tuple[FloatArray, int]:
-    """The PSF sigma fitted on a subset of the vertices: the full pass's start
-    parameters (back at the DT-LM offset), and the iterations it took."""
-    n = strips.verts.shape[0]
-    idx = np.arange(0, n, max(1, n // SIGMA_VERTICES), dtype=np.int64)
-    p_a, it_a, _, _, _, _, _ = strips.run(idx, params, True, SIGMA_TOLERANCE)
-    d0 = strips.d0
-    return (np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5], p_a[6]]),
-            int(it_a))
-
-
-def _rejection(n_pixels: int, converged: bool, iterations: int, walk: float,
-               gain: float) -> str:
-    """Why the refinement is not accepted ("" when it is)."""
+def _rejection(n_pixels: int, converged: bool, iterations: int, walk: float, gain: float,
+               start: str = "the DT lock") -> str:
+    """Why a refinement is discarded ("" when it is accepted); ``walk`` is from ``start``."""
     if n_pixels == 0:
         return "no pixels in the strips along the normals (is the polyline in the image?)"
     if not converged:
         return f"did not converge in {iterations} Gauss-Newton iterations"
     if not walk <= MAX_WALK_PX:
-        return f"walked {walk:.3g} px from the DT lock (more than {MAX_WALK_PX:g} px)"
+        return f"walked {walk:.3g} px from {start} (more than {MAX_WALK_PX:g} px)"
     if not gain > 0.0:
         return f"fitted a non-positive gain ({gain:.3g}): the profile does not match the image"
     return ""
@@ -461,7 +597,11 @@ def profile_samples(
     r = refinement
     params = np.array([r.offset_vu[0], r.offset_vu[1], r.gain, r.background, r.psf_sigma_px,
                        r.shape_amplitude, r.background_slope])
-    o0, h, j0, j1 = _table_window(profile)
+    h = profile.step_px
+    o0 = float(profile.offsets_px[0])
+    reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
+    j0 = max(0, int(math.floor((-reach - o0) / h)))
+    j1 = min(profile.values.shape[1] - 1, int(math.ceil((reach - o0) / h)))
     out = []
     tau = _tau_max(verts)
     for k in (int(i) for i in indices):

@@ -43,6 +43,9 @@ from ..api.constants import POLARITY_PENALTY_RESIDUAL
 __all__ = [
     "SETTLE_ITERATIONS",
     "SETTLE_SIGMAS",
+    "TERMINATOR_PLAIN_MEDIAN_PX",
+    "TERMINATOR_PLAIN_P90_PX",
+    "TERMINATOR_SIGMA_LIMIT_PX",
     "FitReason",
     "FitStatus",
     "Settling",
@@ -78,8 +81,10 @@ class FitStatus(_Text):
         geometry observes.
     ``SUSPECT``
         The pose is a measurement but should be checked: an edge profile's
-        refinement was discarded (:attr:`FitReason.PROFILE_REJECTED`) or a
-        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`).
+        refinement was discarded (:attr:`FitReason.PROFILE_REJECTED`), a
+        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`), or a
+        terminator was fitted without a profile
+        (:attr:`FitReason.TERMINATOR_WITHOUT_PROFILE`).
     ``AMBIGUOUS``
         Another basin, across the edge, fits the image about as well
         (:attr:`FitReason.AMBIGUOUS`): the pose may be the wrong one of two.
@@ -137,6 +142,24 @@ class FitReason(_Text):
         :data:`~dtalign.pipeline.profile_fit.SOFT_EDGE_STEP_JUMP`), so the
         edge's position rests on the modelled roll-off alone and on the
         reflectance law being right.
+    ``TERMINATOR_WITHOUT_PROFILE`` (suspect)
+        The polyline is declared a terminator (``edge_kind="terminator"``)
+        and was fitted without an :class:`~dtalign.EdgeProfile`: a Lambert
+        terminator is a kink in brightness (``cos i`` through 0), not an
+        edge, so the DT puts it wherever the brightness ramp crosses the
+        edge threshold, which depends on the noise and the albedo, not on
+        where the terminator is. On rendered Lambert terminators
+        (:ref:`profiles-terminator`) the plain fit's error has median
+        :data:`TERMINATOR_PLAIN_MEDIAN_PX` and 90th percentile
+        :data:`TERMINATOR_PLAIN_P90_PX` px. Give the sphere's profile
+        (:func:`dtalign.sphere_edge_profile` with ``edge="terminator"``).
+    ``TERMINATOR_IMPRECISE`` (suspect)
+        A terminator's profile refinement was accepted but its own one-sigma
+        exceeds :data:`TERMINATOR_SIGMA_LIMIT_PX` along some direction: near
+        phase 90 deg the terminator is nearly straight and its along-edge
+        shift barely measured (on the seeded scenes of
+        :ref:`profiles-terminator` the only accepted profile fit more than
+        1 px off, 1.56 px at phase 91 deg, reported 0.93 px).
     ``NOT_CONVERGED`` (note: the status stays ``OK``)
         The pose has not settled: the LM stopped (iteration cap or damping
         bound) before an accepted step fell below ``step_tolerance_px``,
@@ -176,10 +199,28 @@ class FitReason(_Text):
     AMBIGUOUS = "ambiguous"
     PROFILE_REJECTED = "profile_rejected"
     SOFT_EDGE = "soft_edge"
+    TERMINATOR_WITHOUT_PROFILE = "terminator_without_profile"
+    TERMINATOR_IMPRECISE = "terminator_imprecise"
     NOT_CONVERGED = "not_converged"
     AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
     RANK_DEFICIENT = "rank_deficient"
 
+
+#: The error of plain (profile-less) fits of rendered Lambert terminators,
+#: px: median and 90th percentile over the seeded scenes of
+#: ``benchmarks/terminator_error.py`` (:ref:`profiles-terminator`: diameter
+#: 100-240 px, phase 35-150 deg, any light direction, noise-free and noisy,
+#: window (8, 8); seed 2028, 48 scenes, where 21 of the 48 plain fits were
+#: ``ok`` and more than 1 px off before the reason). What
+#: :attr:`FitReason.TERMINATOR_WITHOUT_PROFILE` warns of.
+TERMINATOR_PLAIN_MEDIAN_PX = 4.6
+TERMINATOR_PLAIN_P90_PX = 13.8
+
+#: A terminator's accepted profile refinement whose own one-sigma (the
+#: square root of its covariance's largest eigenvalue) exceeds this, px, is
+#: suspect (:attr:`FitReason.TERMINATOR_IMPRECISE`): an ``ok`` terminator
+#: more than 1 px off would then be more than two of its sigmas off.
+TERMINATOR_SIGMA_LIMIT_PX = 0.5
 
 #: The status each reason implies (a fit's status is the worst of them).
 SEVERITY: dict[FitReason, FitStatus] = {
@@ -193,6 +234,8 @@ SEVERITY: dict[FitReason, FitStatus] = {
     FitReason.RANK_DEFICIENT: FitStatus.OK,
     FitReason.PROFILE_REJECTED: FitStatus.SUSPECT,
     FitReason.SOFT_EDGE: FitStatus.SUSPECT,
+    FitReason.TERMINATOR_WITHOUT_PROFILE: FitStatus.SUSPECT,
+    FitReason.TERMINATOR_IMPRECISE: FitStatus.SUSPECT,
 }
 
 _ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.AMBIGUOUS, FitStatus.FAILED)
@@ -203,7 +246,8 @@ STATUS_MEANING: dict[FitStatus, str] = {
     FitStatus.OK: "the pose is a measurement; the fit may carry notes (reasons whose "
     "status is ``ok``).",
     FitStatus.SUSPECT: "the pose is a measurement that should be checked: an edge "
-    "profile's refinement was discarded, or a limb has no usable edge.",
+    "profile's refinement was discarded, a limb has no usable edge, or a terminator was "
+    "fitted without a profile.",
     FitStatus.AMBIGUOUS: "another basin across the edge fits the image about as well: "
     "the pose may be the wrong one of two.",
     FitStatus.FAILED: "the pose is not a measurement of the image: do not use it.",
@@ -234,6 +278,16 @@ REASON_MEANING: dict[FitReason, str] = {
     FitReason.SOFT_EDGE: "the limb profile has no usable edge (its brightness rolls off to "
     "the limb, as a Lambert limb at low phase): the position rests on the modelled roll-off "
     "and on the reflectance law being right.",
+    FitReason.TERMINATOR_WITHOUT_PROFILE: "the polyline is declared a terminator and was "
+    "fitted without an edge profile: the DT puts a terminator (a kink in brightness, not an "
+    f"edge) where the ramp crosses the edge threshold: on rendered Lambert terminators the "
+    f"error has median {TERMINATOR_PLAIN_MEDIAN_PX:g} px and 90th percentile "
+    f"{TERMINATOR_PLAIN_P90_PX:g} px. Give "
+    "``sphere_edge_profile(..., edge=\"terminator\")``. See :ref:`profiles-terminator`.",
+    FitReason.TERMINATOR_IMPRECISE: "a terminator's profile refinement reports a one-sigma "
+    f"above {TERMINATOR_SIGMA_LIMIT_PX:g} px along some direction: the pose is barely measured "
+    "there (a terminator near phase 90 deg is nearly straight). See "
+    ":attr:`~dtalign.pipeline.PolylineFit.profile`.",
     FitReason.NOT_CONVERGED: "the pose has not settled: the LM stopped before its step "
     "tolerance and its pose still moved more than 0.25 sigma over its last 5 iterations. "
     "Raise ``max_iterations``. See `Converged, settled, and the iteration cap`_.",
@@ -386,11 +440,24 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
             out.append(FitReason.PROFILE_REJECTED)
         if profile.soft_edge:
             out.append(FitReason.SOFT_EDGE)
+        if (profile.accepted and getattr(fit, "edge_kind", None) == "terminator"
+                and _profile_sigma(profile) > TERMINATOR_SIGMA_LIMIT_PX):
+            out.append(FitReason.TERMINATOR_IMPRECISE)
+    elif getattr(fit, "edge_kind", None) == "terminator":
+        out.append(FitReason.TERMINATOR_WITHOUT_PROFILE)
     if not settled(fit):
         out.append(FitReason.NOT_CONVERGED)
     if ambiguity is not None and ambiguity.ambiguous and ambiguity.along_unobservable:
         out.append(FitReason.AMBIGUOUS_ALONG_EDGE)
     return tuple(out)
+
+
+def _profile_sigma(profile: Any) -> float:
+    """The largest one-sigma of a profile refinement's offset, px (inf when not finite)."""
+    cov = np.asarray(profile.covariance, dtype=np.float64)
+    if not np.isfinite(cov).all():
+        return float("inf")
+    return float(np.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0)))
 
 
 def fit_reasons(fit: Any) -> tuple[FitReason, ...]:
@@ -449,17 +516,8 @@ def _explain(fit: Any, reason: FitReason) -> str:
         return str(fit.ambiguity.reason)
     if reason is FitReason.NOT_CONVERGED:
         return _not_converged_text(fit)
-    if reason is FitReason.PROFILE_REJECTED:
-        return (
-            f"profile refinement rejected: {fit.profile.reason}; the pose is the DT-LM's "
-            "(biased by the edge DT's photometric offset)"
-        )
-    if reason is FitReason.SOFT_EDGE:
-        return (
-            f"soft edge: the profile's step at the edge is {fit.profile.step_jump:.2f} of its "
-            "contrast (the brightness rolls off to the edge, as a limb at low phase): the "
-            "position rests on the modelled roll-off and the reflectance law"
-        )
+    if reason in _PROFILE_REASONS:
+        return _explain_profile(fit, reason)
     p = 3 if fit.fit_rotation else 2
     dirs = "; ".join(
         "(" + ", ".join(f"{round(float(x), 4) + 0.0:g}" for x in e) + ")"
@@ -468,6 +526,39 @@ def _explain(fit: Any, reason: FitReason) -> str:
     return (
         f"rank deficient: observable rank {fit.observable_rank} of {p}; the pose is not "
         f"measured along {dirs} (sigma inf there)"
+    )
+
+
+#: The reasons about an edge's photometric profile (:func:`_explain_profile`).
+_PROFILE_REASONS = frozenset({FitReason.PROFILE_REJECTED, FitReason.TERMINATOR_WITHOUT_PROFILE,
+                              FitReason.TERMINATOR_IMPRECISE, FitReason.SOFT_EDGE})
+
+
+def _explain_profile(fit: Any, reason: FitReason) -> str:
+    """:func:`_explain` of the reasons about the edge's photometric profile."""
+    if reason is FitReason.PROFILE_REJECTED:
+        return (
+            f"profile refinement rejected: {fit.profile.reason}; the pose is the DT-LM's "
+            "(biased by the edge DT's photometric offset)"
+        )
+    if reason is FitReason.TERMINATOR_WITHOUT_PROFILE:
+        return (
+            "terminator without a profile: the DT puts a terminator where the brightness ramp "
+            f"crosses the edge threshold (on rendered Lambert terminators the median error is "
+            f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px); fit it with "
+            "sphere_edge_profile(..., edge='terminator')"
+        )
+    if reason is FitReason.TERMINATOR_IMPRECISE:
+        return (
+            f"terminator imprecise: the profile refinement's one-sigma is "
+            f"{_profile_sigma(fit.profile):.3g} px along some direction (above "
+            f"{TERMINATOR_SIGMA_LIMIT_PX:g} px): the pose is barely measured there"
+        )
+    assert reason is FitReason.SOFT_EDGE
+    return (
+        f"soft edge: the profile's step at the edge is {fit.profile.step_jump:.2f} of its "
+        "contrast (the brightness rolls off to the edge, as a limb at low phase): the "
+        "position rests on the modelled roll-off and the reflectance law"
     )
 
 
@@ -539,5 +630,6 @@ def log_fits(fits: Sequence[Any], label: str = "polylines") -> None:
         # clean fit (most of a batch) costs a few reads here, not the full check
         if (info or lm.degenerate or fit.at_window_edge
                 or 2 * lm.inlier_count < lm.residuals_px.shape[0]
-                or getattr(fit, "profile", None) is not None):
+                or getattr(fit, "profile", None) is not None
+                or getattr(fit, "edge_kind", None) == "terminator"):
             log_fit(fit, f"{label}[{i}]")
