@@ -1,48 +1,37 @@
 """Batch fitting on several cores: many polylines per image, many images.
 
 The compiled kernels release the GIL (``nogil=True``), so threads fit truly
-in parallel. :func:`fit_many` fits many polylines against one image's
-products: the first polyline and the shared options are checked as
-:func:`~dtalign.pipeline.fit_polyline_products` checks them, the others in
-bulk, then chunks of a few polylines each go to a
-:class:`~concurrent.futures.ThreadPoolExecutor`, one call of the compiled
-loop (``dtalign._kernels.pipeline``: coarse search and LM) per chunk.
-:func:`fit_images` prepares and fits many images, one image per task, on
-threads, a process pool or an executor of the caller's; :func:`map_ordered`
-is ``[fn(x) for x in items]`` on threads. Results come in input order,
-equal to the serial calls' (the kernels are deterministic and share no
-state). Nothing global is configured: no Numba threading layer, no thread
-count.
+in parallel. :func:`fit_many` checks its polylines (the first one and the
+shared options as :func:`~dtalign.pipeline.fit_polyline_products` does,
+the others in bulk), then fits them in chunks, one call of the compiled
+loop (``dtalign._kernels.pipeline``) per chunk of at most a few polylines.
+:func:`fit_images` fits one image per task, on threads, a process pool or an
+executor of the caller's; :func:`map_ordered` is ``[fn(x) for x in items]``
+on threads. Results come in input order, equal to the serial calls'.
+Nothing global is configured: no Numba threading layer, no thread count.
 
 Threads and interrupts
 ----------------------
-Each call makes its own pool and shuts it down before it returns, so no
-thread outlives the call. The calling thread does no work: it submits each
-step (checks, chunks, result objects, logging) and waits for it with
-:func:`~concurrent.futures.as_completed` or ``Future.result``. An exception
-a signal handler raises (KeyboardInterrupt, a ``SIGALRM`` timeout's)
-therefore arrives in that wait, never inside an item, where it would pass
-for the item's error or break Numba's boxing of a kernel's result. The call
-then sets its stop event, which each item (and each image's polyline loop)
-looks at before it starts, cancels what has not started, waits for the
-workers to finish what they hold and propagates. A chunk is at most
-:data:`_MAX_CHUNK` polylines: a few milliseconds of compiled work, so an
-interrupt stops a batch within a few fits, for one Python dispatch per
-chunk instead of one per fit.
+Each call makes its own :class:`~concurrent.futures.ThreadPoolExecutor`
+and shuts it down before it returns. The calling thread only submits and
+waits (``as_completed``, ``Future.result``), so an exception a signal
+handler raises (KeyboardInterrupt, a ``SIGALRM`` timeout's) arrives in that
+wait, never inside an item, where it would pass for the item's error or
+break Numba's boxing of a kernel's result. The call then sets its stop
+event, which every item looks at before it starts, waits for the workers to
+finish what they hold (a chunk is a few milliseconds) and propagates.
 
 Errors
 ------
 With ``errors="raise"`` (the default) a batch raises the error of the first
 failing item in input order, as the serial loop would, after fitting the
-items before it: items are taken in input order, and none after a failed
-one starts once the failure is seen (the rest of a failed chunk's compiled
-loop aside). The exception has the type of the item's own error, a message
-naming the item (``polylines[31]: ...``, ``images[4] (frame.png): ...``),
-the item's position as its ``index`` attribute and the item's own error
-(for an image, perhaps a polyline's) as its ``__cause__``. With
-``errors="collect"`` every item is fitted and a failed item's place in the
-result holds that exception (as ``asyncio.gather(...,
-return_exceptions=True)`` does)::
+items before it; items are taken in order and none after a failed one
+starts once the failure is seen. The exception has the type of the item's
+own error, a message naming the item (``polylines[31]: ...``,
+``images[4] (frame.png): ...``), the item's position as its ``index``
+attribute and the item's own error as its ``__cause__``. With
+``errors="collect"`` every item is fitted and a failed item's place holds
+its exception (as ``asyncio.gather(..., return_exceptions=True)`` does)::
 
     out = fit_many(products, polylines, search_window_vu=(30, 30), errors="collect")
     failed = {e.index: e for e in out if isinstance(e, Exception)}
@@ -55,19 +44,14 @@ accepted form, a bad option or a bad ``workers`` raises at once.
 Progress
 --------
 ``progress=callback`` calls ``callback(done, total)`` once per completed
-item (a polyline of :func:`fit_many`, an image of :func:`fit_images`):
-``done`` is 1, 2, ..., ``total``, the number of items. The calls are made
-from the calling thread as it sees the items complete (a chunk's polylines
-together), so the callback needs no lock and may drive a progress bar or a
-GUI; it changes nothing in the results. With ``errors="collect"`` a failed
-item counts as completed, so a call that returns has reported ``done ==
-total``; with ``errors="raise"`` the calls stop at the first failure. If
-the callback raises, the batch stops as on an interrupt and its exception
-propagates unchanged: it is the caller's error, not an item's, so
-``errors="collect"`` does not collect it. ``progress=True`` shows a tqdm
-bar on standard error (tqdm comes with the ``cli`` extra); for a bar of
-one's own (a notebook widget of ``tqdm.auto``, other options) pass its
-update as the callback::
+item (a polyline of :func:`fit_many`, an image of :func:`fit_images`),
+``done`` = 1, 2, ..., ``total``, from the calling thread as it sees the
+items complete: the callback needs no lock. A failed item collected counts
+as completed; with ``errors="raise"`` the calls stop at the first failure.
+If the callback raises, the batch stops as on an interrupt and its
+exception propagates unchanged (it is not collected). ``progress=True``
+shows a tqdm bar on standard error (tqdm comes with the ``cli`` extra); for
+a bar of one's own pass its update as the callback::
 
     from tqdm.auto import tqdm
 
@@ -298,12 +282,11 @@ class _Runner:
     """Where one call's work runs; the calling thread only submits, waits and reports.
 
     ``_Runner(workers)``: a thread pool of the call's own, shut down on the
-    way out (after its workers finish what they hold). ``_Runner(pool=...)``:
-    an executor of the caller's, or a process pool; what the call submitted
-    and has not started is cancelled on the way out. ``_Runner(stop=...)``:
-    no pool, everything in the calling thread (an image's task inside a
-    batch), which looks at the enclosing batch's ``stop`` before each item.
-    Leaving with an exception sets :attr:`stop`: no item starts after it.
+    way out. ``_Runner(pool=...)``: an executor of the caller's or a process
+    pool; what was not started is cancelled on the way out.
+    ``_Runner(stop=...)``: no pool, the calling thread runs everything (an
+    image's task inside a batch) and looks at the batch's ``stop`` before
+    each item. Leaving with an exception sets :attr:`stop`.
     """
 
     def __init__(self, workers: int = 1, *, report: Progress | None = None,
@@ -398,28 +381,38 @@ class _Runner:
                 if future.cancelled():
                     if stop_early and errors and i > min(errors):
                         continue  # cancelled here, after a failure
-                    exc: BaseException | None = CancelledError()  # by the executor's owner
+                    error: BaseException | None = CancelledError()  # by the executor's owner
                 else:
-                    exc = future.exception()
-                if exc is None:
+                    error = future.exception()
+                if error is None:
                     result = future.result()
                     if result is _SKIPPED:
                         continue
                     results[i] = result
-                elif isinstance(exc, Exception):  # the item's error
-                    errors[i] = exc
+                elif isinstance(error, Exception):  # the item's error
+                    errors[i] = error
                     if stop_early:
                         for later in futures[i + 1 :]:
                             later.cancel()
                         continue
                 else:
-                    raise exc
+                    raise error
                 if not (stop_early and errors):
                     self.advance(1 if sizes is None else sizes[i])
         finally:
             for future in futures:  # a no-op for those done
                 future.cancel()
         return results, errors
+
+
+def _runner(workers: int, report: Progress | None) -> _Runner:
+    """The call's :class:`_Runner`: a pool of ``workers`` threads, but none for
+    one worker and no report outside the main thread (a task of another
+    batch, a campaign's): there no signal handler runs, so the calling
+    thread may do the work itself, as the serial loop does."""
+    if workers == 1 and report is None and threading.current_thread() is not threading.main_thread():
+        return _Runner(stop=threading.Event())
+    return _Runner(workers, report=report)
 
 
 #: What an item of :meth:`_Runner.each` returns when the batch stopped before it.
@@ -645,7 +638,7 @@ def fit_many(
     parts = [_polyline_parts(item, i) for i, item in enumerate(items)]
     profiles = [_polyline_profile(item) for item in items]
 
-    with _reporter(progress, len(parts), "polyline") as report, _Runner(n, report=report) as runner:
+    with _reporter(progress, len(parts), "polyline") as report, _runner(n, report) as runner:
         out = _fit_parts(products, parts, search_window_vu, options, collect, runner)
         out = runner.call(_profiled, products, out, profiles, collect, "polylines")
         # logged in a worker: logging drops an exception raised inside a
@@ -989,7 +982,7 @@ def fit_images(
                   _Runner(pool=pool, report=report) as runner):
                 results, failures = runner.each(_fit_image, jobs, stop_early=not collect)
         else:
-            with _Runner(n, report=report) as runner:
+            with _runner(n, report) as runner:
                 results, failures = runner.each(
                     lambda job: _fit_image(job, runner.stop), jobs, stop_early=not collect)
                 # in a worker, as fit_many logs
