@@ -601,13 +601,11 @@ def fit_many(
         (see the module docstring).
     progress : callable or bool, optional
         ``progress(done, total)`` is called once per completed polyline,
-        ``done`` = 1, 2, ..., ``total`` (the number of polylines), from the
-        calling thread while the pool fits (in completion order; a failed
-        polyline collected with ``errors="collect"`` counts as completed).
-        If it raises, the batch stops (the fits in progress finish, nothing
-        else starts) and its exception propagates unchanged. ``True``
-        shows a tqdm progress bar (tqdm is needed); None or False (default):
-        no report. See the module docstring's "Progress" section.
+        ``done`` = 1, 2, ..., ``total``, from the calling thread (a chunk's
+        polylines together); if it raises, the batch stops and its exception
+        propagates unchanged. ``True`` shows a tqdm bar (tqdm is needed);
+        None or False (default): no report. See the module docstring's
+        "Progress" section.
     **options
         Passed to :func:`dtalign.pipeline.fit_polyline_products` for every
         polyline (``fit_rotation``, ``trust_region_px``, ...).
@@ -936,14 +934,11 @@ def fit_images(
         collected, loader errors included.
     progress : callable or bool, optional
         ``progress(done, total)`` is called once per completed image (all
-        its polylines fitted), ``done`` = 1, 2, ..., ``total`` (the number
-        of images), from the calling thread, with any executor (in
-        completion order; a failed image collected with ``errors="collect"``
-        counts as completed). If it raises, the batch stops (the images in
-        progress finish, nothing else starts; on an ``Executor`` of the
-        caller's, the tasks it runs already finish there) and its exception
-        propagates unchanged. ``True`` shows a tqdm progress bar (tqdm is
-        needed); None or False (default): no report.
+        its polylines fitted), ``done`` = 1, 2, ..., ``total``, from the
+        calling thread, with any executor; if it raises, the batch stops (on
+        an ``Executor`` of the caller's, the tasks it runs already finish
+        there) and its exception propagates unchanged. ``True`` shows a tqdm
+        bar (tqdm is needed); None or False (default): no report.
     **options
         Passed to :func:`dtalign.pipeline.fit_polyline_products`.
 
@@ -995,7 +990,7 @@ def _image_results(jobs: list[Any], results: list[Any], failures: dict[int, Exce
     """:func:`fit_images`' results: failures named (raised, or collected in
     place), the failed and suspect fits logged (in the caller's process).
 
-    On threads this runs in the batch's thread. On an executor the calling
+    On threads this runs in a worker. On an executor the calling
     thread runs it: an exception a signal handler raises inside a log
     record's output there is logging's to drop (it prints "Logging error").
     """
