@@ -168,14 +168,14 @@ def _progress(items: list[Any], enabled: bool, messages: _Messages) -> Generator
     if not enabled:
         yield from items
         return
-    try:
-        from tqdm import tqdm
-    except ImportError:
+    from ._progress import tqdm_bar
+
+    bar = tqdm_bar(len(items), unit="image", desc="fitting")
+    if bar is None:  # tqdm is optional
         for i, item in enumerate(items, 1):
             messages.say(f"[{i}/{len(items)}] {item.image}")
             yield item
         return
-    bar = tqdm(total=len(items), desc="fitting", unit="image", file=sys.stderr)
     messages.bar = bar
     try:
         for item in items:

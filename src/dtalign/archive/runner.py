@@ -19,7 +19,6 @@ import contextlib
 import logging
 import os
 import signal
-import sys
 import threading
 import time
 import uuid
@@ -28,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .._progress import tqdm_bar
 from ..api import checks as check
 from .manifest import Item, read_manifest
 from .store import Store
@@ -442,14 +442,9 @@ class _Writer:
 
 
 def _progress(total: int, enabled: bool) -> Any:
-    if enabled:
-        try:
-            from tqdm import tqdm
-
-            return tqdm(total=total, desc="campaign", unit="image", file=sys.stderr,
-                        dynamic_ncols=True)
-        except ImportError:
-            pass
+    bar = tqdm_bar(total, unit="image", desc="campaign", dynamic_ncols=True) if enabled else None
+    if bar is not None:
+        return bar
 
     class _Silent:
         def update(self, n: int = 1) -> None:

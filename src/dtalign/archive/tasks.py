@@ -3,8 +3,9 @@
 :func:`fit_item` is the function Dask runs, once per manifest item. It
 reads the image and its polylines on the worker (only the item's paths
 travel from the client), computes the image's products once with
-:func:`dtalign.pipeline.prepare_image`, fits each polyline with
-:func:`dtalign.pipeline.fit_polyline_products`, and returns plain rows
+:func:`dtalign.pipeline.prepare_image`, fits its polylines as
+:func:`dtalign.pipeline.batch.fit_images` fits an image's (with
+:func:`~dtalign.pipeline.batch.fit_many`), and returns plain rows
 for the store. An error of the item (a missing or corrupt file, a bad
 option) is returned as a failure row, not raised, so the campaign goes on
 and the message names the file. It imports no Dask: the same function is
@@ -225,35 +226,55 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
         products = pipeline.prepare_image(image, item.noise_sigma, config=config)
         t2 = time.perf_counter()
         stage = "fit"
-        fits, fit_s = [], []
-        spheres = item.spheres or (None,) * len(polylines)
-        for path, poly, sphere in zip(item.polylines, polylines, spheres, strict=True):
-            ta = time.perf_counter()
-            try:
-                profile = None
-                if sphere is not None:
-                    from ..api.profiles import sphere_edge_profile
-
-                    profile = sphere_edge_profile(poly.vertices_vu, **sphere)
-                with _fits_not_logged():
-                    fits.append(pipeline.fit_polyline_products(
-                        products, poly.vertices_vu, poly.normals_vu, poly.sigmas,
-                        search_window_vu=item.window, edge_profile=profile, **item.options,
-                    ))
-            except (TypeError, ValueError) as exc:
-                raise type(exc)(f"polyline {path}: {exc}") from None
-            fit_s.append(time.perf_counter() - ta)
+        fits = _fit_polylines(item, products, polylines)
         t3 = time.perf_counter()
     except Exception as exc:  # the item's own error: recorded, the campaign goes on
         return {"item_id": item.id, "results": [],
                 "failure": _failure(item, stage, exc, run_id, worker, _version())}
     timings = {
-        "read_s": t1 - t0, "prepare_s": t2 - t1, "fit_s": fit_s, "item_s": t3 - t0,
+        "read_s": t1 - t0, "prepare_s": t2 - t1,
+        "fit_s": [_fit_seconds(fit, products) for fit in fits], "item_s": t3 - t0,
         "worker": worker, "noise_sigma_estimated": products.noise_sigma_estimated,
         "finished_at": _now(),
     }
     return {"item_id": item.id, "results": fit_rows(item, fits, timings, run_id=run_id),
             "failure": None}
+
+
+def _fit_polylines(item: Item, products: Any, polylines: list[Any]) -> list[Any]:
+    """The item's polylines fitted on its image's products by the batch's path
+    (:func:`dtalign.pipeline.batch.fit_many` on one worker: the work of an
+    image of :func:`~dtalign.pipeline.batch.fit_images`); an error names
+    the polyline's file."""
+    from ..pipeline.batch import fit_many
+
+    spheres = item.spheres or (None,) * len(polylines)
+    parts = []
+    for path, poly, sphere in zip(item.polylines, polylines, spheres, strict=True):
+        profile = None
+        if sphere is not None:
+            from ..api.profiles import sphere_edge_profile
+
+            try:
+                profile = sphere_edge_profile(poly.vertices_vu, **sphere)
+            except (TypeError, ValueError) as exc:
+                raise type(exc)(f"polyline {path}: {exc}") from None
+        parts.append((poly.vertices_vu, poly.normals_vu, poly.sigmas, profile))
+    try:
+        with _fits_not_logged():
+            return fit_many(products, parts, search_window_vu=item.window, workers=1,
+                            **item.options)
+    except (TypeError, ValueError) as exc:
+        # a polyline's error (named polylines[k], its own as the cause), or the
+        # call's (a bad option), which the first polyline met first
+        k = getattr(exc, "index", 0)
+        own = exc.__cause__ if hasattr(exc, "index") and exc.__cause__ is not None else exc
+        raise type(exc)(f"polyline {item.polylines[k]}: {own}") from None
+
+
+def _fit_seconds(fit: Any, products: Any) -> float:
+    """A fit's own seconds: its timings but the image's (noise, derivatives)."""
+    return sum(v for k, v in fit.timings_s.items() if k not in products.timings_s)
 
 
 def fit_items(items: list[Item], run_id: str = "") -> list[dict[str, Any]]:

@@ -1,49 +1,37 @@
 """Batch fitting on several cores: many polylines per image, many images.
 
 The compiled kernels release the GIL (``nogil=True``), so threads fit truly
-in parallel. :func:`fit_many` fits many polylines against one image's
-products: the first polyline and the shared options are checked as
-:func:`~dtalign.pipeline.fit_polyline_products` checks them, the others in
-bulk, then each polyline is one call of a compiled loop
-(``dtalign._kernels.pipeline``: coarse search and LM, GIL released).
-:func:`fit_images` prepares and fits many images, one image per task;
-:func:`map_ordered` is ``[fn(x) for x in items]`` on threads. Results come
-in input order, equal to the serial calls' (the kernels are deterministic
-and share no state). Nothing global is configured: no Numba threading
-layer, no thread count.
+in parallel. :func:`fit_many` checks its polylines (the first one and the
+shared options as :func:`~dtalign.pipeline.fit_polyline_products` does,
+the others in bulk), then fits them in chunks, one call of the compiled
+loop (``dtalign._kernels.pipeline``) per chunk of at most a few polylines.
+:func:`fit_images` fits one image per task, on threads, a process pool or an
+executor of the caller's; :func:`map_ordered` is ``[fn(x) for x in items]``
+on threads. Results come in input order, equal to the serial calls'.
+Nothing global is configured: no Numba threading layer, no thread count.
 
 Threads and interrupts
 ----------------------
-Each call makes its own :class:`~concurrent.futures.ThreadPoolExecutor` and
-shuts it down before it returns, so no thread, queue or flag outlives a
-call to be found by the next one. Its workers take the next item from the
-call's queue (a ``collections.deque``, whose ``popleft`` is
-thread-safe): a thread on a slower core simply takes fewer. Called from the
-main thread, where Python runs signal handlers (or with ``progress``), the
-batch runs entirely in the pool and the calling thread only waits (and
-reports progress), so an exception a handler
-raises (KeyboardInterrupt, a ``SIGALRM`` timeout's) arrives in that wait,
-never inside an item (where it would pass for the item's error, or turn
-into a SystemError inside Numba's boxing of a kernel's result). It sets the
-call's stop event, which the workers look at before each item, waits for
-them to finish the item each holds, and propagates. The item of
-:func:`fit_many` is one polyline, not a chunk: the simplest design that
-stops a batch within one fit of an interrupt (chunks would need a stop flag
-read inside the compiled loop), for a few microseconds of dispatch under
-the GIL per fit of ~0.1 ms.
+Each call makes its own :class:`~concurrent.futures.ThreadPoolExecutor`
+and shuts it down before it returns. The calling thread only submits and
+waits (``as_completed``, ``Future.result``), so an exception a signal
+handler raises (KeyboardInterrupt, a ``SIGALRM`` timeout's) arrives in that
+wait, never inside an item, where it would pass for the item's error or
+break Numba's boxing of a kernel's result. The call then sets its stop
+event, which every item looks at before it starts, waits for the workers to
+finish what they hold (a chunk is a few milliseconds) and propagates.
 
 Errors
 ------
 With ``errors="raise"`` (the default) a batch raises the error of the first
 failing item in input order, as the serial loop would, after fitting the
-items before it; no item is started once a failure is seen. The exception
-has the type of the item's own error, a message naming the item
-(``polylines[31]: ...``, ``images[4] (frame.png): ...``), the item's
-position as its ``index`` attribute and the item's own error (for an
-image, perhaps a polyline's) as its ``__cause__``. With
-``errors="collect"`` every item is fitted and a failed item's place in the
-result holds that exception (as ``asyncio.gather(...,
-return_exceptions=True)`` does)::
+items before it; items are taken in order and none after a failed one
+starts once the failure is seen. The exception has the type of the item's
+own error, a message naming the item (``polylines[31]: ...``,
+``images[4] (frame.png): ...``), the item's position as its ``index``
+attribute and the item's own error as its ``__cause__``. With
+``errors="collect"`` every item is fitted and a failed item's place holds
+its exception (as ``asyncio.gather(..., return_exceptions=True)`` does)::
 
     out = fit_many(products, polylines, search_window_vu=(30, 30), errors="collect")
     failed = {e.index: e for e in out if isinstance(e, Exception)}
@@ -56,21 +44,14 @@ accepted form, a bad option or a bad ``workers`` raises at once.
 Progress
 --------
 ``progress=callback`` calls ``callback(done, total)`` once per completed
-item (a polyline of :func:`fit_many`, an image of :func:`fit_images`):
-``done`` is 1, 2, ..., ``total``, the number of items. The calls are made
-from the calling thread, which waits while the pool fits and reports each
-item as a worker finishes it (in completion order, perhaps a little after),
-so the callback needs no lock and may drive a progress bar or a GUI; it
-changes nothing in the results. With ``errors="collect"`` a failed item
-counts as completed (its place holds its error), so a call that returns
-has reported ``done == total``; with ``errors="raise"`` the calls stop at
-the first failure. If the callback raises, the batch stops as on an
-interrupt (no item starts, the items in progress finish, their results are
-dropped, no thread outlives the call) and its exception propagates
-unchanged: it is the caller's error, not an item's, so ``errors="collect"``
-does not collect it. ``progress=True`` shows a tqdm bar on standard error
-(tqdm comes with the ``cli`` extra); for a bar of one's own (a notebook
-widget of ``tqdm.auto``, other options) pass its update as the callback::
+item (a polyline of :func:`fit_many`, an image of :func:`fit_images`),
+``done`` = 1, 2, ..., ``total``, from the calling thread as it sees the
+items complete: the callback needs no lock. A failed item collected counts
+as completed; with ``errors="raise"`` the calls stop at the first failure.
+If the callback raises, the batch stops as on an interrupt and its
+exception propagates unchanged (it is not collected). ``progress=True``
+shows a tqdm bar on standard error (tqdm comes with the ``cli`` extra); for
+a bar of one's own pass its update as the callback::
 
     from tqdm.auto import tqdm
 
@@ -95,16 +76,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import queue
 import signal
-import sys
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import (
     CancelledError,
     Executor,
+    Future,
     ProcessPoolExecutor,
     ThreadPoolExecutor,
     as_completed,
@@ -114,6 +93,7 @@ from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
+from .._progress import Progress, tqdm_progress
 from ..api.checks import collect_errors as _check_errors
 from ..api.checks import progress_callback as _check_progress
 from ..api.checks import workers as _check_workers
@@ -147,69 +127,23 @@ _EXECUTORS = ("thread", "process")
 
 
 
-class _Progress:
-    """Items completed, counted by the thread that completes each and reported
-    by the calling thread as ``callback(done, total)``, one call per item.
-
-    The workers only :meth:`tick` (``SimpleQueue.put`` never blocks and takes
-    no lock the calling thread could hold when an interrupt lands); the
-    calling thread waits in :meth:`report`, whose ``get`` a signal handler's
-    exception interrupts as it does any other wait.
-    """
-
-    def __init__(self, callback: Callable[[int, int], Any], total: int) -> None:
-        self.callback, self.total, self.done = callback, total, 0
-        self._ticks: queue.SimpleQueue[int] = queue.SimpleQueue()
-
-    def tick(self, k: int = 1) -> None:
-        """``k`` more items are complete (any thread)."""
-        self._ticks.put(k)
-
-    def close(self) -> None:
-        """The work is over (any thread): :meth:`report` returns."""
-        self._ticks.put(0)
-
-    def step(self) -> None:
-        """Report one more item (the calling thread)."""
-        self.done += 1
-        self.callback(self.done, self.total)
-
-    def report(self) -> None:
-        """Report each tick until :meth:`close` (the calling thread)."""
-        while k := self._ticks.get():
-            for _ in range(k):
-                self.step()
-
-
 @contextmanager
 def _reporter(progress: Callable[[int, int], Any] | bool | None, total: int,
-              unit: str) -> Iterator[_Progress | None]:
-    """The call's :class:`_Progress` (None without ``progress``); with
-    ``progress=True``, one that drives a tqdm bar, closed on the way out."""
+              unit: str) -> Iterator[Progress | None]:
+    """The call's :class:`~dtalign._progress.Progress` (None without ``progress``);
+    with ``progress=True``, one that drives a tqdm bar, closed on the way out."""
     if progress is None or progress is False:
         yield None
     elif progress is True:
-        try:
-            from tqdm import tqdm
-        except ImportError:
-            raise ModuleNotFoundError(
-                "progress=True needs tqdm (pip install tqdm); or pass a callable "
-                "progress(done, total)"
-            ) from None
-        from .._numba_cache import compile_listeners
-
-        with tqdm(total=total, unit=unit) as bar:
-            # the first-compile notice above the bar, not through it
-            def note(text: str) -> None:
-                bar.write(f"dtalign: {text}", file=sys.stderr)
-
-            compile_listeners.append(note)
-            try:
-                yield _Progress(lambda done, _: bar.update(done - bar.n), total)
-            finally:
-                compile_listeners.remove(note)
+        with tqdm_progress(total, unit=unit) as report:
+            if report is None:
+                raise ModuleNotFoundError(
+                    "progress=True needs tqdm (pip install tqdm); or pass a callable "
+                    "progress(done, total)"
+                )
+            yield report
     else:
-        yield _Progress(progress, total)
+        yield Progress(progress, total)
 
 
 def _named(exc: Exception, label: str, index: int) -> Exception:
@@ -235,62 +169,6 @@ def _named(exc: Exception, label: str, index: int) -> Exception:
     return named
 
 
-def _shielded(body: Callable[[threading.Event], _R], report: _Progress | None = None) -> _R:
-    """``body(abort)``, in a thread of its own when called from the main
-    thread or with a ``report`` to make.
-
-    Python runs signal handlers in the main thread only, and a handler's
-    exception (KeyboardInterrupt, a timeout's) lands wherever that thread
-    is: inside an item it would pass for the item's error, inside Numba's
-    boxing of a kernel's result it becomes a SystemError. So the main thread
-    only waits, and the exception arrives there, in the wait; it sets
-    ``abort``, which every worker looks at before its next item, waits for
-    the threads to stop (each finishes the item it holds) and propagates.
-    (One that lands while the pool starts its thread, or joins it, leaves
-    that thread to stop on its own: it finds ``abort`` set.) With ``report``
-    the calling thread, wherever it is, reports the items ``body`` ticks
-    until ``body`` ends; an exception of the callback stops the batch as an
-    interrupt does. Elsewhere (a task of an enclosing batch) ``body`` runs
-    in the calling thread with a fresh ``abort``.
-    """
-    abort = threading.Event()
-    if report is None and threading.current_thread() is not threading.main_thread():
-        return body(abort)
-
-    def run() -> _R:
-        try:
-            if abort.is_set():  # the start was interrupted: nothing to do
-                raise CancelledError("the batch was stopped")
-            return body(abort)
-        finally:
-            # In this thread, which signal handlers never interrupt. (A done
-            # callback added from the calling thread runs there when the
-            # future is already done, and concurrent.futures logs and drops
-            # an Exception raised in it: a handler's exception would be lost.)
-            if report is not None:
-                report.close()
-
-    pool = ThreadPoolExecutor(1, thread_name_prefix="dtalign-batch")
-    try:
-        try:
-            future = pool.submit(run)
-        except KeyError as exc:
-            # CPython's Thread.start hides an exception a handler raises
-            # while the new thread starts behind a KeyError of its clean-up
-            if exc.__context__ is None:
-                raise
-            raise exc.__context__ from None
-        if report is not None:
-            report.report()
-        return future.result()
-    except BaseException:
-        abort.set()
-        raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-
-
-#: How long :func:`_process_pool` waits for a pool's manager thread to start
 #: when an exception landed in its start: it starts within milliseconds.
 _POOL_START_WAIT_S = 5.0
 
@@ -335,64 +213,160 @@ def _process_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     pool.shutdown(wait=True)
 
 
-def _run_ordered(
-    fn: Callable[[int, threading.Event], _R], n: int, workers: int, *, stop_early: bool,
-    abort: threading.Event, on_done: Callable[[], Any] | None = None,
-) -> tuple[list[_R | None], dict[int, Exception]]:
-    """``fn(i, abort)`` for ``i`` in ``range(n)`` on ``workers`` threads (the
-    calling thread and ``workers - 1`` of a pool): ``(results, errors)``.
+#: Chunks of the compiled loop per worker thread: enough that a thread on a
+#: slower core simply takes fewer of them.
+_CHUNKS_PER_WORKER = 4
 
-    ``results[i]`` is what ``fn(i, abort)`` returned (None if it raised or
-    never ran); ``errors`` maps ``i`` to the ``Exception`` it raised. With
-    ``stop_early`` no index is taken once an item has failed: every index
-    before it was taken already, so the first failure in input order is in
-    ``errors``. Once ``abort`` is set (by :func:`_shielded`, or here when any
-    other exception reaches a worker) no worker takes another item, and the
-    call raises (``CancelledError`` if nothing else); ``fn`` passes
-    ``abort`` on to nested loops. ``on_done()`` is called by the worker after
-    each item that returned or raised an ``Exception``.
+#: Polylines per chunk at most: an interrupt or a raising progress callback
+#: waits for the chunks running, and progress moves in steps of a chunk.
+_MAX_CHUNK = 8
+
+
+def _chunks(k: int, workers: int) -> list[int]:
+    """Bounds of the chunks of ``k`` polylines: chunk ``c`` is ``bounds[c]:bounds[c + 1]``."""
+    size = max(1, min(_MAX_CHUNK, -(-k // (workers * _CHUNKS_PER_WORKER))))
+    return [*range(0, k, size), k]
+
+
+class _Runner:
+    """Where one call's work runs; the calling thread only submits, waits and reports.
+
+    ``_Runner(workers)``: a thread pool of the call's own, shut down on the
+    way out. ``_Runner(pool=...)``: an executor of the caller's or a process
+    pool; what was not started is cancelled on the way out.
+    ``_Runner(stop=...)``: no pool, the calling thread runs everything (an
+    image's task inside a batch) and looks at the batch's ``stop`` before
+    each item. Leaving with an exception sets :attr:`stop`.
     """
-    failed = threading.Event()
-    results: list[_R | None] = [None] * n
-    errors: dict[int, Exception] = {}
-    todo = deque(range(n))
 
-    def drain() -> None:
-        while not (failed.is_set() or abort.is_set()):
-            try:
-                i = todo.popleft()
-            except IndexError:
-                return
-            try:
-                results[i] = fn(i, abort)
-            except Exception as exc:  # the item's error, reported in input order
-                errors[i] = exc
-                if stop_early:
-                    failed.set()
-            except BaseException:
-                abort.set()
-                raise
-            if on_done is not None:
-                on_done()
+    def __init__(self, workers: int = 1, *, report: Progress | None = None,
+                 pool: Executor | None = None, stop: threading.Event | None = None) -> None:
+        self.workers, self.report = workers, report
+        self.stop = threading.Event() if stop is None else stop
+        self.own = pool is None and stop is None
+        self.pool = (ThreadPoolExecutor(workers, thread_name_prefix="dtalign-batch")
+                     if self.own else pool)
 
-    helpers = min(workers, n) - 1
-    if helpers <= 0:
-        drain()
-    else:
-        pool = ThreadPoolExecutor(helpers, thread_name_prefix="dtalign-batch")
+    def __enter__(self) -> _Runner:
+        return self
+
+    def __exit__(self, kind: Any, exc: BaseException | None, tb: Any) -> None:
+        if exc is not None:
+            self.stop.set()
+        if self.own:
+            assert self.pool is not None
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def _submit(self, fn: Callable[..., _R], *args: Any, **kwargs: Any) -> Future[_R]:
+        assert self.pool is not None
         try:
-            futures = [pool.submit(drain) for _ in range(helpers)]
-            drain()
-            for future in futures:
-                future.result()
-        except BaseException:
-            abort.set()
-            raise
+            return self.pool.submit(fn, *args, **kwargs)
+        except KeyError as exc:
+            # CPython's Thread.start hides an exception a signal handler raises
+            # while the new thread starts behind a KeyError of its clean-up
+            if exc.__context__ is None:
+                raise
+            raise exc.__context__ from None
+
+    def call(self, fn: Callable[..., _R], *args: Any, **kwargs: Any) -> _R:
+        """``fn(*args, **kwargs)`` in a worker while the calling thread waits."""
+        if self.pool is None:
+            return fn(*args, **kwargs)
+        return self._submit(fn, *args, **kwargs).result()
+
+    def advance(self, k: int) -> None:
+        """Report ``k`` more items done (the calling thread)."""
+        if self.report is not None:
+            self.report.advance(k)
+
+    def each(self, fn: Callable[[_T], _R], items: Sequence[_T], *, stop_early: bool,
+             sizes: Sequence[int] | None = None) -> tuple[list[_R | None], dict[int, Exception]]:
+        """``fn(x)`` for each of ``items``, taken in input order: ``(results, errors)``.
+
+        ``results[i]`` is what ``fn(items[i])`` returned (None if it raised
+        or never ran), ``errors`` maps ``i`` to the ``Exception`` it raised.
+        With ``stop_early`` no item after a failed one starts once the
+        failure is seen; every item before it was taken already, so the
+        first failure in input order is in ``errors``. Each item that
+        returns (or fails, without ``stop_early``) is reported as
+        ``sizes[i]`` items done (default 1), in the calling thread as it
+        completes.
+        """
+        n = len(items)
+        results: list[_R | None] = [None] * n
+        errors: dict[int, Exception] = {}
+        if self.pool is None:
+            for i, x in enumerate(items):
+                if self.stop.is_set():
+                    raise CancelledError("the batch was stopped")
+                try:
+                    results[i] = fn(x)
+                except Exception as exc:  # the item's error, reported in input order
+                    errors[i] = exc
+                    if stop_early:
+                        break
+                self.advance(1 if sizes is None else sizes[i])
+            return results, errors
+        first, lock = [n], threading.Lock()  # the first failed item
+
+        def guarded(i: int) -> Any:
+            if self.stop.is_set() or i > first[0]:
+                return _SKIPPED
+            try:
+                return fn(items[i])
+            except Exception:
+                if stop_early:
+                    with lock:
+                        first[0] = min(first[0], i)
+                raise
+
+        # On a pool of the caller's (perhaps another process) ``fn`` runs as
+        # it is; what must not start is cancelled.
+        futures = [self._submit(guarded, i) if self.own else self._submit(fn, x)
+                   for i, x in enumerate(items)]
+        index = {future: i for i, future in enumerate(futures)}
+        try:
+            for future in as_completed(futures):  # the wait an interrupt lands in
+                i = index[future]
+                if future.cancelled():
+                    if stop_early and errors and i > min(errors):
+                        continue  # cancelled here, after a failure
+                    error: BaseException | None = CancelledError()  # by the executor's owner
+                else:
+                    error = future.exception()
+                if error is None:
+                    result = future.result()
+                    if result is _SKIPPED:
+                        continue
+                    results[i] = result
+                elif isinstance(error, Exception):  # the item's error
+                    errors[i] = error
+                    if stop_early:
+                        for later in futures[i + 1 :]:
+                            later.cancel()
+                        continue
+                else:
+                    raise error
+                if not (stop_early and errors):
+                    self.advance(1 if sizes is None else sizes[i])
         finally:
-            pool.shutdown(wait=True, cancel_futures=True)
-    if abort.is_set():
-        raise CancelledError("the batch was stopped")
-    return results, errors
+            for future in futures:  # a no-op for those done
+                future.cancel()
+        return results, errors
+
+
+def _runner(workers: int, report: Progress | None) -> _Runner:
+    """The call's :class:`_Runner`: a pool of ``workers`` threads, but none for
+    one worker and no report outside the main thread (a task of another
+    batch, a campaign's): there no signal handler runs, so the calling
+    thread may do the work itself, as the serial loop does."""
+    if workers == 1 and report is None and threading.current_thread() is not threading.main_thread():
+        return _Runner(stop=threading.Event())
+    return _Runner(workers, report=report)
+
+
+#: What an item of :meth:`_Runner.each` returns when the batch stopped before it.
+_SKIPPED = object()
 
 
 def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
@@ -495,8 +469,8 @@ def map_ordered(
     todo = list(items)
     if n == 1:
         return [fn(x) for x in todo]
-    results, errors = _shielded(lambda abort: _run_ordered(
-        lambda i, _: fn(todo[i]), len(todo), n, stop_early=True, abort=abort))
+    with _Runner(n) as runner:
+        results, errors = runner.each(fn, todo, stop_early=True)
     if errors:
         raise errors[min(errors)]
     return results  # type: ignore[return-value]
@@ -594,18 +568,16 @@ def fit_many(
         (see the module docstring).
     progress : callable or bool, optional
         ``progress(done, total)`` is called once per completed polyline,
-        ``done`` = 1, 2, ..., ``total`` (the number of polylines), from the
-        calling thread while the pool fits (in completion order; a failed
-        polyline collected with ``errors="collect"`` counts as completed).
-        If it raises, the batch stops (the fits in progress finish, nothing
-        else starts) and its exception propagates unchanged. ``True``
-        shows a tqdm progress bar (tqdm is needed); None or False (default):
-        no report. See the module docstring's "Progress" section.
+        ``done`` = 1, 2, ..., ``total``, from the calling thread (a chunk's
+        polylines together); if it raises, the batch stops and its exception
+        propagates unchanged. ``True`` shows a tqdm bar (tqdm is needed);
+        None or False (default): no report. See the module docstring's
+        "Progress" section.
     options : FitOptions, optional
         The options of every polyline's fit
         (:class:`~dtalign.api.options.FitOptions`, as
         :func:`~dtalign.pipeline.fit_polyline_products` takes them; the
-        edge profile is each polyline's own, above).
+        edge profile and kind are each polyline's own, above).
     **overrides
         Any field of ``options`` by name (``fit_rotation``,
         ``trust_region_px``, ...), as :func:`~dtalign.pipeline.fit_polyline_products` takes them.
@@ -637,17 +609,13 @@ def fit_many(
     profiles = [_polyline_profile(item) for item in items]
     kinds = [_polyline_edge_kind(item, opts.edge_kind) for item in items]
 
-    def body(abort: threading.Event) -> list[Any]:
-        out = _fit_parts(products, parts, search_window_vu, opts, n, collect, abort, tick)
-        out = _profiled(products, out, profiles, collect, "polylines", kinds)
-        # logged here, in the batch's thread: logging drops an exception raised
-        # inside a handler's emit, a timeout's landing in the calling thread too
-        _log(out, "polylines")
+    with _reporter(progress, len(parts), "polyline") as report, _runner(n, report) as runner:
+        out = _fit_parts(products, parts, search_window_vu, opts, collect, runner)
+        out = runner.call(_profiled, products, out, profiles, collect, "polylines", kinds)
+        # logged in a worker: logging drops an exception raised inside a
+        # handler's emit, a timeout's landing in the calling thread too
+        runner.call(_log, out, "polylines")
         return out
-
-    with _reporter(progress, len(parts), "polyline") as report:
-        tick = None if report is None else report.tick
-        return _shielded(body, report)
 
 
 def _log(results: list[Any], label: str) -> None:
@@ -665,11 +633,10 @@ def _log(results: list[Any], label: str) -> None:
 
 def _fit_parts(
     products: ImageProducts, parts: list[tuple[Any, Any, Any]], window: Any,
-    options: FitOptions, workers: int, collect: bool, abort: threading.Event,
-    tick: Callable[[int], Any] | None = None,
+    options: FitOptions, collect: bool, runner: _Runner,
 ) -> list[Any]:
-    """:func:`fit_many` of checked arguments; ``abort``: an enclosing batch's stop event;
-    ``tick(k)``: ``k`` more polylines are complete (fitted, or failed and collected).
+    """:func:`fit_many` of checked arguments, its steps run by ``runner``, which
+    reports the polylines complete (fitted, or failed and collected).
 
     Raising: the first polyline is checked with everything the polylines
     share (:func:`dtalign.pipeline.jobs.plan`), which fixes which error a bad
@@ -685,32 +652,31 @@ def _fit_parts(
         return []
     if not collect:
         try:
-            shared, first = _jobs.plan(products, *parts[0], window, options)
+            shared, first = runner.call(_jobs.plan, products, *parts[0], window, options)
         except (TypeError, ValueError) as exc:  # what a bad polyline or option raises
-            if _call_error(products, window, options, exc):
+            if runner.call(_call_error, products, window, options, exc):
                 raise
             raise _named(exc, "polylines[0]", 0) from exc
-        batch, error = _jobs.prepare(shared, parts, first)
-        fits, fit_errors = _fit_batch(shared, batch, workers, True, abort, tick)
+        batch, error = runner.call(_jobs.prepare, shared, parts, first)
+        fits, fit_errors = _fit_batch(shared, batch, runner, True)
         if fit_errors:  # a kernel error, before the first bad polyline
             j = min(fit_errors)
             raise _named(fit_errors[j], f"polylines[{j}]", j)
         if error is not None:
             raise _named(error, f"polylines[{batch.n}]", batch.n)
         return fits
-    shared = _probe_plan(products, window, options)
+    shared = runner.call(_probe_plan, products, window, options)
     out: list[Any] = []
     while len(out) < len(parts):
         s = len(out)
-        batch, error = _jobs.prepare(shared, parts[s:])
-        fits, fit_errors = _fit_batch(shared, batch, workers, False, abort, tick)
+        batch, error = runner.call(_jobs.prepare, shared, parts[s:])
+        fits, fit_errors = _fit_batch(shared, batch, runner, False)
         for j, fit_error in fit_errors.items():
             fits[j] = _named(fit_error, f"polylines[{s + j}]", s + j)
         out += fits
         if error is not None:
             out.append(_named(error, f"polylines[{len(out)}]", len(out)))
-            if tick is not None:
-                tick(1)
+            runner.advance(1)
     return out
 
 
@@ -734,77 +700,91 @@ def _call_error(products: ImageProducts, window: Any, options: FitOptions,
 
 
 def _fit_batch(
-    shared: Any, batch: Any, workers: int, stop_early: bool, abort: threading.Event,
-    tick: Callable[[int], Any] | None = None,
+    shared: Any, batch: Any, runner: _Runner, stop_early: bool,
 ) -> tuple[list[Any], dict[int, Exception]]:
     """Fit the checked polylines of ``batch``, one call of the compiled loop per
-    polyline on ``workers`` threads, then make their result objects.
+    chunk (:func:`_chunks`) on ``runner``'s threads, then make their result objects.
 
     Returns the fits (None where one failed) and the errors by polyline;
     with ``stop_early``, no fits once a polyline has failed. The results are
-    made in one pass at the end, from output arrays all the fits share
-    (cheaper than one polyline at a time), so the threads hold the GIL only
-    to call the loop.
+    made in one pass at the end, from output arrays all the fits share.
     Each fit's ``timings_s`` has ``fit``: the compiled time of the call's
     fits divided evenly among them. When the options ask for it, each fit
     is then examined against rival basins as
     :func:`~dtalign.pipeline.fit_polyline_products` does
-    (:func:`dtalign.pipeline.hypotheses.examine`), on the same threads. ``tick(k)``
-    counts the polylines done: fitted (and examined) or failed.
+    (:func:`dtalign.pipeline.hypotheses.examine`), on the same threads; the
+    polylines are reported done after it, else after their chunk.
     """
     k = batch.n
     if k == 0:
         return [], {}
     examine = shared.options.examined
-    args, codes, out = _jobs.loop_inputs(shared, batch)
-    busy = [0.0] * k
+    args, codes, out = runner.call(_jobs.loop_inputs, shared, batch)
+    bounds = _chunks(k, runner.workers)
+    busy = [0.0] * (len(bounds) - 1)
 
-    def fit(j: int, _: threading.Event) -> None:
+    def fit(c: int) -> None:
+        lo, hi = bounds[c], bounds[c + 1]
         t0 = time.perf_counter()
-        failed = _jobs.run_loop(args, j, j + 1, codes, out) == j
-        busy[j] = time.perf_counter() - t0
-        if failed:
-            _jobs.raise_for(int(codes[j]))
+        first = _jobs.run_loop(args, lo, hi, codes, out)
+        busy[c] = time.perf_counter() - t0
+        if first < hi:  # a polyline failed (the loop went on with the chunk's others)
+            _jobs.raise_for(int(codes[first]))
 
-    on_fit = None if tick is None or examine else lambda: tick(1)
-    _, errors = _run_ordered(fit, k, workers, stop_early=stop_early, abort=abort,
-                             on_done=on_fit)
+    chunks = range(len(bounds) - 1)
+    _, failed = runner.each(fit, chunks, stop_early=stop_early,
+                            sizes=[0 if examine else bounds[c + 1] - bounds[c] for c in chunks])
+    errors: dict[int, Exception] = {}
+    for c, exc in failed.items():  # each failed polyline's own error
+        bad = [j for j in range(bounds[c], bounds[c + 1]) if codes[j] != _jobs.OK] or [bounds[c]]
+        errors[bad[0]] = exc
+        errors.update({j: _kernel_error(int(codes[j])) for j in bad[1:]})
     if errors and stop_early:
         return [], errors
-    fits: list[Any] = wrap(shared, batch, _jobs.readonly_views(out), 0, k)
-    for arr in out:  # lock the outputs whose rows the fits' read-only views share
-        arr.flags.writeable = False
-    per_fit = sum(busy) / k
-    for j, f in enumerate(fits):
-        f.timings_s["fit"] = per_fit
-        if j in errors:  # its rows were never written
-            fits[j] = None
+    fits: list[Any] = runner.call(_results, shared, batch, out, sum(busy) / k, errors)
+    if examine:  # failed fits are not examined
+        runner.advance(len(errors))
     # Without the examination only the unconverged fits have work left: their
     # settling (dtalign.pipeline.fit.settle), one more LM each.
-    good = [j for j, f in enumerate(fits)
-            if f is not None and (examine or needs_settling(f))]
-    if not good:
-        return fits, errors
-    if tick is not None and errors and examine:  # failed fits are not examined
-        tick(len(errors))
-    bounds = batch.starts.tolist()
+    good = [j for j, f in enumerate(fits) if f is not None and (examine or needs_settling(f))]
+    bounds_of = batch.starts.tolist()
 
-    def one(i: int, _: threading.Event) -> Any:
-        j = good[i]
-        s, e = bounds[j], bounds[j + 1]
+    def one(j: int) -> Any:
+        s, e = bounds_of[j], bounds_of[j + 1]
         item = _jobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
-                             (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
-                             float(batch.distances[j]))
+                          (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
+                          float(batch.distances[j]))
         return finish(fits[j], shared, item)
 
-    examined, failures = _run_ordered(
-        one, len(good), workers, stop_early=stop_early, abort=abort,
-        on_done=None if tick is None or not examine else lambda: tick(1))
+    examined, failures = runner.each(one, good, stop_early=stop_early,
+                                     sizes=[int(examine)] * len(good))
     for i, j in enumerate(good):
         fits[j] = examined[i]
         if i in failures:
             errors[j] = failures[i]
     return ([], errors) if errors and stop_early else (fits, errors)
+
+
+def _kernel_error(code: int) -> Exception:
+    """The ValueError of a :func:`~dtalign._kernels.pipeline.fit_polylines` error code."""
+    try:
+        _jobs.raise_for(code)
+    except ValueError as exc:
+        return exc
+    raise AssertionError(f"error code {code} raised nothing")  # pragma: no cover
+
+
+def _results(shared: Any, batch: Any, out: Any, per_fit: float,
+             errors: dict[int, Exception]) -> list[Any]:
+    """The fits of ``batch`` from the loop's outputs (None where one failed)."""
+    fits: list[Any] = wrap(shared, batch, _jobs.readonly_views(out), 0, batch.n)
+    for arr in out:  # lock the outputs whose rows the fits' read-only views share
+        arr.flags.writeable = False
+    for j, f in enumerate(fits):
+        f.timings_s["fit"] = per_fit
+        if j in errors:  # its rows were never written
+            fits[j] = None
+    return fits
 
 
 def _image_parts(item: Any, index: int
@@ -836,7 +816,8 @@ def _fit_image(
                bool],
     abort: threading.Event | None = None,
 ) -> list[Any]:
-    """One image: loaded if a path, its products, then its polylines serially
+    """One image: loaded if a path, its products, then its polylines serially,
+    stopping between them once ``abort`` (the batch's stop event) is set
     (module level: picklable for a process pool)."""
     image, noise, parts, window, config, options, collect = job
     if _is_path(image):
@@ -844,8 +825,8 @@ def _fit_image(
 
         image = load_image(image)
     products = prepare_image(image, noise, config=config)
-    fits = _fit_parts(products, [p[:3] for p in parts], window, options, 1, collect,
-                      threading.Event() if abort is None else abort)
+    fits = _fit_parts(products, [p[:3] for p in parts], window, options, collect,
+                      _Runner(stop=threading.Event() if abort is None else abort))
     return _profiled(products, fits, [p[3] for p in parts], collect, "polylines",
                      [options.edge_kind if p[4] is None else p[4] for p in parts])
 
@@ -912,14 +893,11 @@ def fit_images(
         collected, loader errors included.
     progress : callable or bool, optional
         ``progress(done, total)`` is called once per completed image (all
-        its polylines fitted), ``done`` = 1, 2, ..., ``total`` (the number
-        of images), from the calling thread, with any executor (in
-        completion order; a failed image collected with ``errors="collect"``
-        counts as completed). If it raises, the batch stops (the images in
-        progress finish, nothing else starts; on an ``Executor`` of the
-        caller's, the tasks it runs already finish there) and its exception
-        propagates unchanged. ``True`` shows a tqdm progress bar (tqdm is
-        needed); None or False (default): no report.
+        its polylines fitted), ``done`` = 1, 2, ..., ``total``, from the
+        calling thread, with any executor; if it raises, the batch stops (on
+        an ``Executor`` of the caller's, the tasks it runs already finish
+        there) and its exception propagates unchanged. ``True`` shows a tqdm
+        bar (tqdm is needed); None or False (default): no report.
     options : FitOptions, optional
         The options of every polyline's fit, as in :func:`fit_many`.
     **overrides
@@ -953,21 +931,18 @@ def fit_images(
     ]
     with _reporter(progress, len(jobs), "image") as report:
         if isinstance(executor, Executor):
-            results, failures = _on_executor(executor, jobs, not collect, report)
+            with _Runner(pool=executor, report=report) as runner:
+                results, failures = runner.each(_fit_image, jobs, stop_early=not collect)
         elif executor == "process" and n > 1 and len(jobs) > 1:
-            with _process_pool(min(n, len(jobs))) as pool:
-                results, failures = _on_executor(pool, jobs, not collect, report)
+            with (_process_pool(min(n, len(jobs))) as pool,
+                  _Runner(pool=pool, report=report) as runner):
+                results, failures = runner.each(_fit_image, jobs, stop_early=not collect)
         else:
-            on_done = None if report is None else report.tick
-
-            def body(abort: threading.Event) -> list[Any]:
-                results, failures = _run_ordered(
-                    lambda i, a: _fit_image(jobs[i], a), len(jobs), n, stop_early=not collect,
-                    abort=abort, on_done=on_done)
-                # in the batch's thread, as fit_many logs
-                return _image_results(jobs, results, failures, collect)
-
-            return _shielded(body, report)
+            with _runner(n, report) as runner:
+                results, failures = runner.each(
+                    lambda job: _fit_image(job, runner.stop), jobs, stop_early=not collect)
+                # in a worker, as fit_many logs
+                return runner.call(_image_results, jobs, results, failures, collect)
     return _image_results(jobs, results, failures, collect)
 
 
@@ -976,7 +951,7 @@ def _image_results(jobs: list[Any], results: list[Any], failures: dict[int, Exce
     """:func:`fit_images`' results: failures named (raised, or collected in
     place), the failed and suspect fits logged (in the caller's process).
 
-    On threads this runs in the batch's thread. On an executor the calling
+    On threads this runs in a worker. On an executor the calling
     thread runs it: an exception a signal handler raises inside a log
     record's output there is logging's to drop (it prints "Logging error").
     """
@@ -992,41 +967,3 @@ def _image_results(jobs: list[Any], results: list[Any], failures: dict[int, Exce
         else:
             _log(fits, f"items[{i}].polylines")
     return results
-
-
-def _on_executor(
-    pool: Executor, jobs: list[Any], stop_early: bool, report: _Progress | None = None,
-) -> tuple[list[Any], dict[int, Exception]]:
-    """:func:`_fit_image` of each job on ``pool``, like :func:`_run_ordered`:
-    every image is submitted; once one fails (``stop_early``), or on any
-    other exception (the ``report`` callback's included), the ones not
-    started yet are cancelled. ``report`` is made here, in the calling
-    thread, as the images complete."""
-    futures = [pool.submit(_fit_image, job) for job in jobs]
-    results: list[Any] = [None] * len(jobs)
-    errors: dict[int, Exception] = {}
-    try:
-        if report is not None:
-            for future in as_completed(futures):
-                if stop_early and future.exception() is not None:
-                    break  # the call raises: the loop below finds the first failure
-                report.step()
-        for i, future in enumerate(futures):
-            # the wait, not result(): an exception a signal handler raises
-            # while this thread waits is the caller's, not the image's error
-            try:
-                exc = future.exception()
-            except CancelledError as cancelled:  # (by the executor's owner)
-                exc = cancelled
-            if exc is None:
-                results[i] = future.result()
-            elif isinstance(exc, Exception):  # the image's error, reported in input order
-                errors[i] = exc
-                if stop_early:
-                    break
-            else:
-                raise exc
-    finally:
-        for future in futures:
-            future.cancel()
-    return results, errors

@@ -345,6 +345,11 @@ def loop_inputs(shared: Plan, batch: Batch) -> tuple[loop.LoopInputs, np.ndarray
     return inputs, errors, out
 
 
+#: The compiled loop's code of a polyline that fitted (any other is an error:
+#: :func:`raise_for`).
+OK = loop.OK
+
+
 def run_loop(inputs: loop.LoopInputs, lo: int, hi: int, errors: np.ndarray,
              out: loop.LoopOutputs) -> int:
     """Polylines ``lo:hi`` of :func:`loop_inputs`' ``(inputs, errors, out)``
