@@ -292,21 +292,11 @@ class _Runner:
         ``sizes[i]`` items done (default 1), in the calling thread as it
         completes.
         """
+        if self.pool is None:
+            return self._each_here(fn, items, stop_early, sizes)
         n = len(items)
         results: list[_R | None] = [None] * n
         errors: dict[int, Exception] = {}
-        if self.pool is None:
-            for i, x in enumerate(items):
-                if self.stop.is_set():
-                    raise CancelledError("the batch was stopped")
-                try:
-                    results[i] = fn(x)
-                except Exception as exc:  # the item's error, reported in input order
-                    errors[i] = exc
-                    if stop_early:
-                        break
-                self.advance(1 if sizes is None else sizes[i])
-            return results, errors
         first, lock = [n], threading.Lock()  # the first failed item
 
         def guarded(i: int) -> Any:
@@ -352,6 +342,24 @@ class _Runner:
         finally:
             for future in futures:  # a no-op for those done
                 future.cancel()
+        return results, errors
+
+    def _each_here(self, fn: Callable[[_T], _R], items: Sequence[_T], stop_early: bool,
+                   sizes: Sequence[int] | None) -> tuple[list[_R | None], dict[int, Exception]]:
+        """:meth:`each` in the calling thread (no pool), looking at the
+        enclosing batch's stop event before each item."""
+        results: list[_R | None] = [None] * len(items)
+        errors: dict[int, Exception] = {}
+        for i, x in enumerate(items):
+            if self.stop.is_set():
+                raise CancelledError("the batch was stopped")
+            try:
+                results[i] = fn(x)
+            except Exception as exc:  # the item's error, reported in input order
+                errors[i] = exc
+                if stop_early:
+                    break
+            self.advance(1 if sizes is None else sizes[i])
         return results, errors
 
 
