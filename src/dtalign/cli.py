@@ -915,10 +915,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         _check_plotting("--plot")
     stdout = _Stdout(None if args.output is None else _check_output_file(args.output, "--output"))
     messages = _Messages()
-    results: list[dict[str, Any]] = []
-    failures = 0
-    failed_fits = 0
-    doubtful_fits = 0
+    tally = _Tally()
     _WARNINGS.messages = messages
     show_progress = batch and not args.no_progress and not args.json
     _compile_notice(messages)
@@ -934,44 +931,63 @@ def _cmd_fit(args: argparse.Namespace) -> int:
                         out = out.with_name(f"{out.stem}_{job.plot_name}{out.suffix or '.png'}")
                     _plot(image, poly.vertices_vu, fit, out, job.label, zooms, args.zoom_half, messages)
             except (OSError, ValueError, TypeError, ImportError) as exc:
-                failures += 1
-                msg = _one_line(exc)
-                results.append(
-                    {"image": str(job.image), "polyline": str(job.polyline), "label": job.label, "error": msg}
-                )
                 if not batch:
-                    return _fail(msg)
-                messages.say(f"{PROG}: FAILED {job.label}: {msg}")
+                    return _fail(_one_line(exc))
+                tally.failed_job(job, exc, messages)
                 continue
-            entry = {
-                "image": str(job.image), "polyline": str(job.polyline), "label": job.label, **fit.to_dict()
-            }
-            results.append(entry)
-            failed_fits += fit.failed
-            doubtful_fits += str(fit.status) in ("suspect", "ambiguous")
+            tally.fitted(job, fit)
             if not args.json and not batch:
                 stdout.emit(_table_single(job, poly, fit, args.noise_sigma is None))
     if args.json:
-        stdout.emit(json.dumps(results if batch else results[0], indent=2))
+        stdout.emit(json.dumps(tally.results if batch else tally.results[0], indent=2))
     elif batch:
-        stdout.emit(_table_batch(results))
+        stdout.emit(_table_batch(tally.results))
     stdout.close(messages)
-    if interrupt.happened:
-        messages.say(
-            f"{PROG}: interrupted after {len(results)} of {len(jobs)} image(s); "
-            "the rows above are the ones finished"
+    return tally.exit_code(len(jobs), interrupt.happened, messages)
+
+
+class _Tally:
+    """The ``fit`` command's rows and counts: one row per image (its fit's
+    dict, or its error), and the exit code they make."""
+
+    def __init__(self) -> None:
+        self.results: list[dict[str, Any]] = []
+        self.failures = 0  # images whose fit raised
+        self.failed_fits = 0  # fits with status "failed"
+        self.doubtful_fits = 0  # "suspect" or "ambiguous"
+
+    def failed_job(self, job: Any, exc: Exception, messages: _Messages) -> None:
+        self.failures += 1
+        msg = _one_line(exc)
+        self.results.append(
+            {"image": str(job.image), "polyline": str(job.polyline), "label": job.label, "error": msg}
         )
-        return EXIT_INTERRUPTED
-    if failures:
-        messages.say(f"{PROG}: {failures} of {len(jobs)} image(s) failed")
-        return 1
-    if failed_fits:
-        messages.say(f"{PROG}: {failed_fits} of {len(jobs)} fit(s) failed (status 'failed')")
-        return EXIT_FIT_FAILED
-    if doubtful_fits:
-        messages.say(f"{PROG}: {doubtful_fits} of {len(jobs)} fit(s) suspect or ambiguous")
-        return EXIT_FIT_DOUBTFUL
-    return 0
+        messages.say(f"{PROG}: FAILED {job.label}: {msg}")
+
+    def fitted(self, job: Any, fit: Any) -> None:
+        self.results.append(
+            {"image": str(job.image), "polyline": str(job.polyline), "label": job.label, **fit.to_dict()}
+        )
+        self.failed_fits += fit.failed
+        self.doubtful_fits += str(fit.status) in ("suspect", "ambiguous")
+
+    def exit_code(self, n_jobs: int, interrupted: bool, messages: _Messages) -> int:
+        if interrupted:
+            messages.say(
+                f"{PROG}: interrupted after {len(self.results)} of {n_jobs} image(s); "
+                "the rows above are the ones finished"
+            )
+            return EXIT_INTERRUPTED
+        if self.failures:
+            messages.say(f"{PROG}: {self.failures} of {n_jobs} image(s) failed")
+            return 1
+        if self.failed_fits:
+            messages.say(f"{PROG}: {self.failed_fits} of {n_jobs} fit(s) failed (status 'failed')")
+            return EXIT_FIT_FAILED
+        if self.doubtful_fits:
+            messages.say(f"{PROG}: {self.doubtful_fits} of {n_jobs} fit(s) suspect or ambiguous")
+            return EXIT_FIT_DOUBTFUL
+        return 0
 
 
 class _KeepRows:
