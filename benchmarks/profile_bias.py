@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from dtalign import fit_polyline, sphere_edge_profile
+from dtalign.benchmarking.timing import rst_table
 from dtalign.scenes import render_sphere
 
 #: Frame size of every scene (the issue's).
@@ -97,16 +98,8 @@ def _stats(rows: Sequence[dict[str, Any]]) -> list[str]:
 
 def _table(title: str, groups: list[tuple[str, list[dict[str, Any]]]]) -> str:
     """An RST simple table: one row per group, errors in pixels."""
-    body = [[name, *_stats(rows)] for name, rows in groups if rows]
-    head = ["", *COLUMNS]
-    widths = [max(len(r[i]) for r in [head, *body]) for i in range(len(head))]
-    line = "  ".join("=" * w for w in widths)
-
-    def fmt(cells: list[str]) -> str:
-        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
-                         for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
-
-    return "\n".join([f"**{title}**", "", line, fmt(head), line, *map(fmt, body), line])
+    return rst_table(["", *COLUMNS], [[name, *_stats(rows)] for name, rows in groups if rows],
+                     title)
 
 
 def _bins(rows: list[dict[str, Any]], key: Callable[[dict[str, Any]], str]

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from dtalign import fit_polyline, sphere_edge_profile
+from dtalign.benchmarking.timing import rst_table
 from dtalign.pipeline.status import FitReason, FitStatus, fit_status
 from dtalign.scenes import render_sphere
 
@@ -114,16 +115,7 @@ def stats(rs: Sequence[dict[str, Any]]) -> list[str]:
 
 def table(groups: list[tuple[str, list[dict[str, Any]]]]) -> str:
     """An RST simple table, one row per group (errors in px)."""
-    body = [[name, *stats(rs)] for name, rs in groups if rs]
-    head = ["", *COLUMNS]
-    widths = [max(len(r[i]) for r in [head, *body]) for i in range(len(head))]
-    line = "  ".join("=" * w for w in widths)
-
-    def fmt(cells: list[str]) -> str:
-        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
-                         for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
-
-    return "\n".join([line, fmt(head), line, *map(fmt, body), line])
+    return rst_table(["", *COLUMNS], [[name, *stats(rs)] for name, rs in groups if rs])
 
 
 def run(n_scenes: int, seed: int, psf: float | None = None, psf_given: bool = True) -> str:

@@ -441,6 +441,22 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(text)
 
 
+def rst_table(head: Sequence[str], body: Sequence[Sequence[str]], title: str | None = None) -> str:
+    """An RST simple table of text cells: the first column left-aligned, the
+    others (numbers) right-aligned; ``title`` in bold above it (the bias and
+    error tables of ``benchmarks/profile_bias.py`` and ``terminator_error.py``)."""
+    rows = [list(head), *map(list, body)]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+    line = "  ".join("=" * w for w in widths)
+
+    def fmt(cells: list[str]) -> str:
+        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
+
+    table = [line, fmt(rows[0]), line, *map(fmt, rows[1:]), line]
+    return "\n".join(([f"**{title}**", ""] if title else []) + table)
+
+
 def format_rst(report: dict[str, Any]) -> str:
     """The table as an RST list-table, with the machine it was measured on."""
     m = report["machine"]
