@@ -206,7 +206,7 @@ def _concatenated(
     return pts, nrm, sig, lens
 
 
-def _stacked(shared: Plan, parts: Sequence[tuple[Any, Any, Any]], first: Item | None
+def _stacked(parts: Sequence[tuple[Any, Any, Any]], first: Item | None
              ) -> tuple[FloatArray, FloatArray, FloatArray, list[int], int]:
     """The polylines' arrays concatenated, their lengths, and the first whose
     shapes are wrong (``len(parts)`` if none): in bulk when every polyline is
@@ -284,7 +284,7 @@ def prepare(
     of them. Returns the polylines up to the first bad one, and the error
     that one raises alone (None if all pass).
     """
-    pts, nrm, sig, lens, bad = _stacked(shared, parts, first)
+    pts, nrm, sig, lens, bad = _stacked(parts, first)
     pts, nrm, sig = check.readonly(pts), check.readonly(nrm), check.readonly(sig)
     # (np.cumsum of the list converts it first: twice the time)
     starts = np.fromiter(itertools.accumulate(lens, initial=0), np.int64, len(lens) + 1)
