@@ -549,7 +549,7 @@ def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace)
         + (f", rotation {scene.true_rotation_rad:.5f} rad" if args.rotation is not None else ""),
         f"coarse    : offset (dv, du) = {fit.coarse_offset_vu} (window ±{args.window})",
         f"fitted    : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)",
-        f"scaled    : ± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (1 sigma scaled by the residuals, "
+        f"scaled    : ± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (the M-estimator's 1 sigma scaled by the residuals, "
         f"variance factor {_fmt(fit.variance_factor, 4)})",
     ]
     if fit.fit_rotation:

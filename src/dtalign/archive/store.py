@@ -52,7 +52,7 @@ RESULT_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("sigma_v", "float64", "one-sigma of dv (sqrt of cov_vv)"),
     ("sigma_u", "float64", "one-sigma of du"),
     ("sigma_rotation_rad", "float64", "one-sigma of the rotation; null when not fitted"),
-    ("cov_vv", "float64", "LM covariance entries"),
+    ("cov_vv", "float64", "pose covariance entries (the fit's covariance: the noise measured plus the edge model's floor)"),
     ("cov_vu", "float64", ""),
     ("cov_uu", "float64", ""),
     ("cov_vr", "float64", "rotation entries: null when the rotation is not fitted"),

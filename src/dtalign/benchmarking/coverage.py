@@ -15,7 +15,9 @@ known: every family of :mod:`dtalign.robustness` and spheres rendered by
   ``ok``, the fraction inside the 68 % and 95 % ellipses, the median error
   and the median reported one-sigma; beside them the fraction flagged.
 * :func:`format_table` renders the rows; ``python -m
-  dtalign.benchmarking.coverage`` prints the table of the plain pipeline.
+  dtalign.benchmarking.coverage`` prints the table of the pipeline, plain
+  (:func:`plain_fit`) and with the spheres' edge profiles
+  (:func:`profile_fit`).
 
 The ellipse test is the squared Mahalanobis distance of the error against
 the reading's covariance restricted to the directions the fit observes:
@@ -27,6 +29,7 @@ quantiles with 2 degrees of freedom; along one direction below 1 and
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import statistics
@@ -51,6 +54,7 @@ __all__ = [
     "format_table",
     "main",
     "plain_fit",
+    "profile_fit",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -61,10 +65,13 @@ CHI2_2D: tuple[float, float] = (2.2789, 5.9915)
 CHI2_1D: tuple[float, float] = (1.0, 3.8415)
 
 #: The readings of a :class:`dtalign.pipeline.PolylineFit` the table reports:
-#: the prior covariance (from the vertex sigmas passed) and the
-#: residual-scaled one (``curve_fit(absolute_sigma=False)``).
+#: the pipeline's own covariance (:mod:`dtalign.pipeline.uncertainty`), the
+#: M-estimator's prior one (from the vertex sigmas passed, as
+#: :func:`dtalign.lm_subpixel_refine` reports it) and that one scaled by the
+#: residuals (``curve_fit(absolute_sigma=False)``).
 READINGS: dict[str, Callable[[Any], Any]] = {
-    "prior": lambda fit: fit.covariance,
+    "pipeline": lambda fit: fit.covariance,
+    "prior": lambda fit: fit.covariance_mestimator,
     "scaled": lambda fit: fit.covariance_scaled,
 }
 
@@ -214,13 +221,39 @@ def _inside(err: FloatArray, cov: FloatArray, across: tuple[float, float] | None
 
 
 def plain_fit(case: Case) -> Any:
-    """The plain one-call pipeline (:func:`dtalign.pipeline.fit_polyline`)."""
+    """The plain one-call pipeline (:func:`dtalign.pipeline.fit_polyline`); a
+    rendered sphere's polyline declared as the limb or terminator it is."""
     from ..pipeline import fit_polyline
 
     p = case.polyline
     return fit_polyline(case.image, p.vertices_vu, p.normals_vu, p.sigmas,
                         search_window_vu=case.search_window_vu, noise_sigma=case.noise_sigma,
-                        use_polarity=case.use_polarity)
+                        use_polarity=case.use_polarity, edge_kind=case.extra.get("edge"))
+
+
+def profile_fit(case: Case) -> Any:
+    """The one-call pipeline with the edge profile of a rendered sphere
+    (:func:`dtalign.sphere_edge_profile` of the right law and geometry, the
+    PSF's sigma left to be estimated from the image).
+
+    Raises
+    ------
+    ValueError
+        If ``case`` is not a rendered sphere (it has no profile).
+    """
+    from ..api.profiles import sphere_edge_profile
+    from ..pipeline import fit_polyline
+
+    x = case.extra
+    if "edge" not in x:
+        raise ValueError(f"case: family {case.family!r} has no edge profile")
+    p = case.polyline
+    prof = sphere_edge_profile(p.vertices_vu, center_vu=x["center_vu"], radius_px=x["radius_px"],
+                               phase_deg=x["phase_deg"], illumination_deg=x["illumination_deg"],
+                               edge=x["edge"], psf_sigma_px=None)
+    return fit_polyline(case.image, p.vertices_vu, p.normals_vu, p.sigmas,
+                        search_window_vu=case.search_window_vu, noise_sigma=case.noise_sigma,
+                        use_polarity=case.use_polarity, edge_profile=prof)
 
 
 def evaluate(
@@ -310,21 +343,29 @@ def format_table(rows: Sequence[CoverageRow]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Print the coverage table of :func:`plain_fit`
+    """Print the coverage table of :func:`plain_fit` on every family and of
+    :func:`profile_fit` on the rendered spheres
     (``python -m dtalign.benchmarking.coverage``)."""
     parser = argparse.ArgumentParser(
         prog="python -m dtalign.benchmarking.coverage",
-        description="Coverage of the plain pipeline's reported ellipses on seeded scenes.",
+        description="Coverage of the pipeline's reported ellipses on seeded scenes.",
     )
-    parser.add_argument("--seeds", type=int, default=40, help="scenes per family (seeds 0..N-1)")
+    parser.add_argument("--seeds", type=int, default=40, help="scenes per family")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="the first seed (seeds FIRST..FIRST+N-1)")
     parser.add_argument("--families", nargs="+", choices=list(FAMILIES), default=None)
     args = parser.parse_args(argv)
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    names = list(FAMILIES) if args.families is None else args.families
     # The per-fit warnings of the pipeline are what the "flagged" column counts.
     log = logging.getLogger("dtalign")
     level = log.level
     log.setLevel(logging.ERROR)
     try:
-        rows = evaluate(plain_fit, args.families, range(args.seeds))
+        rows = evaluate(plain_fit, names, seeds)
+        spheres = [n for n in names if n.startswith("sphere_")]
+        rows += [dataclasses.replace(r, family=f"{r.family} + profile")
+                 for r in evaluate(profile_fit, spheres, seeds)] if spheres else []
     finally:
         log.setLevel(level)
     print(format_table(rows))

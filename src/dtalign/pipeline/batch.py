@@ -100,7 +100,7 @@ from ..api.checks import workers as _check_workers
 from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
-from .fit import PolylineFit, finish, needs_settling, wrap
+from .fit import PolylineFit, conclude, finish, needs_settling, wrap
 from .products import ImageProducts, prepare_image
 from .status import log_fit, log_fits, logger
 
@@ -413,16 +413,14 @@ def _polyline_edge_kind(item: Any, default: str | None) -> str | None:
 
 def _profiled(products: ImageProducts, fits: list[Any], profiles: list[Any], collect: bool,
               label: str, kinds: list[str | None] | None = None) -> list[Any]:
-    """``fits`` refined with their polylines' edge profiles
-    (:func:`dtalign.pipeline.fit.with_profile`) and marked with their edge
-    kinds (``kinds``, or each profile's ``edge``), as
-    :func:`~dtalign.pipeline.fit_polyline_products` does; a bad profile or
-    kind is the polyline's error (raised, or collected in its place)."""
+    """``fits`` concluded as :func:`~dtalign.pipeline.fit_polyline_products`
+    concludes one (:func:`dtalign.pipeline.fit.conclude`): refined with their
+    polylines' edge profiles, marked with their edge kinds (``kinds``, or
+    each profile's ``edge``), their evidence for the covariance sampled; a
+    bad profile or kind is the polyline's error (raised, or collected in its
+    place)."""
     if kinds is None:
         kinds = [None] * len(fits)
-    if all(p is None for p in profiles) and all(k is None for k in kinds):
-        return fits
-    from .fit import with_profile
     from .profile_fit import check_edge_profile, edge_kind_of
 
     out = list(fits)
@@ -431,10 +429,7 @@ def _profiled(products: ImageProducts, fits: list[Any], profiles: list[Any], col
             continue
         try:
             checked = None if profile is None else check_edge_profile(profile, fit.normals_vu)
-            kind = edge_kind_of(kind, checked)
-            if checked is not None:
-                fit = with_profile(fit, products, checked)
-            out[i] = fit if kind is None else dataclasses.replace(fit, edge_kind=kind)
+            out[i] = conclude(fit, products, checked, edge_kind_of(kind, checked))
         except (TypeError, ValueError) as exc:
             if not collect:
                 raise _named(exc, f"{label}[{i}]", i) from exc

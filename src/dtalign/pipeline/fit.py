@@ -58,6 +58,7 @@ from .observability import (
 from .products import ImageProducts, _readonly, prepare_image
 from .profile_fit import ProfileRefinement, check_edge_profile, edge_kind_of, refine_with_profile
 from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
+from .uncertainty import Evidence, PoseUncertainty, evidence, pose_uncertainty
 
 __all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
 
@@ -164,6 +165,7 @@ class PolylineFit:
     settling: Settling | None = field(default=None, repr=False)
     profile: ProfileRefinement | None = field(default=None, repr=False)
     edge_kind: str | None = None
+    evidence: Evidence | None = field(default=None, repr=False)
 
     @property
     def dt_offset_vu(self) -> tuple[float, float]:
@@ -198,9 +200,41 @@ class PolylineFit:
         )
         return _readonly(np.asarray(cov))
 
+    @functools.cached_property
+    def uncertainty(self) -> PoseUncertainty | None:
+        """The pose covariance and its parts (:mod:`dtalign.pipeline.uncertainty`).
+
+        Formed on first access from :attr:`evidence`; None for a fit built
+        without it (then :attr:`covariance` is the M-estimator's).
+        """
+        if self.evidence is None:
+            return None
+        return pose_uncertainty(self, self.evidence)
+
     @property
     def covariance(self) -> FloatArray:
-        """The LM covariance (pseudoinverse; 2 x 2, or 3 x 3 with rotation)."""
+        """The pose covariance (2 x 2, or 3 x 3 with rotation), pixels and radians.
+
+        The noise measured in the residuals (the neighbouring vertices'
+        correlation counted), plus a floor for what the edge model leaves:
+        :mod:`dtalign.pipeline.uncertainty` says how, the docs' uncertainty
+        page how often it covers the truth. Zero along a direction the
+        geometry does not observe (read :attr:`sigma_vu`: ``inf`` there);
+        all ``inf`` when degenerate. The drop-in contract's M-estimator
+        pseudoinverse is :attr:`covariance_mestimator`.
+        """
+        u = self.uncertainty
+        return self.lm.covariance if u is None else u.covariance
+
+    @property
+    def covariance_mestimator(self) -> FloatArray:
+        """The LM's covariance as :func:`dtalign.lm_subpixel_refine` reports it.
+
+        ``pinvh(J^T W J)`` with ``W`` from the vertex sigmas you passed and the
+        final robust weights (:ref:`contract-lm`): as large as those sigmas
+        say, whatever the image shows, and blind to the edge model's bias.
+        :attr:`covariance_scaled` scales it by the residuals.
+        """
         return self.lm.covariance
 
     @property
@@ -259,13 +293,13 @@ class PolylineFit:
     def covariance_unobservable_inf(self) -> FloatArray:
         """The covariance with the unobservable directions mapped to ``+inf``.
 
-        The LM covariance restricted to the directions the geometry
+        :attr:`covariance` restricted to the directions the geometry
         constrains, ``+inf`` along :attr:`unobservable_directions` and along
         the covariance's own null directions; see
         :func:`~dtalign.pipeline.observability.covariance_with_unobservable_inf`.
         """
         return covariance_with_unobservable_inf(
-            self.lm.covariance, self.pinvh_rcond, null_directions=self.unobservable_directions
+            self.covariance, self.pinvh_rcond, null_directions=self.unobservable_directions
         )
 
     @property
@@ -273,41 +307,47 @@ class PolylineFit:
         """Like :attr:`sigma_vu` (kept for compatibility: :attr:`sigma_vu` is now this reading)."""
         return self.sigma_vu
 
-    @functools.cached_property
-    def _sigmas(self) -> tuple[float, ...]:
-        """One-sigma of each pose parameter, ``inf`` where a null direction enters.
-
-        The square roots of the LM covariance diagonal when no direction is
-        unobservable (the usual limb: exactly the covariance's values), else
-        of :attr:`covariance_unobservable_inf`.
-        """
-        cov = np.asarray(self.lm.covariance)
+    def _sigmas_of(self, cov: FloatArray) -> tuple[float, ...]:
+        """One-sigma of each pose parameter under ``cov``, ``inf`` where a
+        null direction enters: the square roots of its diagonal when no
+        direction is unobservable (the usual limb), else of ``cov`` with its
+        unobservable directions mapped to ``inf``."""
         if not np.isfinite(cov).all():
             return (math.inf,) * cov.shape[0]
-        honest = self.covariance_unobservable_inf
+        honest = covariance_with_unobservable_inf(
+            cov, self.pinvh_rcond, null_directions=self.unobservable_directions)
         if np.isfinite(honest).all():
             return tuple(_sigma_list(cov))
         return tuple(float(x) for x in _sigmas_from_cov(honest))
 
+    @functools.cached_property
+    def _sigmas(self) -> tuple[float, ...]:
+        """:meth:`_sigmas_of` :attr:`covariance`."""
+        return self._sigmas_of(np.asarray(self.covariance))
+
+    @functools.cached_property
+    def _sigmas_mestimator(self) -> tuple[float, ...]:
+        """:meth:`_sigmas_of` :attr:`covariance_mestimator`."""
+        return self._sigmas_of(np.asarray(self.lm.covariance))
+
     @property
     def sigma_vu(self) -> tuple[float, float]:
-        """One-sigma uncertainty of ``dv`` and ``du`` from the prior vertex sigmas.
+        """One-sigma uncertainty of ``dv`` and ``du``, pixels.
 
-        The square root of the covariance diagonal, **``inf`` for an axis
-        that a direction the geometry does not observe involves** (a
-        straight edge along ``u`` gives ``(s, inf)``; a diagonal straight
+        The square root of the diagonal of :attr:`covariance` (the noise
+        measured, neighbours correlated, plus the edge model's floor), **``inf``
+        for an axis that a direction the geometry does not observe involves**
+        (a straight edge along ``u`` gives ``(s, inf)``; a diagonal straight
         edge ``(inf, inf)``: read it with :meth:`sigma_along` its normal),
-        and ``inf`` for a degenerate fit. The covariance is the prior one,
-        ``pinvh(J^T W J)`` with ``W`` from the sigmas you passed: it is as
-        large as those sigmas say, whatever the residuals; see
-        :attr:`sigma_vu_scaled` for the residual-scaled reading.
+        and ``inf`` for a degenerate fit.
         """
         sig = self._sigmas
         return sig[0], sig[1]
 
     @property
     def sigma_rotation_rad(self) -> float | None:
-        """One-sigma of the rotation (prior), ``inf`` when unobservable; None when not fitted."""
+        """One-sigma of the rotation (from :attr:`covariance`), ``inf`` when
+        unobservable; None when not fitted."""
         return self._sigmas[2] if self.fit_rotation else None
 
     @functools.cached_property
@@ -334,7 +374,7 @@ class PolylineFit:
 
     @property
     def covariance_scaled(self) -> FloatArray:
-        """The a-posteriori covariance: :attr:`covariance` times :attr:`variance_factor`.
+        """The M-estimator's a-posteriori covariance: :attr:`covariance_mestimator` times :attr:`variance_factor`.
 
         The option beside the prior covariance, as
         ``curve_fit(absolute_sigma=False)``: use it when the vertex sigmas
@@ -351,16 +391,17 @@ class PolylineFit:
 
     @property
     def sigma_vu_scaled(self) -> tuple[float, float]:
-        """:attr:`sigma_vu` times ``sqrt(variance_factor)`` (``inf`` stays ``inf``)."""
+        """The M-estimator's one-sigma of ``dv`` and ``du`` times ``sqrt(variance_factor)``
+        (``inf`` stays ``inf``): the square roots of :attr:`covariance_scaled`'s diagonal."""
         s = math.sqrt(self.variance_factor)
-        return self._sigmas[0] * s, self._sigmas[1] * s
+        return self._sigmas_mestimator[0] * s, self._sigmas_mestimator[1] * s
 
     @property
     def sigma_rotation_rad_scaled(self) -> float | None:
-        """:attr:`sigma_rotation_rad` times ``sqrt(variance_factor)``; None when not fitted."""
+        """The M-estimator's one-sigma of the rotation times ``sqrt(variance_factor)``; None when not fitted."""
         if not self.fit_rotation:
             return None
-        return self._sigmas[2] * math.sqrt(self.variance_factor)
+        return self._sigmas_mestimator[2] * math.sqrt(self.variance_factor)
 
     @property
     def polarity_rejected_count(self) -> int:
@@ -417,8 +458,8 @@ class PolylineFit:
         """One-sigma of the translation projected on a direction ``(v, u)``.
 
         ``sqrt(d^T C d)`` with ``d`` the unit direction and ``C`` the
-        translation block of :attr:`covariance` (of :attr:`covariance_scaled`
-        with ``scaled=True``): for a straight edge, pass its normal to get
+        translation block of :attr:`covariance` (of the M-estimator's
+        :attr:`covariance_scaled` with ``scaled=True``): for a straight edge, pass its normal to get
         the across-edge uncertainty. ``inf`` when ``d`` has a component
         (above 1e-6) along an :attr:`unobservable_directions` entry or a null
         direction of the covariance, and for a degenerate fit.
@@ -428,7 +469,7 @@ class PolylineFit:
         if norm == 0.0:
             raise ValueError("direction_vu must not be zero")
         d = d / norm
-        cov = np.asarray(self.lm.covariance)
+        cov = np.asarray(self.lm.covariance if scaled else self.covariance)
         if not np.isfinite(cov).all():
             return math.inf
         nulls = [*self.unobservable_directions, *null_directions(cov, self.pinvh_rcond)]
@@ -493,6 +534,10 @@ class PolylineFit:
             extra = {name: np.asarray(getattr(src, name)).tolist() for src, name in (
                 (self, "vertices_vu"), (self, "normals_vu"), (self.lm, "residuals_px"),
                 (self.lm, "weights"))}
+            found = self.evidence
+            extra["evidence"] = None if found is None else {
+                k: np.asarray(v).tolist() for k, v in found._asdict().items()}
+        u = self.uncertainty
         return {
             "offset_vu": [num(x) for x in self.offset_vu],
             "rotation_rad": num(self.rotation_rad),
@@ -514,7 +559,10 @@ class PolylineFit:
             "ambiguity": None if self.ambiguity is None else _ambiguity_dict(self.ambiguity),
             "settling": None if self.settling is None else _settling_dict(self.settling),
             "hypotheses": [_hypothesis_dict(h) for h in self.hypotheses],
-            "covariance": [[num(float(x)) for x in row] for row in cov],
+            "covariance": [[num(float(x)) for x in row] for row in np.asarray(self.covariance)],
+            "covariance_mestimator": [[num(float(x)) for x in row] for row in cov],
+            "uncertainty_source": None if u is None else u.source,
+            "uncertainty_floor_px": None if u is None else u.floor_px,
             "normal_covariance": [
                 [num(float(x)) for x in row] for row in np.asarray(self.normal_covariance)
             ],
@@ -573,7 +621,10 @@ class PolylineFit:
         try:
             vertices = np.asarray(d["vertices_vu"], dtype=np.float64).reshape(-1, 2)
             normals = np.asarray(d["normals_vu"], dtype=np.float64).reshape(-1, 2)
-            cov = np.array([[inf(x) for x in row] for row in d["covariance"]], dtype=np.float64)
+            # written before the pipeline's own covariance: "covariance" was the LM's
+            lm_cov = d.get("covariance_mestimator", d["covariance"])
+            cov = np.array([[inf(x) for x in row] for row in lm_cov], dtype=np.float64)
+            found = d.get("evidence")
             # the LM's own offset: the DT-LM one when a profile refinement moved the fit's
             dt = d.get("dt_offset_vu", d["offset_vu"])
             lm = LMRefineResult(
@@ -604,6 +655,10 @@ class PolylineFit:
                 settling=None if d["settling"] is None else _settling_from(d["settling"]),
                 profile=None if prof is None else ProfileRefinement.from_dict(prof),
                 edge_kind=d.get("edge_kind"),
+                evidence=None if found is None else Evidence(*(
+                    _readonly(np.asarray(found[k], dtype=np.float64).reshape(shape))
+                    for k, shape in (("residuals", (-1,)), ("jacobian", (len(vertices), -1)),
+                                     ("points_vu", (-1, 2))))),
             )
         except KeyError as exc:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
@@ -753,11 +808,7 @@ def fit_polyline_products(
     t1 = time.perf_counter()
     seed, surface = jobs.seed_of(shared, item, surface=opts.examined)
     fit = fit_from(shared, item, seed, time.perf_counter() - t1)
-    fit = finish(fit, shared, item, surface)
-    if profile is not None:
-        fit = with_profile(fit, products, profile)
-    if kind is not None:
-        fit = dataclasses.replace(fit, edge_kind=kind)
+    fit = conclude(finish(fit, shared, item, surface), products, profile, kind)
     _status.log_fit(fit)
     return fit
 
@@ -828,6 +879,18 @@ def fit_polyline(
 # ---------------------------------------------------------------------------
 # Building fits from the compiled work (:mod:`dtalign.pipeline.jobs`)
 # ---------------------------------------------------------------------------
+
+
+def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
+             kind: str | None) -> PolylineFit:
+    """The last steps of every fit, the batch's too: the refinement with its
+    edge profile (when given, :func:`with_profile`), its edge kind, and the
+    DT's :class:`~dtalign.pipeline.uncertainty.Evidence` at its DT-LM pose,
+    from which :attr:`PolylineFit.covariance` is formed."""
+    if profile is not None:
+        fit = with_profile(fit, products, profile)
+    found = None if fit.lm.degenerate else evidence(fit, products.edge_dt)
+    return dataclasses.replace(fit, edge_kind=kind, evidence=found)
 
 
 def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any) -> PolylineFit:

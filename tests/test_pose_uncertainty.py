@@ -1,0 +1,210 @@
+"""The pipeline's covariance (:mod:`dtalign.pipeline.uncertainty`): its parts,
+where every fit path gets it, and its coverage on a fixed seeded subset."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+
+import numpy as np
+import pytest
+
+from dtalign import scenes
+from dtalign.benchmarking import coverage as cov
+from dtalign.pipeline import PolylineFit, fit_polyline, fit_polyline_products, prepare_image
+from dtalign.pipeline import uncertainty as unc
+from dtalign.pipeline.batch import fit_many
+
+
+@pytest.fixture(scope="module")
+def nav():
+    return scenes.navigation_scene(shape=(512, 512), radius=80.0)
+
+
+@pytest.fixture(scope="module")
+def nav_products(nav):
+    return prepare_image(nav.image, nav.noise_sigma)
+
+
+def _straight(n: int, spacing: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    pts = np.column_stack([np.zeros(n), spacing * np.arange(n, dtype=float)])
+    jac = np.tile([1.0, 0.0], (n, 1))  # each vertex measures v only
+    return pts, jac
+
+
+# --------------------------------------------------------------------------- parts
+
+
+def test_far_apart_vertices_give_the_classical_robust_covariance() -> None:
+    rng = np.random.default_rng(0)
+    n = 50
+    pts = np.column_stack([100.0 * np.arange(n), np.zeros(n)])  # no pair within reach
+    jac = rng.normal(size=(n, 2))
+    r = rng.normal(size=n)
+    w = np.ones(n)
+    got = unc.sandwich_covariance(jac, r, w, pts)
+    h = np.linalg.inv(jac.T @ jac)
+    psi = r[:, None] * jac
+    want = h @ (psi.T @ psi) @ h * n / (n - 2)
+    np.testing.assert_allclose(got, want, rtol=1e-10)
+
+
+def test_neighbours_reading_the_same_pixels_count_as_fewer_samples() -> None:
+    # the same residual on every vertex of a 1-px spaced run: one measurement
+    # repeated, not n; the sandwich must see it, an independent sum does not
+    n = 64
+    pts, jac = _straight(n)
+    r = np.repeat(np.array([0.3, -0.3]), n // 2)
+    w = np.ones(n)
+    near = unc.sandwich_covariance(jac, r, w, pts)
+    far = unc.sandwich_covariance(jac, r, w, pts * 100.0)
+    assert near[0, 0] > 5.0 * far[0, 0]
+    assert near[1, 1] == 0.0 and near[0, 1] == 0.0  # u is not observed
+
+
+def test_too_few_weighted_vertices_give_inf() -> None:
+    pts, jac = _straight(5)
+    w = np.array([1.0, 1.0, 0.0, 0.0, 0.0])
+    assert np.isinf(unc.sandwich_covariance(jac, np.ones(5), w, pts)).all()
+
+
+def test_the_floor_lies_along_observed_directions_only() -> None:
+    pts, jac = _straight(10)
+    f = unc.floor_covariance(jac, np.ones(10), 0.2)
+    np.testing.assert_allclose(f, [[0.04, 0.0], [0.0, 0.0]], atol=1e-15)
+    assert (unc.floor_covariance(jac, np.zeros(10), 0.2) == 0.0).all()
+
+
+def test_a_rotation_floor_moves_the_vertices_by_the_floor() -> None:
+    # a circle of radius 50 about its centre: the rotation's lever arm is 50
+    t = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    normals = np.column_stack([np.cos(t), np.sin(t)])
+    tangents = np.column_stack([-np.sin(t), np.cos(t)])
+    # a DT gradient with some tangential part, so the rotation is observed
+    g = normals + 0.5 * tangents
+    rot = 50.0 * (g * tangents).sum(axis=1)
+    jac = np.column_stack([g, rot])
+    f = unc.floor_covariance(jac, np.ones(200), 0.1)
+    lever2 = np.sum(rot**2) / np.sum(g[:, 0] ** 2 + g[:, 1] ** 2)
+    assert f[2, 2] == pytest.approx(0.01 / lever2)
+
+
+# --------------------------------------------------------------------------- in the fit
+
+
+def test_every_fit_path_reports_the_same_covariance(nav, nav_products) -> None:
+    limb = nav.polylines[0]
+    one = fit_polyline_products(nav_products, limb.vertices_vu, limb.normals_vu, limb.sigmas,
+                                search_window_vu=(12, 12))
+    call = fit_polyline(nav.image, limb.vertices_vu, limb.normals_vu, limb.sigmas,
+                        search_window_vu=(12, 12), noise_sigma=nav.noise_sigma)
+    (many,) = fit_many(nav_products, [limb], search_window_vu=(12, 12), workers=1)
+    assert one.uncertainty is not None and one.uncertainty.source == "dt"
+    for other in (call, many):
+        np.testing.assert_array_equal(other.covariance, one.covariance)
+    # the M-estimator's is the drop-in's, unchanged
+    np.testing.assert_array_equal(one.covariance_mestimator, one.lm.covariance)
+    assert one.sigma_vu == tuple(math.sqrt(x) for x in np.diag(one.covariance))
+    # noise plus the floor: never below the floor along an observed axis
+    assert min(one.sigma_vu) >= unc.FLOORS_PX["dt"]
+
+
+def test_the_declared_edge_picks_the_floor(nav, nav_products) -> None:
+    limb = nav.polylines[0]
+    fits = {kind: fit_polyline_products(nav_products, limb.vertices_vu, limb.normals_vu,
+                                        limb.sigmas, search_window_vu=(12, 12), edge_kind=kind)
+            for kind in (None, "limb", "terminator", "ring")}
+    assert {k: f.uncertainty.source for k, f in fits.items()} == {
+        None: "dt", "limb": "dt_limb", "terminator": "dt_terminator", "ring": "dt"}
+    # the same pose, the same noise: only the floor differs
+    base = fits[None].uncertainty
+    for kind, f in fits.items():
+        assert f.offset_vu == fits[None].offset_vu
+        np.testing.assert_array_equal(f.uncertainty.noise, base.noise)
+    assert fits["limb"].sigma_vu[0] > unc.FLOORS_PX["dt_limb"] > fits[None].sigma_vu[0]
+
+
+def test_a_straight_edge_claims_nothing_along_it(nav, nav_products) -> None:
+    ring = nav.polylines[2]
+    fit = fit_polyline_products(nav_products, ring.vertices_vu, ring.normals_vu, ring.sigmas,
+                                search_window_vu=(12, 12), trust_region_px=1.0)
+    sv, su = fit.sigma_vu
+    assert math.isfinite(sv) and su == math.inf
+    assert fit.sigma_along((0.0, 1.0)) == math.inf
+    assert fit.sigma_along((1.0, 0.0)) == pytest.approx(sv)
+
+
+def test_an_accepted_profile_reports_its_own_covariance_plus_the_profile_floor() -> None:
+    sc = scenes.render_sphere(radius_px=60.0, phase_deg=40.0, illumination_deg=30.0,
+                              offset_vu=(0.4, -0.7), seed=3, shape=(200, 200))
+    p = sc.limb
+    from dtalign import sphere_edge_profile
+
+    prof = sphere_edge_profile(p.vertices_vu, center_vu=sc.model_center_vu, radius_px=60.0,
+                               phase_deg=40.0, illumination_deg=30.0)
+    fit = fit_polyline(sc.image, p.vertices_vu, p.normals_vu, p.sigmas,
+                       search_window_vu=(6, 6), edge_profile=prof)
+    assert fit.profile is not None and fit.profile.accepted
+    u = fit.uncertainty
+    assert u.source == "profile" and u.floor_px == unc.FLOORS_PX["profile"]
+    np.testing.assert_allclose(u.noise, np.asarray(fit.profile.covariance))
+    np.testing.assert_allclose(u.covariance, u.noise + u.floor_px**2 * np.eye(2), atol=1e-15)
+
+
+def test_the_covariance_survives_the_dict_round_trip(nav, nav_products) -> None:
+    limb = nav.polylines[0]
+    fit = fit_polyline_products(nav_products, limb.vertices_vu, limb.normals_vu, limb.sigmas,
+                                search_window_vu=(12, 12), edge_kind="limb")
+    d = json.loads(json.dumps(fit.to_dict(arrays=True)))
+    back = PolylineFit.from_dict(d)
+    np.testing.assert_allclose(back.covariance, fit.covariance, rtol=1e-15)
+    np.testing.assert_array_equal(back.covariance_mestimator, fit.covariance_mestimator)
+    assert d["uncertainty_source"] == "dt_limb"
+    # a dict written before the pipeline had its own covariance: the LM's is read
+    del d["covariance_mestimator"], d["evidence"]
+    d["covariance"] = np.asarray(fit.lm.covariance).tolist()
+    old = PolylineFit.from_dict(d)
+    assert old.uncertainty is None
+    np.testing.assert_array_equal(old.covariance, fit.lm.covariance)
+
+
+def test_a_degenerate_fit_has_an_infinite_covariance(nav, nav_products) -> None:
+    limb = nav.polylines[0]
+    fit = fit_polyline_products(nav_products, limb.vertices_vu, 0 * limb.normals_vu, limb.sigmas,
+                                search_window_vu=(12, 12))
+    assert fit.degenerate
+    assert np.isinf(fit.covariance).all() and fit.sigma_vu == (math.inf, math.inf)
+
+
+# --------------------------------------------------------------------------- coverage
+
+
+#: A fixed seeded subset of the docs' coverage table (its first 40 seeds):
+#: the families whose target the full run meets, plain and with the profile.
+COVERAGE_SEEDS = range(200, 240)
+
+
+@pytest.fixture(scope="module")
+def coverage_rows():
+    log = logging.getLogger("dtalign")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        rows = cov.evaluate(cov.plain_fit, ["sphere_limb", "crater_rim"], COVERAGE_SEEDS)
+        rows += cov.evaluate(cov.profile_fit, ["sphere_limb"], COVERAGE_SEEDS)
+    finally:
+        log.setLevel(level)
+    return rows
+
+
+@pytest.mark.parametrize("index", [0, 1, 2], ids=["limb", "crater_rim", "limb+profile"])
+def test_the_reported_ellipses_cover_the_truth(coverage_rows, index) -> None:
+    row = coverage_rows[index]
+    assert row.flagged <= 0.5, row
+    c68, c95, _ = row.coverage["pipeline"]
+    assert 0.60 <= c68 <= 0.78, row
+    assert 0.90 <= c95 <= 0.98, row
+    # the M-estimator's scaled reading, on the same fits, does not
+    s68, s95, _ = row.coverage["scaled"]
+    assert not (0.60 <= s68 <= 0.78 and 0.90 <= s95 <= 0.98), row
