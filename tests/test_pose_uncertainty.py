@@ -119,7 +119,7 @@ def test_the_declared_edge_picks_the_floor(nav, nav_products) -> None:
         None: "dt", "limb": "dt_limb", "terminator": "dt_terminator", "ring": "dt"}
     # the same pose, the same noise: only the floor differs
     base = fits[None].uncertainty
-    for kind, f in fits.items():
+    for f in fits.values():
         assert f.offset_vu == fits[None].offset_vu
         np.testing.assert_array_equal(f.uncertainty.noise, base.noise)
     assert fits["limb"].sigma_vu[0] > unc.FLOORS_PX["dt_limb"] > fits[None].sigma_vu[0]
