@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 
 from ..robustness import FAMILIES as ROBUSTNESS_FAMILIES
 from ..scenes import Polyline, render_sphere
+from .timing import rst_table
 
 __all__ = [
     "CHI2_1D",
@@ -325,20 +326,25 @@ def evaluate(
     return rows
 
 
-def format_table(rows: Sequence[CoverageRow]) -> str:
-    """A markdown table: per family, flagged, median error, and per reading
-    the 68 % / 95 % coverage and the median one-sigma."""
+def format_table(rows: Sequence[CoverageRow], *, rst: bool = False) -> str:
+    """A table: per family, flagged, median error, and per reading the 68 % /
+    95 % coverage and the median one-sigma; markdown, or with ``rst=True`` an
+    RST simple table (the docs' uncertainty page)."""
     keys = list(rows[0].coverage) if rows else []
     head = ["family", "fits", "flagged", "median error px"]
     for k in keys:
         head += [f"{k} 68 %", f"{k} 95 %", f"{k} median sigma px"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    body = []
     for r in rows:
         cells = [r.family, str(r.fits), f"{r.flagged:.2f}", f"{r.median_error_px:.3f}"]
         for k in keys:
             c68, c95, sig = r.coverage[k]
             cells += [f"{c68:.2f}", f"{c95:.2f}", f"{sig:.3f}"]
-        lines.append("| " + " | ".join(cells) + " |")
+        body.append(cells)
+    if rst:
+        return rst_table(head, body)
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in body]
     return "\n".join(lines)
 
 
@@ -354,6 +360,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--first-seed", type=int, default=0,
                         help="the first seed (seeds FIRST..FIRST+N-1)")
     parser.add_argument("--families", nargs="+", choices=list(FAMILIES), default=None)
+    parser.add_argument("--rst", action="store_true", help="an RST table (the docs') instead of markdown")
     args = parser.parse_args(argv)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     names = list(FAMILIES) if args.families is None else args.families
@@ -368,7 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                  for r in evaluate(profile_fit, spheres, seeds)] if spheres else []
     finally:
         log.setLevel(level)
-    print(format_table(rows))
+    print(format_table(rows, rst=args.rst))
     return 0
 
 

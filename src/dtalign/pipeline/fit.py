@@ -138,8 +138,14 @@ class PolylineFit:
     Whether to trust the fit is read from these fields by :attr:`status`,
     :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.pipeline.status`);
     the uncertainties by :attr:`sigma_vu` and :attr:`sigma_rotation_rad`
-    (from the prior sigmas) and :attr:`sigma_vu_scaled` (scaled by the
-    residuals, :attr:`variance_factor`).
+    (from :attr:`covariance`, :mod:`dtalign.pipeline.uncertainty`), the
+    M-estimator's by :attr:`covariance_mestimator` and
+    :attr:`sigma_vu_scaled` (scaled by the residuals, :attr:`variance_factor`).
+    evidence : Evidence or None
+        The DT's residuals and their gradients at the DT-LM pose
+        (:class:`~dtalign.pipeline.uncertainty.Evidence`), sampled when the
+        fit is concluded: what :attr:`covariance` is formed from; None for a
+        fit built without it.
 
     Instances compare by identity; compare fields to compare fits.
     """
