@@ -210,7 +210,7 @@ class PolylineFit:
     def uncertainty(self) -> PoseUncertainty | None:
         """The pose covariance and its parts (:mod:`dtalign.pipeline.uncertainty`).
 
-        Formed on first access from :attr:`evidence`; None for a fit built
+        Formed on first access from ``evidence``; None for a fit built
         without it (then :attr:`covariance` is the M-estimator's).
         """
         if self.evidence is None:

@@ -241,8 +241,8 @@ class Evidence(NamedTuple):
         The edge DT at each vertex, pixels.
     jacobian : ndarray, shape (N, P)
         Its gradient by pose parameter (central differences of
-        :data:`~dtalign.api.constants.JACOBIAN_TRANSLATION_EPS_PX`, as the
-        LM's; the rotation's through the vertex's lever arm).
+        ``JACOBIAN_TRANSLATION_EPS_PX`` (0.25 px), as the LM's; the
+        rotation's through the vertex's lever arm).
     points_vu : ndarray, shape (N, 2)
         The vertices at the pose.
     """
