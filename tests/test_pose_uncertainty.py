@@ -208,3 +208,39 @@ def test_the_reported_ellipses_cover_the_truth(coverage_rows, index) -> None:
     # the M-estimator's scaled reading, on the same fits, does not
     s68, s95, _ = row.coverage["scaled"]
     assert not (0.60 <= s68 <= 0.78 and 0.90 <= s95 <= 0.98), row
+
+
+def test_a_rotation_fit_gets_a_rotation_row(nav, nav_products) -> None:
+    # the limb and the terminator together: a rotation the geometry observes
+    limb, term = nav.polylines[0], nav.polylines[1]
+    verts = np.vstack([limb.vertices_vu, term.vertices_vu])
+    normals = np.vstack([limb.normals_vu, term.normals_vu])
+    sigmas = np.concatenate([limb.sigmas, term.sigmas])
+    fit = fit_polyline_products(nav_products, verts, normals, sigmas, search_window_vu=(12, 12),
+                                fit_rotation=True, pivot_vu=nav.pivot_vu,
+                                pivot_distance_px=nav.pivot_distance_px)
+    assert fit.covariance.shape == (3, 3) and fit.evidence.jacobian.shape == (len(verts), 3)
+    # the columns as documented: 0.25 px central differences of the DT along
+    # v and u, and the rotation's through each vertex's lever arm (the chain
+    # rule: d/dtheta moves a vertex along perp(p - pivot))
+    from dtalign.api.sampling import sample_dt_bilinear
+
+    pts = fit.evidence.points_vu
+    jac = fit.evidence.jacobian
+
+    def diff(step: tuple[float, float]) -> np.ndarray:
+        return (sample_dt_bilinear(nav_products.edge_dt, pts + step)
+                - sample_dt_bilinear(nav_products.edge_dt, pts - np.asarray(step))) / 0.5
+
+    np.testing.assert_allclose(jac[:, 0], diff((0.25, 0.0)), atol=1e-12)
+    np.testing.assert_allclose(jac[:, 1], diff((0.0, 0.25)), atol=1e-12)
+    lever = pts - np.asarray(fit.lm.offset_vu) - np.asarray(fit.pivot_vu)
+    np.testing.assert_allclose(jac[:, 2], -lever[:, 1] * jac[:, 0] + lever[:, 0] * jac[:, 1],
+                               atol=1e-9)
+    np.testing.assert_allclose(sample_dt_bilinear(nav_products.edge_dt, pts),
+                               fit.evidence.residuals, atol=1e-12)
+    assert math.isfinite(fit.sigma_rotation_rad) and fit.sigma_rotation_rad > 0.0
+    # the points are the LM's final pose: its residuals are the DT there
+    kept = ~fit.polarity_rejected
+    np.testing.assert_allclose(fit.evidence.residuals[kept],
+                               np.asarray(fit.lm.residuals_px)[kept], atol=1e-9)

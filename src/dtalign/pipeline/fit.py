@@ -535,14 +535,7 @@ class PolylineFit:
 
         num = _num
         cov = np.asarray(self.lm.covariance)
-        extra: dict[str, Any] = {}
-        if arrays:
-            extra = {name: np.asarray(getattr(src, name)).tolist() for src, name in (
-                (self, "vertices_vu"), (self, "normals_vu"), (self.lm, "residuals_px"),
-                (self.lm, "weights"))}
-            found = self.evidence
-            extra["evidence"] = None if found is None else {
-                k: np.asarray(v).tolist() for k, v in found._asdict().items()}
+        extra = self._arrays_dict() if arrays else {}
         u = self.uncertainty
         return {
             "offset_vu": [num(x) for x in self.offset_vu],
@@ -597,6 +590,16 @@ class PolylineFit:
             "profile": None if self.profile is None else self.profile.to_dict(),
             "edge_kind": self.edge_kind,
         }
+
+    def _arrays_dict(self) -> dict[str, Any]:
+        """The per-vertex arrays of :meth:`to_dict` with ``arrays=True``."""
+        extra: dict[str, Any] = {name: np.asarray(getattr(src, name)).tolist() for src, name in (
+            (self, "vertices_vu"), (self, "normals_vu"), (self.lm, "residuals_px"),
+            (self.lm, "weights"))}
+        found = self.evidence
+        extra["evidence"] = None if found is None else {
+            k: np.asarray(v).tolist() for k, v in found._asdict().items()}
+        return extra
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PolylineFit:

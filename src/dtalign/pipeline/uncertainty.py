@@ -50,7 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..api.constants import JACOBIAN_TRANSLATION_EPS_PX
-from ..api.sampling import _rotate_vertices, sample_dt_bilinear
+from ..api.sampling import sample_dt_bilinear
 
 __all__ = [
     "CORRELATION_LENGTH_PX",
@@ -256,8 +256,11 @@ def evidence(fit: Any, edge_dt: FloatArray) -> Evidence:
     """The :class:`Evidence` of ``fit`` (a :class:`~dtalign.pipeline.PolylineFit`)
     on ``edge_dt``, the edge DT it was fitted to."""
     lm = fit.lm
-    pts = np.asarray(_rotate_vertices(fit.vertices_vu, fit.pivot_vu, lm.rotation_rad),
-                     dtype=np.float64) + np.asarray(lm.offset_vu)
+    rel = np.asarray(fit.vertices_vu, dtype=np.float64) - np.asarray(fit.pivot_vu)
+    if lm.rotation_rad != 0.0:  # the pose rotation of :ref:`contract-numerics`
+        c, s = np.cos(lm.rotation_rad), np.sin(lm.rotation_rad)
+        rel = np.column_stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]])
+    pts = rel + np.asarray(fit.pivot_vu) + np.asarray(lm.offset_vu)
     eps = JACOBIAN_TRANSLATION_EPS_PX
     n = pts.shape[0]
     # one sampling call: the pose, then +-eps along v and along u
