@@ -244,3 +244,25 @@ def test_a_rotation_fit_gets_a_rotation_row(nav, nav_products) -> None:
     kept = ~fit.polarity_rejected
     np.testing.assert_allclose(fit.evidence.residuals[kept],
                                np.asarray(fit.lm.residuals_px)[kept], atol=1e-9)
+
+
+# --------------------------------------------------------------------------- rival basins
+
+
+@pytest.mark.parametrize(("seed", "agrees"), [(4, True), (24, False)])
+def test_a_profile_that_lands_on_the_same_pose_from_the_rival_clears_the_ambiguity(
+        seed: int, agrees: bool) -> None:
+    # rendered terminators whose DT lock has a rival basin (the ramp has no
+    # edge); seed 24's refinement is 1.5 px off and lands 2 px away from the
+    # rival's start: it stays ambiguous
+    case = cov.FAMILIES["sphere_terminator"](seed)
+    fit = cov.profile_fit(case)
+    assert fit.ambiguity is not None and fit.ambiguity.ambiguous
+    assert fit.profile.accepted and fit.profile.rival_agrees is agrees
+    error = math.hypot(*np.subtract(fit.offset_vu, case.true_offset_vu))
+    if agrees:
+        assert str(fit.status) == "ok" and error < 0.2
+    else:
+        assert str(fit.status) == "ambiguous" and error > 1.0
+    back = PolylineFit.from_dict(json.loads(json.dumps(fit.to_dict(arrays=True))))
+    assert back.profile.rival_agrees is agrees and back.status == fit.status

@@ -56,9 +56,15 @@ from .observability import (
     observable_rank,
 )
 from .products import ImageProducts, _readonly, prepare_image
-from .profile_fit import ProfileRefinement, check_edge_profile, edge_kind_of, refine_with_profile
+from .profile_fit import (
+    RIVAL_AGREEMENT_SIGMAS,
+    ProfileRefinement,
+    check_edge_profile,
+    edge_kind_of,
+    refine_with_profile,
+)
 from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
-from .uncertainty import Evidence, PoseUncertainty, evidence, pose_uncertainty
+from .uncertainty import FLOORS_PX, Evidence, PoseUncertainty, evidence, pose_uncertainty
 
 __all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
 
@@ -897,16 +903,19 @@ def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
     DT's :class:`~dtalign.pipeline.uncertainty.Evidence` at its DT-LM pose,
     from which :attr:`PolylineFit.covariance` is formed."""
     if profile is not None:
-        fit = with_profile(fit, products, profile)
+        fit = with_profile(fit, products, profile, kind)
     found = None if fit.lm.degenerate else evidence(fit, products.edge_dt)
     return dataclasses.replace(fit, edge_kind=kind, evidence=found)
 
 
-def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any) -> PolylineFit:
+def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any,
+                 kind: str | None = None) -> PolylineFit:
     """``fit`` refined against ``products.image`` with ``profile``
     (:func:`~dtalign.pipeline.profile_fit.refine_with_profile`): its
     :attr:`~PolylineFit.profile` set and, when the refinement is accepted,
-    its offset replaced (the DT-LM one stays in ``fit.lm``)."""
+    its offset replaced (the DT-LM one stays in ``fit.lm``). An accepted
+    refinement of a fit with an ambiguous rival basin is run again from the
+    rival (:func:`rival_check`)."""
     assert products.image is not None
     if fit.lm.degenerate:  # nothing locked: nothing to refine from
         return fit
@@ -914,10 +923,40 @@ def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any) -> Pol
         products.image, profile, np.asarray(fit.vertices_vu), fit.lm.offset_vu,
         rotation_rad=fit.rotation_rad, pivot_vu=fit.pivot_vu,
     )
+    ref = rival_check(fit, ref, products.image, profile, kind)
     return dataclasses.replace(
         fit, offset_vu=ref.offset_vu if ref.accepted else fit.offset_vu, profile=ref,
         timings_s={**fit.timings_s, "profile": ref.time_s},
     )
+
+
+def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, profile: Any,
+                kind: str | None) -> ProfileRefinement:
+    """``ref`` with where the refinement lands from the rival basin's start,
+    when ``fit``'s DT stage was ambiguous across the edge and ``ref`` was
+    accepted; ``ref`` itself otherwise.
+
+    The rival's refinement agrees when it is accepted too and lands within
+    :data:`~dtalign.pipeline.profile_fit.RIVAL_AGREEMENT_SIGMAS` of ``ref``'s
+    one-sigma (its covariance plus the profile floor of
+    :mod:`dtalign.pipeline.uncertainty`, the largest axis): the photometry
+    then picks the same pose from either basin, which
+    :func:`~dtalign.pipeline.status.fit_reasons` reads as no ambiguity.
+    """
+    amb = fit.ambiguity
+    if not (ref.accepted and amb is not None and amb.ambiguous and amb.rival is not None
+            and not amb.along_unobservable):
+        return ref
+    rival = refine_with_profile(image, profile, np.asarray(fit.vertices_vu),
+                                amb.rival.offset_vu, rotation_rad=amb.rival.rotation_rad,
+                                pivot_vu=fit.pivot_vu)
+    floor = FLOORS_PX["profile_terminator" if kind == "terminator" else "profile"]
+    cov = np.asarray(ref.covariance, dtype=np.float64) + floor**2 * np.eye(2)
+    sigma = math.sqrt(float(np.linalg.eigvalsh(cov).max())) if np.isfinite(cov).all() else math.inf
+    apart = math.hypot(rival.offset_vu[0] - ref.offset_vu[0], rival.offset_vu[1] - ref.offset_vu[1])
+    agrees = bool(rival.accepted and apart <= RIVAL_AGREEMENT_SIGMAS * sigma)
+    return dataclasses.replace(ref, rival_offset_vu=rival.offset_vu, rival_agrees=agrees,
+                               time_s=ref.time_s + rival.time_s)
 
 
 def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],

@@ -177,7 +177,10 @@ class FitReason(_Text):
         :data:`~dtalign.pipeline.hypotheses.AMBIGUITY_THRESHOLD` times this one on the
         common footing of :func:`~dtalign.pipeline.hypotheses.robust_cost`: two
         parallel edges of the same polarity, a decoy edge. See
-        :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.
+        :attr:`~dtalign.pipeline.PolylineFit.ambiguity`. Not raised when an
+        accepted edge-profile refinement lands on the same pose from the
+        rival's start too (``PolylineFit.profile.rival_agrees``): the
+        image's photometry has then decided between them.
     ``AMBIGUOUS_ALONG_EDGE`` (note: the status stays ``OK``)
         The rival basin lies along a direction the fit cannot observe (a
         straight edge's along-edge shift): the pose is ambiguous along the
@@ -270,7 +273,8 @@ REASON_MEANING: dict[FitReason, str] = {
     "the true offset may lie outside it. Widen ``search_window_vu`` (``--window``).",
     FitReason.AMBIGUOUS: "a rival basin across the edge (another coarse peak, or the DT "
     "cost's competing basin) costs less than 1.5 times this one: two parallel edges of "
-    "one polarity, a decoy edge. See :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.",
+    "one polarity, a decoy edge (an accepted edge-profile refinement that reaches the same "
+    "pose from the rival's start clears it). See :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.",
     FitReason.PROFILE_REJECTED: "an edge profile was given but its refinement was "
     "discarded (it did not converge, walked more than 2 px from the DT lock, or fitted a "
     "non-positive gain): the pose is the DT-LM's, with the edge DT's photometric bias "
@@ -432,9 +436,14 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
     if lm.degenerate:  # nothing was measured: convergence means nothing
         return tuple(out)
     ambiguity = getattr(fit, "ambiguity", None)
-    if ambiguity is not None and ambiguity.ambiguous and not ambiguity.along_unobservable:
-        out.append(FitReason.AMBIGUOUS)
     profile = getattr(fit, "profile", None)
+    # an accepted profile refinement that lands on the same pose from the
+    # rival basin's start has let the image decide between the two
+    decided = (profile is not None and profile.accepted
+               and getattr(profile, "rival_agrees", None) is True)
+    if (ambiguity is not None and ambiguity.ambiguous and not ambiguity.along_unobservable
+            and not decided):
+        out.append(FitReason.AMBIGUOUS)
     if profile is not None:
         if not profile.accepted:
             out.append(FitReason.PROFILE_REJECTED)
