@@ -114,6 +114,10 @@ INLIER_WEIGHT_FRACTION: float = 0.7
 #: correlation length within far fewer, and the cap keeps the sum linear.
 _MAX_LAG: int = 64
 
+#: The sampling offsets of :func:`evidence`, in units of the central
+#: difference's half-step: the pose, then +-1 along v and along u.
+_STEPS = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])[:, None, :]
+
 #: Relative cutoff of the pseudoinverses here: directions whose information
 #: is below this fraction of the largest are the geometry's null directions.
 _RCOND: float = 1e-10
@@ -264,17 +268,16 @@ def evidence(fit: Any, edge_dt: FloatArray) -> Evidence:
     eps = JACOBIAN_TRANSLATION_EPS_PX
     n = pts.shape[0]
     # one sampling call: the pose, then +-eps along v and along u
-    steps = np.array([[0.0, 0.0], [eps, 0.0], [-eps, 0.0], [0.0, eps], [0.0, -eps]])
-    at = sample_dt_bilinear(edge_dt, (pts[None, :, :] + steps[:, None, :]).reshape(-1, 2))
-    at = at.reshape(5, n)
-    cols = [(at[1] - at[2]) / (2.0 * eps), (at[3] - at[4]) / (2.0 * eps)]
+    at = sample_dt_bilinear(edge_dt, (pts + _STEPS * eps).reshape(-1, 2)).reshape(5, n)
+    jac = np.empty((n, 3 if fit.fit_rotation else 2))
+    jac[:, 0] = (at[1] - at[2]) / (2.0 * eps)
+    jac[:, 1] = (at[3] - at[4]) / (2.0 * eps)
     if fit.fit_rotation:
         # d/dtheta of the DT at a rotated vertex: its gradient along the
         # vertex's motion, perpendicular to its lever arm from the pivot
-        lever_v = pts[:, 0] - lm.offset_vu[0] - fit.pivot_vu[0]
-        lever_u = pts[:, 1] - lm.offset_vu[1] - fit.pivot_vu[1]
-        cols.append(-lever_u * cols[0] + lever_v * cols[1])
-    return Evidence(_frozen(at[0]), _frozen(np.column_stack(cols)), _frozen(pts))
+        lever = pts - np.asarray(lm.offset_vu) - np.asarray(fit.pivot_vu)
+        jac[:, 2] = -lever[:, 1] * jac[:, 0] + lever[:, 0] * jac[:, 1]
+    return Evidence(_readonly(at[0]), _readonly(jac), _readonly(pts))
 
 
 def source_of(fit: Any) -> str:
@@ -325,6 +328,11 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
         return PoseUncertainty(_frozen(full), _frozen(noise), floor, source)
     cov = noise + floor_covariance(jac, w, floor)
     return PoseUncertainty(_frozen(cov), _frozen(noise), floor, source)
+
+
+def _readonly(a: FloatArray) -> FloatArray:
+    a.flags.writeable = False
+    return a
 
 
 def _frozen(a: Any) -> FloatArray:
