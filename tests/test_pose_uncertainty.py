@@ -147,7 +147,11 @@ def test_an_accepted_profile_reports_its_own_covariance_plus_the_profile_floor()
                        search_window_vu=(6, 6), edge_profile=prof)
     assert fit.profile is not None and fit.profile.accepted
     u = fit.uncertainty
-    assert u.source == "profile" and u.floor_px == unc.FLOORS_PX["profile"]
+    assert u.source == "profile"
+    # the profile floor grows with the PSF's sigma the refinement held
+    psf = fit.profile.psf_sigma_px
+    assert u.floor_px == pytest.approx(math.hypot(unc.FLOORS_PX["profile"],
+                                                  unc.PROFILE_FLOOR_PER_PSF * psf))
     np.testing.assert_allclose(u.noise, np.asarray(fit.profile.covariance))
     np.testing.assert_allclose(u.covariance, u.noise + u.floor_px**2 * np.eye(2), atol=1e-15)
 

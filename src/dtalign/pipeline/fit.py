@@ -64,7 +64,7 @@ from .profile_fit import (
     refine_with_profile,
 )
 from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
-from .uncertainty import FLOORS_PX, Evidence, PoseUncertainty, evidence, pose_uncertainty
+from .uncertainty import Evidence, PoseUncertainty, evidence, floor_px, pose_uncertainty
 
 __all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
 
@@ -950,7 +950,7 @@ def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, pro
     rival = refine_with_profile(image, profile, np.asarray(fit.vertices_vu),
                                 amb.rival.offset_vu, rotation_rad=amb.rival.rotation_rad,
                                 pivot_vu=fit.pivot_vu)
-    floor = FLOORS_PX["profile_terminator" if kind == "terminator" else "profile"]
+    floor = floor_px("profile_terminator" if kind == "terminator" else "profile", ref)
     cov = np.asarray(ref.covariance, dtype=np.float64) + floor**2 * np.eye(2)
     sigma = math.sqrt(float(np.linalg.eigvalsh(cov).max())) if np.isfinite(cov).all() else math.inf
     apart = math.hypot(rival.offset_vu[0] - ref.offset_vu[0], rival.offset_vu[1] - ref.offset_vu[1])

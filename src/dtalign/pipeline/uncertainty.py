@@ -43,6 +43,7 @@ shift) get zero here, as in the drop-in's pseudoinverse; the fit's
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -57,9 +58,11 @@ __all__ = [
     "Evidence",
     "FLOORS_PX",
     "INLIER_WEIGHT_FRACTION",
+    "PROFILE_FLOOR_PER_PSF",
     "PoseUncertainty",
     "evidence",
     "floor_covariance",
+    "floor_px",
     "pose_uncertainty",
     "sandwich_covariance",
     "source_of",
@@ -90,16 +93,27 @@ CORRELATION_LENGTH_PX: float = 8.0
 #: ``"dt_terminator"``: a terminator fitted without its profile: a ramp with
 #: no edge, where the DT lock lands several pixels off (median 5.7 px).
 #: ``"profile"``: an accepted limb (or other) profile refinement: the
-#: profile model's residual error (the bias table of the profiles page).
+#: profile model's residual error with no blur; it grows with the blur
+#: (:data:`PROFILE_FLOOR_PER_PSF`).
 #: ``"profile_terminator"``: an accepted terminator profile refinement,
 #: whose kink is located less sharply than a limb's step.
 FLOORS_PX: dict[str, float] = {
     "dt": 0.03,
     "dt_limb": 0.23,
     "dt_terminator": 4.0,
-    "profile": 0.01,
+    "profile": 0.003,
     "profile_terminator": 0.15,
 }
+
+#: The profile floor's growth with the PSF's sigma ``s`` (px per px): an
+#: accepted profile refinement's floor is ``hypot(FLOORS_PX["profile"],
+#: PROFILE_FLOOR_PER_PSF * s)``. A one-sided edge's blur and position are
+#: correlated, and the refinement holds an estimated sigma fixed while it
+#: fits the offset: on rendered limbs (calibration seeds 0-59 and 100-159)
+#: the median error rose from 0.005 px (sigma below 0.3 px) to 0.018 px
+#: (sigma above 1.2 px) while the pixels' covariance rose from 0.003 to
+#: 0.008 px.
+PROFILE_FLOOR_PER_PSF: float = 0.01
 
 #: A vertex whose final weight is below this fraction of the largest is
 #: mostly rejected (for the Tukey biweight: about two of its sigmas off its
@@ -288,6 +302,17 @@ def source_of(fit: Any) -> str:
     return {"limb": "dt_limb", "terminator": "dt_terminator"}.get(kind or "", "dt")
 
 
+def floor_px(source: str, profile: Any = None) -> float:
+    """The floor of a pose of kind ``source`` (a key of :data:`FLOORS_PX`), px;
+    for ``"profile"``, grown with ``profile.psf_sigma_px``
+    (:data:`PROFILE_FLOOR_PER_PSF`)."""
+    base = FLOORS_PX[source]
+    if source != "profile" or profile is None:
+        return base
+    psf = float(profile.psf_sigma_px)
+    return math.hypot(base, PROFILE_FLOOR_PER_PSF * psf) if math.isfinite(psf) else base
+
+
 def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
     """The covariance of ``fit``'s pose (a :class:`~dtalign.pipeline.PolylineFit`).
 
@@ -306,7 +331,7 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
     p = 3 if fit.fit_rotation else 2
     w = np.asarray(fit.lm.weights, dtype=np.float64)
     source = source_of(fit)
-    floor = FLOORS_PX[source]
+    floor = floor_px(source, fit.profile)
     if fit.lm.degenerate:
         full = np.full((p, p), np.inf)
         return PoseUncertainty(_frozen(full), _frozen(full), floor, source)
