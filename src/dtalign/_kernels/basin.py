@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 from .pairwise import numpy_sum
 from .sampling import blend
 
@@ -133,6 +133,16 @@ def _axis_tables(coord, m, size):
     return inside, low, frac, first, last
 
 
+@inline_kernel
+def _add_rectangle(diff, a0, a1, b0, b1):
+    """Add 1 over rows ``a0..a1`` and columns ``b0..b1`` of the 2-D difference
+    array ``diff`` (its prefix sums carry it over the rectangle)."""
+    diff[a0, b0] += 1
+    diff[a0, b1 + 1] -= 1
+    diff[a1 + 1, b0] -= 1
+    diff[a1 + 1, b1 + 1] += 1
+
+
 @kernel
 def _in_bounds_counts(v_first, v_last, u_first, u_last, nv, nu):
     """How many vertices each shift keeps in bounds, ``(nv, nu)``. A vertex's
@@ -145,10 +155,7 @@ def _in_bounds_counts(v_first, v_last, u_first, u_last, nv, nu):
         b0 = u_first[i]
         b1 = u_last[i]
         if a0 >= 0 and b0 >= 0:
-            diff[a0, b0] += 1
-            diff[a0, b1 + 1] -= 1
-            diff[a1 + 1, b0] -= 1
-            diff[a1 + 1, b1 + 1] += 1
+            _add_rectangle(diff, a0, a1, b0, b1)
     counts = np.zeros((nv, nu), dtype=np.int64)
     for a in range(nv):
         for b in range(nu):
@@ -203,10 +210,7 @@ def _touched_tiles(v_low, v_first, v_last, u_low, u_first, u_last, h, w):
         t1 = (rhi[i] - r0) // TILE
         s0 = (clo[i] - c0) // TILE
         s1 = (chi[i] - c0) // TILE
-        diff[t0, s0] += 1
-        diff[t0, s1 + 1] -= 1
-        diff[t1 + 1, s0] -= 1
-        diff[t1 + 1, s1 + 1] += 1
+        _add_rectangle(diff, t0, t1, s0, s1)
     mask = np.zeros((ntr, ntc), dtype=np.bool_)
     for t in range(ntr):
         run = 0

@@ -270,6 +270,15 @@ def better(score, dv, du, best_score, best_dv, best_du):
     return du < best_du
 
 
+@inline_kernel
+def keep_better(best, score, dv, du):
+    """The better of ``best``, a ``(dv, du, score)``, and the shift ``(dv, du, score)``
+    in the order of :func:`better` (``best`` on a tie of all three)."""
+    if better(score, dv, du, best[2], best[0], best[1]):
+        return dv, du, score
+    return best
+
+
 @kernel
 def best_scored(overlap, counts, n_pixels, mv, mu, min_support):
     """``(dv, du, score)`` of the best shift with ``n >= 1`` and ``n >= min_support``
@@ -281,21 +290,16 @@ def best_scored(overlap, counts, n_pixels, mv, mu, min_support):
     winner's score is divided.
     """
     uniform = counts.shape[0] == 0
-    best_score = -1.0
-    best_dv = 0
-    best_du = 0
+    best = (0, 0, -1.0)
     for a in range(2 * mv + 1):
         dv = a - mv
         for b in range(2 * mu + 1):
             n = n_pixels if uniform else counts[a, b]
             if n == 0 or n < min_support:
                 continue
-            du = b - mu
             score = float(overlap[a, b]) if uniform else overlap[a, b] / n
-            if better(score, dv, du, best_score, best_dv, best_du):
-                best_score = score
-                best_dv = dv
-                best_du = du
+            best = keep_better(best, score, dv, b - mu)
+    best_dv, best_du, best_score = best
     if uniform and best_score >= 0.0:
         best_score = best_score / n_pixels
     return best_dv, best_du, best_score
@@ -406,9 +410,7 @@ def float_overlap_search(values, pv, pu, mv, mu, min_support):
     nu = 2 * mu + 1
     gathered = np.empty((nu, m))
     counts = np.zeros(nu, dtype=np.int64)
-    best_score = -1.0
-    best_dv = 0
-    best_du = 0
+    best = (0, 0, -1.0)
     for dv in range(-mv, mv + 1):
         counts[:] = 0
         for i in range(m):
@@ -424,12 +426,8 @@ def float_overlap_search(values, pv, pu, mv, mu, min_support):
             n = counts[b]
             if n == 0 or n < min_support:
                 continue
-            score = numpy_sum(gathered[b], n) / n
-            if better(score, dv, b - mu, best_score, best_dv, best_du):
-                best_score = score
-                best_dv = dv
-                best_du = b - mu
-    return best_dv, best_du, best_score
+            best = keep_better(best, numpy_sum(gathered[b], n) / n, dv, b - mu)
+    return best
 
 
 @kernel

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel, kernel
 
 # glibc e_hypot.c (2.35+): inputs outside [TINY, LARGE] are rescaled there;
 # here they go to libm itself, so only the common path is reproduced.
@@ -52,6 +52,23 @@ def _reflect(i, n):
     return m
 
 
+@inline_kernel
+def _add_tap_pair(out, wa, left_a, right_a, wb, left_b, right_b):
+    """Two symmetric taps of a Gaussian pass into ``out``: tap ``a`` (weight
+    ``wa``, the lines ``left_a`` and ``right_a``), then tap ``b``, per pixel in
+    that order (one load and store of ``out`` for both)."""
+    for j in range(out.shape[0]):
+        v = out[j] + (left_a[j] + right_a[j]) * wa
+        out[j] = v + (left_b[j] + right_b[j]) * wb
+
+
+@inline_kernel
+def _add_tap(out, wa, left_a, right_a):
+    """One symmetric tap of a Gaussian pass into ``out``."""
+    for j in range(out.shape[0]):
+        out[j] += (left_a[j] + right_a[j]) * wa
+
+
 @kernel
 def _smooth_row(img, row, weights, acc, pad, s_ring, slot):
     """Gaussian-smoothed ``row`` into ``s_ring[slot, 1:W+1]``.
@@ -73,22 +90,12 @@ def _smooth_row(img, row, weights, acc, pad, s_ring, slot):
         acc[j] = src[j] * w0
     k = r
     while k >= 2:
-        wa = weights[r - k]
-        wb = weights[r - k + 1]
-        above_a = img[_reflect(row - k, h)]
-        below_a = img[_reflect(row + k, h)]
-        above_b = img[_reflect(row - k + 1, h)]
-        below_b = img[_reflect(row + k - 1, h)]
-        for j in range(w):
-            v = acc[j] + (above_a[j] + below_a[j]) * wa
-            acc[j] = v + (above_b[j] + below_b[j]) * wb
+        _add_tap_pair(acc, weights[r - k], img[_reflect(row - k, h)], img[_reflect(row + k, h)],
+                      weights[r - k + 1], img[_reflect(row - k + 1, h)],
+                      img[_reflect(row + k - 1, h)])
         k -= 2
     if k == 1:
-        wa = weights[r - 1]
-        above_a = img[_reflect(row - 1, h)]
-        below_a = img[_reflect(row + 1, h)]
-        for j in range(w):
-            acc[j] += (above_a[j] + below_a[j]) * wa
+        _add_tap(acc, weights[r - 1], img[_reflect(row - 1, h)], img[_reflect(row + 1, h)])
     pad[r : r + w] = acc
     for k in range(1, r + 1):
         pad[r - k] = pad[r + _reflect(-k, w)]
@@ -98,22 +105,12 @@ def _smooth_row(img, row, weights, acc, pad, s_ring, slot):
         out[j] = acc[j] * w0
     k = r
     while k >= 2:
-        wa = weights[r - k]
-        wb = weights[r - k + 1]
-        left_a = pad[r - k : r - k + w]
-        right_a = pad[r + k : r + k + w]
-        left_b = pad[r - k + 1 : r - k + 1 + w]
-        right_b = pad[r + k - 1 : r + k - 1 + w]
-        for j in range(w):
-            v = out[j] + (left_a[j] + right_a[j]) * wa
-            out[j] = v + (left_b[j] + right_b[j]) * wb
+        _add_tap_pair(out, weights[r - k], pad[r - k : r - k + w], pad[r + k : r + k + w],
+                      weights[r - k + 1], pad[r - k + 1 : r - k + 1 + w],
+                      pad[r + k - 1 : r + k - 1 + w])
         k -= 2
     if k == 1:
-        wa = weights[r - 1]
-        left_a = pad[r - 1 : r - 1 + w]
-        right_a = pad[r + 1 : r + 1 + w]
-        for j in range(w):
-            out[j] += (left_a[j] + right_a[j]) * wa
+        _add_tap(out, weights[r - 1], pad[r - 1 : r - 1 + w], pad[r + 1 : r + 1 + w])
 
 
 @kernel

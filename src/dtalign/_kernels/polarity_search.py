@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel, kernel
-from .coarse import _first_at_least, better, flat_words, nonzero_in_box, row_starts
+from .coarse import _first_at_least, flat_words, keep_better, nonzero_in_box, row_starts
 from .pairwise import BLOCK, UNROLL, numpy_sum
 
 
@@ -50,9 +50,7 @@ def _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support, surface):
     nu = 2 * mu + 1
     weights = np.empty((nu, n))
     counts = np.zeros(nu, dtype=np.int64)
-    best_score = -1.0
-    best_dv = 0
-    best_du = 0
+    best = (0, 0, -1.0)
     for dv in range(-mv, mv + 1):
         counts[:] = 0
         for i in range(n):
@@ -72,11 +70,8 @@ def _dense_scores(edge, grad, bv, bu, nhv, nhu, mv, mu, min_support, surface):
             score = numpy_sum(weights[b], k) / k
             if surface.shape[0] > 0:
                 surface[dv + mv, b] = score
-            if better(score, dv, b - mu, best_score, best_dv, best_du):
-                best_score = score
-                best_dv = dv
-                best_du = b - mu
-    return best_dv, best_du, best_score
+            best = keep_better(best, score, dv, b - mu)
+    return best
 
 
 @kernel
@@ -182,9 +177,7 @@ def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu, surf
         grad, row_start, e_cols, int(bv.min()) - mv, int(bv.max()) + mv
     )
     stack = np.empty(n_leaves + 1)
-    best_score = -1.0
-    best_dv = 0
-    best_du = 0
+    best = (0, 0, -1.0)
     for a in range(nv):
         dv = a - mv
         acc[:] = 0.0
@@ -230,11 +223,8 @@ def _sparse_scores(grad, edge, row_start, e_cols, bv, bu, nhv, nhu, mv, mu, surf
             score = (0.0 + stack[0]) / n
             if surface.shape[0] > 0:
                 surface[a, b] = score
-            if better(score, dv, b - mu, best_score, best_dv, best_du):
-                best_score = score
-                best_dv = dv
-                best_du = b - mu
-    return best_dv, best_du, best_score
+            best = keep_better(best, score, dv, b - mu)
+    return best
 
 
 @kernel

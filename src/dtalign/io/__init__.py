@@ -6,20 +6,8 @@ The file functions are re-exported here: ``dtalign.io.load_image`` is
 ``dtalign.io.files.load_image``.
 """
 
-from .files import (
-    POLYLINE_COLUMNS,
-    concatenate_polylines,
-    load_image,
-    load_polyline_csv,
-    read_image,
-    save_polyline_csv,
-)
+from . import files
+from .files import *  # noqa: F403 (exactly the names in files.__all__)
 
-__all__ = [
-    "POLYLINE_COLUMNS",
-    "concatenate_polylines",
-    "load_image",
-    "load_polyline_csv",
-    "read_image",
-    "save_polyline_csv",
-]
+#: The re-exported names: :mod:`dtalign.io.files` lists them, once.
+__all__ = files.__all__

@@ -415,6 +415,8 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
     Parameters
     ----------
     fit : PolylineFit
+        Or any record with its ``lm``, ``at_window_edge`` and, where present,
+        ``ambiguity``, ``profile``, ``edge_kind`` and ``settling``.
 
     Returns
     -------
@@ -475,10 +477,12 @@ def fit_reasons(fit: Any) -> tuple[FitReason, ...]:
     Parameters
     ----------
     fit : PolylineFit
+        As :func:`fit_problems` reads it, with ``observable_rank`` and ``fit_rotation``.
 
     Returns
     -------
     tuple of FitReason
+        In the order of :class:`FitReason`.
     """
     out = fit_problems(fit)
     if not fit.lm.degenerate and fit.observable_rank < (3 if fit.fit_rotation else 2):

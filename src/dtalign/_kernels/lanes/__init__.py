@@ -26,33 +26,30 @@ either path explicitly from :mod:`.vector` and :mod:`.plain`.
 
 from __future__ import annotations
 
+from types import ModuleType
+
 from numba.core import config
 
+from . import plain
 from .plain import EPS_R, EPS_T, PENALTY
 
 #: Whether the package's kernels run the four-lane vector code (see above).
 VECTOR: bool = not (config.DISABLE_JIT or config.BOUNDSCHECK)  # type: ignore[attr-defined]
 
+_twin: ModuleType = plain
 if VECTOR:
-    from .vector import (
-        fill,
-        lane_cost,
-        lane_sums,
-        polarity,
-        sample_state,
-        staging_buffers,
-        summary_lanes,
-    )
-else:
-    from .plain import (
-        fill,
-        lane_cost,
-        lane_sums,
-        polarity,
-        sample_state,
-        staging_buffers,
-        summary_lanes,
-    )
+    from . import vector
+
+    _twin = vector
+
+# the kernels of the chosen twin, under the names both twins give them
+fill = _twin.fill
+lane_cost = _twin.lane_cost
+lane_sums = _twin.lane_sums
+polarity = _twin.polarity
+sample_state = _twin.sample_state
+staging_buffers = _twin.staging_buffers
+summary_lanes = _twin.summary_lanes
 
 __all__ = [
     "EPS_R", "EPS_T", "PENALTY", "VECTOR", "fill", "lane_cost", "lane_sums", "polarity",

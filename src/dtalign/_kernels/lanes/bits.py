@@ -15,6 +15,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from ..._jit import inline_kernel, kernel
+from . import plain
 
 #: The lowest bit of every byte.
 LOW_BITS = np.uint64(0x0101010101010101)
@@ -70,17 +71,6 @@ def emit(bits, base, out, k):
 
 
 @kernel
-def _bytes(flat, start, stop, out, k):
-    """:func:`fill` of the few bytes past the last whole word of the buffer."""
-    for i in range(start, stop):
-        if flat[i] != 0:
-            if k < out.shape[0]:
-                out[k] = i
-            k += 1
-    return k
-
-
-@kernel
 def fill(flat, words, start, stop, out, k):
     """Write the indices of the nonzero bytes of ``flat[start:stop]`` from ``out[k]``.
 
@@ -94,7 +84,7 @@ def fill(flat, words, start, stop, out, k):
     j = start // 8
     jend = stop // 8
     if j >= words.shape[0]:
-        return _bytes(flat, start, stop, out, k)
+        return plain.fill(flat, words, start, stop, out, k)  # no whole word: byte by byte
     head = from_byte(start - 8 * j)
     if j == jend:
         return emit(byte_bits(words[j]) & head & ~from_byte(stop - 8 * j), 8 * j, out, k)
@@ -124,5 +114,5 @@ def fill(flat, words, start, stop, out, k):
             if x != 0:
                 k = emit(byte_bits(x) & ~from_byte(stop - 8 * jend), 8 * jend, out, k)
         else:
-            k = _bytes(flat, 8 * jend, stop, out, k)
+            k = plain.fill(flat, words, 8 * jend, stop, out, k)  # the bytes past the last word
     return k

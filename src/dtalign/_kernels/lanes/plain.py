@@ -28,6 +28,9 @@ __all__ = [
 PENALTY = 1.0e6
 EPS_T = 0.25
 EPS_R = 1.0e-3
+#: The spans of the Jacobian's central differences (:ref:`contract-lm`).
+TWO_EPS_T = 2 * EPS_T
+TWO_EPS_R = 2 * EPS_R
 
 
 @inline_kernel
@@ -35,6 +38,14 @@ def hsum(acc):
     """``(s0 + s1) + (s2 + s3)`` of four partial sums: how the vector code
     combines its lanes."""
     return (acc[0] + acc[1]) + (acc[2] + acc[3])
+
+
+@inline_kernel
+def turned(theta):
+    """``(theta + EPS_R, its cos, its sin, theta - EPS_R, its cos, its sin)``:
+    the two rotations the Jacobian's rotation column is differenced between."""
+    tp, tm = theta + EPS_R, theta - EPS_R
+    return tp, math.cos(tp), math.sin(tp), tm, math.cos(tm), math.sin(tm)
 
 
 @kernel
@@ -50,17 +61,13 @@ def sample_range(dt, pts, pose, pivot, fit_rotation, samples, jac, start):
     dv, du, theta = pose[0], pose[1], pose[2]
     pv, pu = pivot[0], pivot[1]
     c0, s0 = math.cos(theta), math.sin(theta)
-    tp, tm = theta + EPS_R, theta - EPS_R
-    cp, sp = math.cos(tp), math.sin(tp)
-    cm, sm = math.cos(tm), math.sin(tm)
-    two_eps_t = 2 * EPS_T
-    two_eps_r = 2 * EPS_R
+    tp, cp, sp, tm, cm, sm = turned(theta)
     ok = True
     for i in range(start, pts.shape[0]):
         v, u = transform(pts[i, 0], pts[i, 1], dv, du, theta, c0, s0, pv, pu)
         sample = bilinear(dt, v, u)
-        j0 = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / two_eps_t
-        j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / two_eps_t
+        j0 = (bilinear(dt, v + EPS_T, u) - bilinear(dt, v - EPS_T, u)) / TWO_EPS_T
+        j1 = (bilinear(dt, v, u + EPS_T) - bilinear(dt, v, u - EPS_T)) / TWO_EPS_T
         ok &= math.isfinite(sample + j0 + j1)
         samples[i] = sample
         jac[0, i] = j0
@@ -68,7 +75,7 @@ def sample_range(dt, pts, pose, pivot, fit_rotation, samples, jac, start):
         if fit_rotation:
             vp, up = transform(pts[i, 0], pts[i, 1], dv, du, tp, cp, sp, pv, pu)
             vm, um = transform(pts[i, 0], pts[i, 1], dv, du, tm, cm, sm, pv, pu)
-            j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / two_eps_r
+            j2 = (bilinear(dt, vp, up) - bilinear(dt, vm, um)) / TWO_EPS_R
             ok &= math.isfinite(j2)
             jac[2, i] = j2
     return ok
@@ -154,7 +161,8 @@ def summary_lanes(r, w, n4):
 def fill(flat, words, start, stop, out, k):
     """Write the indices of the nonzero bytes of ``flat[start:stop]`` from ``out[k]``;
     returns the new count (indices past ``out``'s end are counted, not
-    written). ``words`` is unused (:func:`.bits.fill` reads it)."""
+    written). ``words`` is unused (:func:`.bits.fill` reads it, and calls this
+    for the bytes outside its whole words)."""
     for i in range(start, stop):
         if flat[i] != 0:
             if k < out.shape[0]:

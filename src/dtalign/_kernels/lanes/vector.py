@@ -17,7 +17,7 @@ import numpy as np
 from ..._jit import inline_kernel, kernel
 from ..robust import _polarity_at
 from .bits import fill
-from .plain import EPS_R, EPS_T, PENALTY, sample_range
+from .plain import EPS_R, EPS_T, PENALTY, TWO_EPS_R, TWO_EPS_T, sample_range, turned
 from .simd import (
     MAX_ELEMENTS,
     all_finite,
@@ -80,11 +80,7 @@ def sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac, staging):
     dv, du, theta = pose[0], pose[1], pose[2]
     pv, pu = pivot[0], pivot[1]
     c0, s0 = math.cos(theta), math.sin(theta)
-    tp, tm = theta + EPS_R, theta - EPS_R
-    cp, sp = math.cos(tp), math.sin(tp)
-    cm, sm = math.cos(tm), math.sin(tm)
-    two_eps_t = 2 * EPS_T
-    two_eps_r = 2 * EPS_R
+    tp, cp, sp, tm, cm, sm = turned(theta)
     n4 = lanes_for(dt, pts.shape[0])
     ok = True
     cells, fracs, staged = staging
@@ -95,10 +91,10 @@ def sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac, staging):
                 v, u = positions4(pts, i + 4 * h, dv, du, theta, c0, s0, pv, pu)
                 staged[h] = stage_state(dt, v, u, EPS_T, cells, fracs, h)
         if staged[g]:
-            sample, j_v, j_u = finish_state(dt, cells, fracs, g, two_eps_t)
+            sample, j_v, j_u = finish_state(dt, cells, fracs, g, TWO_EPS_T)
         else:
             v, u = positions4(pts, i, dv, du, theta, c0, s0, pv, pu)
-            sample, j_v, j_u = state4(dt, v, u, EPS_T, two_eps_t)
+            sample, j_v, j_u = state4(dt, v, u, EPS_T, TWO_EPS_T)
         # inf - inf and nan propagate, so one test covers all five samples
         ok &= all_finite(sample + j_v + j_u)
         store4(samples, i, sample)
@@ -107,7 +103,7 @@ def sample_state(dt, pts, pose, pivot, fit_rotation, samples, jac, staging):
         if fit_rotation:
             vp, up = positions4(pts, i, dv, du, tp, cp, sp, pv, pu)
             vm, um = positions4(pts, i, dv, du, tm, cm, sm, pv, pu)
-            j_r = (bilinear4(dt, vp, up) - bilinear4(dt, vm, um)) / splat(two_eps_r)
+            j_r = (bilinear4(dt, vp, up) - bilinear4(dt, vm, um)) / splat(TWO_EPS_R)
             ok &= all_finite(j_r)
             store4(jac[2], i, j_r)
     return ok & sample_range(dt, pts, pose, pivot, fit_rotation, samples, jac, n4)
