@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import glob
 import importlib
 import importlib.util
@@ -163,24 +164,22 @@ def _log_label(label: str) -> None:
     _WARNINGS.label = label
 
 
-def _progress(items: list[Any], enabled: bool, messages: _Messages) -> Generator[Any, None, None]:
-    """Iterate ``items`` with a progress bar (tqdm, or plain ``[i/n]`` lines)."""
+@contextlib.contextmanager
+def _progress(total: int, enabled: bool, messages: _Messages) -> Generator[Any, None, None]:
+    """A batch's ``progress(done, total)`` for :func:`~dtalign.pipeline.batch.fit_images`:
+    a tqdm bar, or plain ``[done/total]`` lines without tqdm (None when not ``enabled``)."""
     if not enabled:
-        yield from items
+        yield None
         return
     from ._progress import tqdm_bar
 
-    bar = tqdm_bar(len(items), unit="image", desc="fitting")
+    bar = tqdm_bar(total, unit="image", desc="fitting")
     if bar is None:  # tqdm is optional
-        for i, item in enumerate(items, 1):
-            messages.say(f"[{i}/{len(items)}] {item.image}")
-            yield item
+        yield lambda done, total: messages.say(f"[{done}/{total}] images fitted")
         return
     messages.bar = bar
     try:
-        for item in items:
-            yield item
-            bar.update(1)
+        yield lambda done, _: bar.update(done - bar.n)
     finally:
         messages.bar = None
         bar.close()
@@ -630,6 +629,8 @@ class _Job:
     polyline: Path
     label: str = ""
     plot_name: str = ""
+    colour: Any = None  # the image's colour note (dtalign.io.read_image), once read
+    loaded: Any = None  # (image, polyline) once read, until its fit is reported
 
 
 def _jobs(args: argparse.Namespace) -> tuple[list[_Job], bool]:
@@ -739,32 +740,24 @@ def _label_jobs(jobs: list[_Job]) -> None:
         job.plot_name = re.sub(r"[^\w.+-]+", "_", stem)
 
 
-def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
-             messages: _Messages) -> tuple[Any, Any, Any]:
+def _load(job: _Job, args: argparse.Namespace) -> tuple[Any, float | None, list[Any]]:
+    """Job ``job``'s files read, as an item of :func:`~dtalign.pipeline.batch.fit_images`
+    (called in the image's task); what :func:`_cmd_fit` says or plots afterwards
+    (the colour note, the image and polyline) is kept on the job."""
     import dtalign.io as io
-    import dtalign.pipeline as pipeline
 
-    image, colour = io.read_image(job.image)
-    if colour is not None:  # the library's rule (dtalign.api.colour), said here
-        messages.say(f"{PROG}: {'warning' if colour.luma else 'note'}: {colour.text}")
+    image, job.colour = io.read_image(job.image)
     poly = io.load_polyline_csv(job.polyline)
     profile = _sphere_profile(args, poly.vertices_vu)
-    fit = pipeline.fit_polyline(
-        image,
-        poly.vertices_vu,
-        poly.normals_vu,
-        poly.sigmas,
-        search_window_vu=window,
-        noise_sigma=args.noise_sigma,
-        fit_rotation=args.rotation,
-        use_polarity=not args.no_polarity,
-        trust_region_px=args.trust_region,
-        tikhonov_alpha=args.tikhonov,
-        final_gradient_ridge=args.ridge,
-        edge_profile=profile,
-        edge_kind=args.edge_kind,
-    )
-    return image, poly, fit
+    job.loaded = (image, poly)
+    return image, args.noise_sigma, [(poly.vertices_vu, poly.normals_vu, poly.sigmas, profile)]
+
+
+def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``fit`` command's options, as :class:`~dtalign.api.options.FitOptions` fields."""
+    return {"fit_rotation": args.rotation, "use_polarity": not args.no_polarity,
+            "trust_region_px": args.trust_region, "tikhonov_alpha": args.tikhonov,
+            "final_gradient_ridge": args.ridge, "edge_kind": args.edge_kind}
 
 
 def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
@@ -857,7 +850,7 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
     lines.append(
         "wall time    : "
         + ", ".join(f"{k} {t[k] * 1e3:.1f} ms"
-                    for k in ("noise", "derivatives", "coarse", "lm", "hypotheses", "profile")
+                    for k in ("noise", "derivatives", "fit", "hypotheses", "profile")
                     if k in t)
     )
     return "\n".join(lines)
@@ -904,6 +897,7 @@ def _offset_line(fit: Any) -> str:
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     from .api.checks import search_window
+    from .pipeline.batch import fit_images
 
     window = search_window(args.window, "--window", form="option")
     _sphere_model(args)  # a malformed --sphere is the command's error, before any image
@@ -918,32 +912,68 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     tally = _Tally()
     _WARNINGS.messages = messages
     show_progress = batch and not args.no_progress and not args.json
-    _compile_notice(messages)
-    interrupt = _KeepRows(batch)
-    with interrupt, contextlib.closing(_progress(jobs, show_progress, messages)) as progress:
-        for job in progress:
-            _log_label(str(job.image))
+
+    def report(i: int, result: Any) -> None:
+        job = jobs[i]
+        fit = _reported(job, result, batch, messages, tally)
+        loaded, job.loaded = job.loaded, None  # the image is not kept once reported
+        if fit is None:
+            return
+        image, poly = loaded
+        if plot_path is not None:
+            out = plot_path
+            if batch:
+                out = out.with_name(f"{out.stem}_{job.plot_name}{out.suffix or '.png'}")
             try:
-                image, poly, fit = _fit_one(job, args, window, messages)
-                if plot_path is not None:
-                    out = plot_path
-                    if batch:
-                        out = out.with_name(f"{out.stem}_{job.plot_name}{out.suffix or '.png'}")
-                    _plot(image, poly.vertices_vu, fit, out, job.label, zooms, args.zoom_half, messages)
+                _plot(image, poly.vertices_vu, fit, out, job.label, zooms, args.zoom_half, messages)
             except (OSError, ValueError, TypeError, ImportError) as exc:
                 if not batch:
-                    return _fail(_one_line(exc))
+                    raise
                 tally.failed_job(job, exc, messages)
-                continue
-            tally.fitted(job, fit)
-            if not args.json and not batch:
-                stdout.emit(_table_single(job, poly, fit, args.noise_sigma is None))
+                return
+        tally.fitted(job, fit)
+        if not args.json and not batch:
+            stdout.emit(_table_single(job, poly, fit, args.noise_sigma is None))
+
+    _compile_notice(messages)
+    interrupt = _KeepRows(batch)
+    with interrupt, _progress(len(jobs), show_progress, messages) as progress:
+        fit_images([functools.partial(_load, job, args) for job in jobs], search_window_vu=window,
+                   errors="collect", progress=progress, on_image=report, **_fit_options(args))
     if args.json:
         stdout.emit(json.dumps(tally.results if batch else tally.results[0], indent=2))
     elif batch:
         stdout.emit(_table_batch(tally.results))
     stdout.close(messages)
     return tally.exit_code(len(jobs), interrupt.happened, messages)
+
+
+def _reported(job: _Job, result: Any, batch: bool, messages: _Messages, tally: _Tally) -> Any:
+    """Say what image ``job`` gave (its colour note, its fit's warnings or its
+    error, as a FAILED line in a batch); its fit, or None if it failed.
+
+    ``result`` is :func:`~dtalign.pipeline.batch.fit_images`' for the image:
+    its one fit in a list, or its error (a file that could not be read, a
+    polyline that could not be fitted), which is said without the batch's
+    ``images[i]: polylines[0]: `` naming: the row names the file. A single
+    fit's error is the command's (raised).
+    """
+    from .pipeline.status import log_fit
+
+    _log_label(str(job.image))
+    if job.colour is not None:  # the library's rule (dtalign.api.colour), said here
+        messages.say(f"{PROG}: {'warning' if job.colour.luma else 'note'}: {job.colour.text}")
+    if not isinstance(result, Exception):
+        result = result[0]
+    if isinstance(result, Exception):
+        while getattr(result, "index", None) is not None and result.__cause__ is not None:
+            result = result.__cause__  # fit_images' naming: the error itself is its cause
+        if not batch or not isinstance(result, (OSError, ValueError, TypeError, ImportError)):
+            raise result
+        tally.failed_job(job, result, messages)
+        return None
+    log_fit(result, "fit")
+    return result
 
 
 class _Tally:
