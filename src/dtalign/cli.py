@@ -159,11 +159,6 @@ class _Warnings(logging.Handler):
 _WARNINGS = _Warnings()
 
 
-def _log_label(label: str) -> None:
-    """Name the input the next pipeline warnings are about."""
-    _WARNINGS.label = label
-
-
 @contextlib.contextmanager
 def _progress(total: int, enabled: bool, messages: _Messages) -> Generator[Any, None, None]:
     """A batch's ``progress(done, total)`` for :func:`~dtalign.pipeline.batch.fit_images`:
@@ -344,7 +339,7 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     # archive: campaigns on Dask; the parser and command live in dtalign.archive.cli.
     from .archive import cli as archive_cli
 
-    archive_cli.add_parser(sub).set_defaults(handler=_cmd_archive)
+    archive_cli.add_parser(sub).set_defaults(handler=archive_cli.command)
     return parser, dict(sub.choices)
 
 
@@ -913,65 +908,72 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     _WARNINGS.messages = messages
     show_progress = batch and not args.no_progress and not args.json
 
-    def report(i: int, result: Any) -> None:
+    def report(i: int, result: Any) -> None:  # fit_images' on_image: in input order
         job = jobs[i]
-        fit = _reported(job, result, batch, messages, tally)
         loaded, job.loaded = job.loaded, None  # the image is not kept once reported
-        if fit is None:
+        try:
+            fit = _reported(job, result, messages)
+            if plot_path is not None:
+                out = plot_path
+                if batch:
+                    out = out.with_name(f"{out.stem}_{job.plot_name}{out.suffix or '.png'}")
+                _plot(loaded[0], loaded[1].vertices_vu, fit, out, job.label, zooms, args.zoom_half,
+                      messages)
+        except (OSError, ValueError, TypeError, ImportError) as exc:
+            if not batch:
+                raise
+            tally.failed_job(job, exc, messages)
             return
-        image, poly = loaded
-        if plot_path is not None:
-            out = plot_path
-            if batch:
-                out = out.with_name(f"{out.stem}_{job.plot_name}{out.suffix or '.png'}")
-            try:
-                _plot(image, poly.vertices_vu, fit, out, job.label, zooms, args.zoom_half, messages)
-            except (OSError, ValueError, TypeError, ImportError) as exc:
-                if not batch:
-                    raise
-                tally.failed_job(job, exc, messages)
-                return
         tally.fitted(job, fit)
         if not args.json and not batch:
-            stdout.emit(_table_single(job, poly, fit, args.noise_sigma is None))
+            stdout.emit(_table_single(job, loaded[1], fit, args.noise_sigma is None))
 
     _compile_notice(messages)
-    interrupt = _KeepRows(batch)
-    with interrupt, _progress(len(jobs), show_progress, messages) as progress:
-        fit_images([functools.partial(_load, job, args) for job in jobs], search_window_vu=window,
-                   errors="collect", progress=progress, on_image=report, **_fit_options(args))
+    interrupted = False
+    try:
+        with _progress(len(jobs), show_progress, messages) as progress:
+            fit_images([functools.partial(_load, job, args) for job in jobs],
+                       search_window_vu=window, errors="collect", progress=progress,
+                       on_image=report, **_fit_options(args))
+    except BaseException as exc:
+        # A Ctrl-C ends a batch, not the command: the rows reported before it
+        # are printed (or written) as usual and fit exits 130; the images
+        # being fitted are dropped. A single fit's Ctrl-C propagates (main
+        # says "interrupted").
+        if not (batch and _is_interrupt(exc)):
+            raise
+        interrupted = True
     if args.json:
         stdout.emit(json.dumps(tally.results if batch else tally.results[0], indent=2))
     elif batch:
         stdout.emit(_table_batch(tally.results))
     stdout.close(messages)
-    return tally.exit_code(len(jobs), interrupt.happened, messages)
+    return tally.exit_code(len(jobs), interrupted, messages)
 
 
-def _reported(job: _Job, result: Any, batch: bool, messages: _Messages, tally: _Tally) -> Any:
-    """Say what image ``job`` gave (its colour note, its fit's warnings or its
-    error, as a FAILED line in a batch); its fit, or None if it failed.
+def _reported(job: _Job, result: Any, messages: _Messages) -> Any:
+    """Say what image ``job`` gave (its colour note, its fit's warnings) and
+    return its fit, or raise its error.
 
     ``result`` is :func:`~dtalign.pipeline.batch.fit_images`' for the image:
     its one fit in a list, or its error (a file that could not be read, a
-    polyline that could not be fitted), which is said without the batch's
-    ``images[i]: polylines[0]: `` naming: the row names the file. A single
-    fit's error is the command's (raised).
+    polyline that could not be fitted), raised without the batch's
+    ``images[i]: polylines[0]: `` naming (the error itself is its cause):
+    the row names the file.
     """
     from .pipeline.status import log_fit
 
-    _log_label(str(job.image))
+    _WARNINGS.label = str(job.image)  # the pipeline's warnings about it name the file
     if job.colour is not None:  # the library's rule (dtalign.api.colour), said here
         messages.say(f"{PROG}: {'warning' if job.colour.luma else 'note'}: {job.colour.text}")
     if not isinstance(result, Exception):
         result = result[0]
-    if isinstance(result, Exception):
-        while getattr(result, "index", None) is not None and result.__cause__ is not None:
-            result = result.__cause__  # fit_images' naming: the error itself is its cause
-        if not batch or not isinstance(result, (OSError, ValueError, TypeError, ImportError)):
+    while isinstance(result, Exception):
+        cause = result.__cause__
+        named = getattr(result, "index", None) is not None and cause is not None
+        if not (named and str(result).endswith(str(cause))):
             raise result
-        tally.failed_job(job, result, messages)
-        return None
+        result = cause
     log_fit(result, "fit")
     return result
 
@@ -986,18 +988,17 @@ class _Tally:
         self.failed_fits = 0  # fits with status "failed"
         self.doubtful_fits = 0  # "suspect" or "ambiguous"
 
-    def failed_job(self, job: Any, exc: Exception, messages: _Messages) -> None:
-        self.failures += 1
-        msg = _one_line(exc)
-        self.results.append(
-            {"image": str(job.image), "polyline": str(job.polyline), "label": job.label, "error": msg}
-        )
-        messages.say(f"{PROG}: FAILED {job.label}: {msg}")
+    def _row(self, job: _Job, **fields: Any) -> None:
+        self.results.append({"image": str(job.image), "polyline": str(job.polyline),
+                             "label": job.label, **fields})
 
-    def fitted(self, job: Any, fit: Any) -> None:
-        self.results.append(
-            {"image": str(job.image), "polyline": str(job.polyline), "label": job.label, **fit.to_dict()}
-        )
+    def failed_job(self, job: _Job, exc: Exception, messages: _Messages) -> None:
+        self.failures += 1
+        self._row(job, error=_one_line(exc))
+        messages.say(f"{PROG}: FAILED {job.label}: {_one_line(exc)}")
+
+    def fitted(self, job: _Job, fit: Any) -> None:
+        self._row(job, **fit.to_dict())
         self.failed_fits += fit.failed
         self.doubtful_fits += str(fit.status) in ("suspect", "ambiguous")
 
@@ -1018,28 +1019,6 @@ class _Tally:
             messages.say(f"{PROG}: {self.doubtful_fits} of {n_jobs} fit(s) suspect or ambiguous")
             return EXIT_FIT_DOUBTFUL
         return 0
-
-
-class _KeepRows:
-    """Around a batch's loop: a Ctrl-C ends the loop, not the command.
-
-    The rows finished before it are then printed (or written) as usual and
-    ``fit`` exits 130 (:data:`EXIT_INTERRUPTED`); the image being fitted is
-    dropped. A single fit's Ctrl-C propagates (main says "interrupted").
-    """
-
-    def __init__(self, batch: bool) -> None:
-        self.batch = batch
-        self.happened = False
-
-    def __enter__(self) -> _KeepRows:
-        return self
-
-    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, _: object) -> bool:
-        if self.batch and _is_interrupt(exc):
-            self.happened = True
-            return True
-        return False
 
 
 def _is_interrupt(exc: BaseException | None) -> bool:
@@ -1134,12 +1113,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return int(result or 0)
 
 
-def _cmd_archive(args: argparse.Namespace) -> int:
-    from .archive import cli as archive_cli
-
-    return archive_cli.command(args)
-
-
 def _pairs_joined(command: str, argv: list[str], parser: argparse.ArgumentParser) -> list[str]:
     """``argv`` with each pair option's value attached (``--displace=-2,3``), or a usage error.
 
@@ -1232,7 +1205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         log = logging.getLogger("dtalign")
         log.addHandler(_WARNINGS)
         _WARNINGS.messages = _Messages()
-        _log_label(args.command if args.command == "demo" else "")
+        _WARNINGS.label = args.command if args.command == "demo" else ""
         try:
             return int(args.handler(args))
         except CLIError as exc:

@@ -88,7 +88,7 @@ from concurrent.futures import (
     ThreadPoolExecutor,
     as_completed,
 )
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
@@ -125,8 +125,6 @@ def _usable_cpus() -> int:
 DEFAULT_WORKERS = _usable_cpus()
 
 _EXECUTORS = ("thread", "process")
-
-
 
 
 @contextmanager
@@ -298,13 +296,13 @@ class _Runner:
         before it have returned or failed; with ``stop_early``, for none
         after a failed one.
         """
-        settle = _in_order(ordered, stop_early)
         if self.pool is None:
-            return self._each_here(fn, items, stop_early, sizes, settle)
+            return self._each_here(fn, items, stop_early, sizes, ordered)
         n = len(items)
         results: list[_R | None] = [None] * n
         errors: dict[int, Exception] = {}
         first, lock = [n], threading.Lock()  # the first failed item
+        settled, after = [False] * n, 0  # the items returned or failed; the next to hand on
 
         def guarded(i: int) -> Any:
             if self.stop.is_set() or i > first[0]:
@@ -345,14 +343,18 @@ class _Runner:
                     raise error
                 if not (stop_early and errors):
                     self.advance(1 if sizes is None else sizes[i])
-                settle(i, results[i], errors.get(i))
+                settled[i] = True
+                while (ordered is not None and after < n and settled[after]
+                       and not (stop_early and errors and after > min(errors))):
+                    ordered(after, results[after], errors.get(after))
+                    after += 1
         finally:
             for future in futures:  # a no-op for those done
                 future.cancel()
         return results, errors
 
     def _each_here(self, fn: Callable[[_T], _R], items: Sequence[_T], stop_early: bool,
-                   sizes: Sequence[int] | None, settle: _Hand,
+                   sizes: Sequence[int] | None, ordered: _Hand | None,
                    ) -> tuple[list[_R | None], dict[int, Exception]]:
         """:meth:`each` in the calling thread (no pool), looking at the
         enclosing batch's stop event before each item."""
@@ -367,31 +369,11 @@ class _Runner:
                 errors[i] = exc
             if not (stop_early and errors):
                 self.advance(1 if sizes is None else sizes[i])
-            settle(i, results[i], errors.get(i))
+            if ordered is not None:
+                ordered(i, results[i], errors.get(i))
             if stop_early and errors:
                 break
         return results, errors
-
-
-
-def _in_order(hand: _Hand | None, stop_early: bool) -> _Hand:
-    """``settle(i, result, error)``, told of each item as it returns or fails in
-    any order, calls ``hand`` with the items in input order as soon as each
-    and those before it are settled; with ``stop_early``, with none after
-    the first failed one."""
-    waiting: dict[int, tuple[Any, Exception | None]] = {}
-    after = [0]  # the next item to hand on (-1: none any more)
-
-    def settle(i: int, result: Any, error: Exception | None) -> None:
-        if hand is None:
-            return
-        waiting[i] = (result, error)
-        while after[0] in waiting:
-            result, error = waiting.pop(after[0])
-            hand(after[0], result, error)
-            after[0] = -1 if stop_early and error is not None else after[0] + 1
-
-    return settle
 
 
 def _runner(workers: int, report: Progress | None) -> _Runner:
@@ -659,13 +641,16 @@ def fit_many(
 
 def _log(results: list[Any], label: str) -> None:
     """Report on dtalign's logger each failed or suspect fit
-    (:func:`dtalign.pipeline.status.log_fits`) and, collected, each error at WARNING."""
-    if not any(isinstance(r, Exception) for r in results):
+    (:func:`dtalign.pipeline.status.log_fits`) and, collected, each error at
+    WARNING; an image's list of fits (:func:`fit_images`) as ``label[i].polylines``."""
+    if not any(isinstance(r, (Exception, list)) for r in results):
         log_fits(results, label)
         return
     for i, r in enumerate(results):
         if isinstance(r, Exception):
             logger.warning("%s", r)
+        elif isinstance(r, list):
+            _log(r, f"{label}[{i}].polylines")
         else:
             log_fit(r, f"{label}[{i}]")
 
@@ -984,31 +969,26 @@ def fit_images(
             + (search_window_vu, config, opts, collect, i) for i, item in enumerate(items)]
     out: list[Any] = [None] * len(jobs)
 
-    def hand(i: int, fits: Any, exc: Exception | None) -> None:
-        out[i] = fits if exc is None else _named(exc, _image_label(jobs[i][0], i), i)
+    def hand(i: int, fits: Any, exc: Exception | None) -> None:  # in input order
+        image = jobs[i][0]  # an image's error is named with its path if it has one
+        label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
+        out[i] = fits if exc is None else _named(exc, label, i)
         if on_image is not None and (exc is None or collect):
             on_image(i, out[i])
 
+    own = not isinstance(executor, Executor)
     with _reporter(progress, len(jobs), "image") as report:
-        if isinstance(executor, Executor):
-            with _Runner(pool=executor, report=report) as runner:
-                _, failures = runner.each(_fit_image, jobs, stop_early=not collect, ordered=hand)
-        elif executor == "process" and n > 1 and len(jobs) > 1:
-            with (_process_pool(min(n, len(jobs))) as pool,
-                  _Runner(pool=pool, report=report) as runner):
-                _, failures = runner.each(_fit_image, jobs, stop_early=not collect, ordered=hand)
-        else:
+        if own and (executor == "thread" or n == 1 or len(jobs) < 2):
             with _runner(n, report) as runner:
                 _, failures = runner.each(lambda job: _fit_image(job, runner.stop), jobs,
                                           stop_early=not collect, ordered=hand)
                 # in a worker, as fit_many logs
                 return runner.call(_image_results, out, failures, collect, on_image is None)
+        with (nullcontext(executor) if isinstance(executor, Executor)
+              else _process_pool(min(n, len(jobs))) as pool,
+              _Runner(pool=pool, report=report) as runner):
+            _, failures = runner.each(_fit_image, jobs, stop_early=not collect, ordered=hand)
     return _image_results(out, failures, collect, on_image is None)
-
-
-def _image_label(image: Any, i: int) -> str:
-    """How :func:`fit_images` names image ``i``'s error (with its path if it has one)."""
-    return f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
 
 
 def _image_results(out: list[Any], failures: dict[int, Exception], collect: bool,
@@ -1023,9 +1003,6 @@ def _image_results(out: list[Any], failures: dict[int, Exception], collect: bool
     """
     if failures and not collect:
         raise out[min(failures)]
-    for i, fits in enumerate(out if log else ()):
-        if isinstance(fits, Exception):
-            logger.warning("%s", fits)
-        else:
-            _log(fits, f"items[{i}].polylines")
+    if log:
+        _log(out, "items")
     return out
