@@ -16,8 +16,10 @@ Options may come before, between or after the file names. Errors are
 printed as one line, ``dtalign: error: ...``, with exit status 1 (2 for a
 malformed command line, 130 when interrupted with Ctrl-C). Output paths
 (``--plot``, ``--output``, ``--save``, ``overlay``'s files) are checked
-before any work. A batch never stops on one bad image: it reports it, goes
-on, and exits 1 at the end if anything failed. A fit whose status is
+before any work. ``fit`` fits through :func:`dtalign.pipeline.batch.fit_images`
+(on threads, one image per task) and reports each image in input order. A
+batch never stops on one bad image: it reports it, goes on, and exits 1 at
+the end if anything failed. A fit whose status is
 ``failed`` (:mod:`dtalign.pipeline.status`) gives exit status 3
 (:data:`EXIT_FIT_FAILED`) when nothing else went wrong, a suspect or
 ambiguous one exit status 4 (:data:`EXIT_FIT_DOUBTFUL`); such fits are also
