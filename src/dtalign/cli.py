@@ -737,15 +737,19 @@ def _label_jobs(jobs: list[_Job]) -> None:
         job.plot_name = re.sub(r"[^\w.+-]+", "_", stem)
 
 
-def _load(job: _Job, args: argparse.Namespace) -> tuple[Any, float | None, list[Any]]:
+def _load(job: _Job, args: argparse.Namespace, sphere: dict[str, Any] | None,
+          ) -> tuple[Any, float | None, list[Any]]:
     """Job ``job``'s files read, as an item of :func:`~dtalign.pipeline.batch.fit_images`
-    (called in the image's task); what :func:`_cmd_fit` says or plots afterwards
-    (the colour note, the image and polyline) is kept on the job."""
+    (called in the image's task), with the edge profile of the ``--sphere``
+    model (:func:`_sphere_model`) if any; what :func:`_cmd_fit` says or plots
+    afterwards (the colour note, the image and polyline) is kept on the job."""
     import dtalign.io as io
+
+    from .api.profiles import sphere_edge_profile
 
     image, job.colour = io.read_image(job.image)
     poly = io.load_polyline_csv(job.polyline)
-    profile = _sphere_profile(args, poly.vertices_vu)
+    profile = None if sphere is None else sphere_edge_profile(poly.vertices_vu, **sphere)
     job.loaded = (image, poly)
     return image, args.noise_sigma, [(poly.vertices_vu, poly.normals_vu, poly.sigmas, profile)]
 
@@ -786,15 +790,6 @@ def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
     return {"center_vu": (values[0], values[1]), "radius_px": values[2], "phase_deg": values[3],
             "illumination_deg": values[4], "edge": args.edge, "law": law,
             "minnaert_k": minnaert_k, "psf_sigma_px": args.psf_sigma}
-
-
-def _sphere_profile(args: argparse.Namespace, vertices_vu: Any) -> Any:
-    model = _sphere_model(args)
-    if model is None:
-        return None
-    from .api.profiles import sphere_edge_profile
-
-    return sphere_edge_profile(vertices_vu, **model)
 
 
 def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str:
@@ -897,7 +892,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from .pipeline.batch import fit_images
 
     window = search_window(args.window, "--window", form="option")
-    _sphere_model(args)  # a malformed --sphere is the command's error, before any image
+    sphere = _sphere_model(args)  # a malformed --sphere is the command's error, before any image
     jobs, batch = _jobs(args)
     zooms = _zoom_points(args)
     plot_path = None
@@ -934,7 +929,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     interrupted = False
     try:
         with _progress(len(jobs), show_progress, messages) as progress:
-            fit_images([functools.partial(_load, job, args) for job in jobs],
+            fit_images([functools.partial(_load, job, args, sphere) for job in jobs],
                        search_window_vu=window, errors="collect", progress=progress,
                        on_image=report, **_fit_options(args))
     except BaseException as exc:

@@ -970,7 +970,7 @@ def fit_images(
     out: list[Any] = [None] * len(jobs)
 
     def hand(i: int, fits: Any, exc: Exception | None) -> None:  # in input order
-        image = jobs[i][0]  # an image's error is named with its path if it has one
+        image: Any = jobs[i][0]  # an image's error is named with its path if it has one
         label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
         out[i] = fits if exc is None else _named(exc, label, i)
         if on_image is not None and (exc is None or collect):
