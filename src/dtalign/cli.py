@@ -16,8 +16,10 @@ Options may come before, between or after the file names. Errors are
 printed as one line, ``dtalign: error: ...``, with exit status 1 (2 for a
 malformed command line, 130 when interrupted with Ctrl-C). Output paths
 (``--plot``, ``--output``, ``--save``, ``overlay``'s files) are checked
-before any work. A batch never stops on one bad image: it reports it, goes
-on, and exits 1 at the end if anything failed. A fit whose status is
+before any work. ``fit`` fits through :func:`dtalign.pipeline.batch.fit_images`
+(on threads, one image per task) and reports each image in input order. A
+batch never stops on one bad image: it reports it, goes on, and exits 1 at
+the end if anything failed. A fit whose status is
 ``failed`` (:mod:`dtalign.pipeline.status`) gives exit status 3
 (:data:`EXIT_FIT_FAILED`) when nothing else went wrong, a suspect or
 ambiguous one exit status 4 (:data:`EXIT_FIT_DOUBTFUL`); such fits are also
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import glob
 import importlib
 import importlib.util
@@ -158,29 +161,22 @@ class _Warnings(logging.Handler):
 _WARNINGS = _Warnings()
 
 
-def _log_label(label: str) -> None:
-    """Name the input the next pipeline warnings are about."""
-    _WARNINGS.label = label
-
-
-def _progress(items: list[Any], enabled: bool, messages: _Messages) -> Generator[Any, None, None]:
-    """Iterate ``items`` with a progress bar (tqdm, or plain ``[i/n]`` lines)."""
+@contextlib.contextmanager
+def _progress(total: int, enabled: bool, messages: _Messages) -> Generator[Any, None, None]:
+    """A batch's ``progress(done, total)`` for :func:`~dtalign.pipeline.batch.fit_images`:
+    a tqdm bar, or plain ``[done/total]`` lines without tqdm (None when not ``enabled``)."""
     if not enabled:
-        yield from items
+        yield None
         return
     from ._progress import tqdm_bar
 
-    bar = tqdm_bar(len(items), unit="image", desc="fitting")
+    bar = tqdm_bar(total, unit="image", desc="fitting")
     if bar is None:  # tqdm is optional
-        for i, item in enumerate(items, 1):
-            messages.say(f"[{i}/{len(items)}] {item.image}")
-            yield item
+        yield lambda done, total: messages.say(f"[{done}/{total}] images fitted")
         return
     messages.bar = bar
     try:
-        for item in items:
-            yield item
-            bar.update(1)
+        yield lambda done, _: bar.update(done - bar.n)
     finally:
         messages.bar = None
         bar.close()
@@ -345,7 +341,7 @@ def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser
     # archive: campaigns on Dask; the parser and command live in dtalign.archive.cli.
     from .archive import cli as archive_cli
 
-    archive_cli.add_parser(sub).set_defaults(handler=_cmd_archive)
+    archive_cli.add_parser(sub).set_defaults(handler=archive_cli.command)
     return parser, dict(sub.choices)
 
 
@@ -630,6 +626,8 @@ class _Job:
     polyline: Path
     label: str = ""
     plot_name: str = ""
+    colour: Any = None  # the image's colour note (dtalign.io.read_image), once read
+    loaded: Any = None  # (image, polyline) once read, until its fit is reported
 
 
 def _jobs(args: argparse.Namespace) -> tuple[list[_Job], bool]:
@@ -739,32 +737,28 @@ def _label_jobs(jobs: list[_Job]) -> None:
         job.plot_name = re.sub(r"[^\w.+-]+", "_", stem)
 
 
-def _fit_one(job: _Job, args: argparse.Namespace, window: tuple[int, int],
-             messages: _Messages) -> tuple[Any, Any, Any]:
+def _load(job: _Job, args: argparse.Namespace, sphere: dict[str, Any] | None,
+          ) -> tuple[Any, float | None, list[Any]]:
+    """Job ``job``'s files read, as an item of :func:`~dtalign.pipeline.batch.fit_images`
+    (called in the image's task), with the edge profile of the ``--sphere``
+    model (:func:`_sphere_model`) if any; what :func:`_cmd_fit` says or plots
+    afterwards (the colour note, the image and polyline) is kept on the job."""
     import dtalign.io as io
-    import dtalign.pipeline as pipeline
 
-    image, colour = io.read_image(job.image)
-    if colour is not None:  # the library's rule (dtalign.api.colour), said here
-        messages.say(f"{PROG}: {'warning' if colour.luma else 'note'}: {colour.text}")
+    from .api.profiles import sphere_edge_profile
+
+    image, job.colour = io.read_image(job.image)
     poly = io.load_polyline_csv(job.polyline)
-    profile = _sphere_profile(args, poly.vertices_vu)
-    fit = pipeline.fit_polyline(
-        image,
-        poly.vertices_vu,
-        poly.normals_vu,
-        poly.sigmas,
-        search_window_vu=window,
-        noise_sigma=args.noise_sigma,
-        fit_rotation=args.rotation,
-        use_polarity=not args.no_polarity,
-        trust_region_px=args.trust_region,
-        tikhonov_alpha=args.tikhonov,
-        final_gradient_ridge=args.ridge,
-        edge_profile=profile,
-        edge_kind=args.edge_kind,
-    )
-    return image, poly, fit
+    profile = None if sphere is None else sphere_edge_profile(poly.vertices_vu, **sphere)
+    job.loaded = (image, poly)
+    return image, args.noise_sigma, [(poly.vertices_vu, poly.normals_vu, poly.sigmas, profile)]
+
+
+def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``fit`` command's options, as :class:`~dtalign.api.options.FitOptions` fields."""
+    return {"fit_rotation": args.rotation, "use_polarity": not args.no_polarity,
+            "trust_region_px": args.trust_region, "tikhonov_alpha": args.tikhonov,
+            "final_gradient_ridge": args.ridge, "edge_kind": args.edge_kind}
 
 
 def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
@@ -796,15 +790,6 @@ def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
     return {"center_vu": (values[0], values[1]), "radius_px": values[2], "phase_deg": values[3],
             "illumination_deg": values[4], "edge": args.edge, "law": law,
             "minnaert_k": minnaert_k, "psf_sigma_px": args.psf_sigma}
-
-
-def _sphere_profile(args: argparse.Namespace, vertices_vu: Any) -> Any:
-    model = _sphere_model(args)
-    if model is None:
-        return None
-    from .api.profiles import sphere_edge_profile
-
-    return sphere_edge_profile(vertices_vu, **model)
 
 
 def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str:
@@ -857,7 +842,7 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
     lines.append(
         "wall time    : "
         + ", ".join(f"{k} {t[k] * 1e3:.1f} ms"
-                    for k in ("noise", "derivatives", "coarse", "lm", "hypotheses", "profile")
+                    for k in ("noise", "derivatives", "fit", "hypotheses", "profile")
                     if k in t)
     )
     return "\n".join(lines)
@@ -904,9 +889,10 @@ def _offset_line(fit: Any) -> str:
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     from .api.checks import search_window
+    from .pipeline.batch import fit_images
 
     window = search_window(args.window, "--window", form="option")
-    _sphere_model(args)  # a malformed --sphere is the command's error, before any image
+    sphere = _sphere_model(args)  # a malformed --sphere is the command's error, before any image
     jobs, batch = _jobs(args)
     zooms = _zoom_points(args)
     plot_path = None
@@ -918,32 +904,75 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     tally = _Tally()
     _WARNINGS.messages = messages
     show_progress = batch and not args.no_progress and not args.json
+
+    def report(i: int, result: Any) -> None:  # fit_images' on_image: in input order
+        job = jobs[i]
+        loaded, job.loaded = job.loaded, None  # the image is not kept once reported
+        try:
+            fit = _reported(job, result, messages)
+            if plot_path is not None:
+                out = plot_path
+                if batch:
+                    out = out.with_name(f"{out.stem}_{job.plot_name}{out.suffix or '.png'}")
+                _plot(loaded[0], loaded[1].vertices_vu, fit, out, job.label, zooms, args.zoom_half,
+                      messages)
+        except (OSError, ValueError, TypeError, ImportError) as exc:
+            if not batch:
+                raise
+            tally.failed_job(job, exc, messages)
+            return
+        tally.fitted(job, fit)
+        if not args.json and not batch:
+            stdout.emit(_table_single(job, loaded[1], fit, args.noise_sigma is None))
+
     _compile_notice(messages)
-    interrupt = _KeepRows(batch)
-    with interrupt, contextlib.closing(_progress(jobs, show_progress, messages)) as progress:
-        for job in progress:
-            _log_label(str(job.image))
-            try:
-                image, poly, fit = _fit_one(job, args, window, messages)
-                if plot_path is not None:
-                    out = plot_path
-                    if batch:
-                        out = out.with_name(f"{out.stem}_{job.plot_name}{out.suffix or '.png'}")
-                    _plot(image, poly.vertices_vu, fit, out, job.label, zooms, args.zoom_half, messages)
-            except (OSError, ValueError, TypeError, ImportError) as exc:
-                if not batch:
-                    return _fail(_one_line(exc))
-                tally.failed_job(job, exc, messages)
-                continue
-            tally.fitted(job, fit)
-            if not args.json and not batch:
-                stdout.emit(_table_single(job, poly, fit, args.noise_sigma is None))
+    interrupted = False
+    try:
+        with _progress(len(jobs), show_progress, messages) as progress:
+            fit_images([functools.partial(_load, job, args, sphere) for job in jobs],
+                       search_window_vu=window, errors="collect", progress=progress,
+                       on_image=report, **_fit_options(args))
+    except BaseException as exc:
+        # A Ctrl-C ends a batch, not the command: the rows reported before it
+        # are printed (or written) as usual and fit exits 130; the images
+        # being fitted are dropped. A single fit's Ctrl-C propagates (main
+        # says "interrupted").
+        if not (batch and _is_interrupt(exc)):
+            raise
+        interrupted = True
     if args.json:
         stdout.emit(json.dumps(tally.results if batch else tally.results[0], indent=2))
     elif batch:
         stdout.emit(_table_batch(tally.results))
     stdout.close(messages)
-    return tally.exit_code(len(jobs), interrupt.happened, messages)
+    return tally.exit_code(len(jobs), interrupted, messages)
+
+
+def _reported(job: _Job, result: Any, messages: _Messages) -> Any:
+    """Say what image ``job`` gave (its colour note, its fit's warnings) and
+    return its fit, or raise its error.
+
+    ``result`` is :func:`~dtalign.pipeline.batch.fit_images`' for the image:
+    its one fit in a list, or its error (a file that could not be read, a
+    polyline that could not be fitted), raised without the batch's
+    ``images[i]: polylines[0]: `` naming (the error itself is its cause):
+    the row names the file.
+    """
+    from .pipeline.status import log_fit
+
+    _WARNINGS.label = str(job.image)  # the pipeline's warnings about it name the file
+    if job.colour is not None:  # the library's rule (dtalign.api.colour), said here
+        messages.say(f"{PROG}: {'warning' if job.colour.luma else 'note'}: {job.colour.text}")
+    if not isinstance(result, Exception):
+        result = result[0]
+    while isinstance(result, Exception):
+        cause = result.__cause__
+        named = getattr(result, "index", None) is not None and cause is not None
+        if not (named and str(result).endswith(str(cause))):
+            raise result
+        result = cause
+    log_fit(result, "fit")
+    return result
 
 
 class _Tally:
@@ -956,18 +985,17 @@ class _Tally:
         self.failed_fits = 0  # fits with status "failed"
         self.doubtful_fits = 0  # "suspect" or "ambiguous"
 
-    def failed_job(self, job: Any, exc: Exception, messages: _Messages) -> None:
-        self.failures += 1
-        msg = _one_line(exc)
-        self.results.append(
-            {"image": str(job.image), "polyline": str(job.polyline), "label": job.label, "error": msg}
-        )
-        messages.say(f"{PROG}: FAILED {job.label}: {msg}")
+    def _row(self, job: _Job, **fields: Any) -> None:
+        self.results.append({"image": str(job.image), "polyline": str(job.polyline),
+                             "label": job.label, **fields})
 
-    def fitted(self, job: Any, fit: Any) -> None:
-        self.results.append(
-            {"image": str(job.image), "polyline": str(job.polyline), "label": job.label, **fit.to_dict()}
-        )
+    def failed_job(self, job: _Job, exc: Exception, messages: _Messages) -> None:
+        self.failures += 1
+        self._row(job, error=_one_line(exc))
+        messages.say(f"{PROG}: FAILED {job.label}: {_one_line(exc)}")
+
+    def fitted(self, job: _Job, fit: Any) -> None:
+        self._row(job, **fit.to_dict())
         self.failed_fits += fit.failed
         self.doubtful_fits += str(fit.status) in ("suspect", "ambiguous")
 
@@ -988,28 +1016,6 @@ class _Tally:
             messages.say(f"{PROG}: {self.doubtful_fits} of {n_jobs} fit(s) suspect or ambiguous")
             return EXIT_FIT_DOUBTFUL
         return 0
-
-
-class _KeepRows:
-    """Around a batch's loop: a Ctrl-C ends the loop, not the command.
-
-    The rows finished before it are then printed (or written) as usual and
-    ``fit`` exits 130 (:data:`EXIT_INTERRUPTED`); the image being fitted is
-    dropped. A single fit's Ctrl-C propagates (main says "interrupted").
-    """
-
-    def __init__(self, batch: bool) -> None:
-        self.batch = batch
-        self.happened = False
-
-    def __enter__(self) -> _KeepRows:
-        return self
-
-    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, _: object) -> bool:
-        if self.batch and _is_interrupt(exc):
-            self.happened = True
-            return True
-        return False
 
 
 def _is_interrupt(exc: BaseException | None) -> bool:
@@ -1104,12 +1110,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return int(result or 0)
 
 
-def _cmd_archive(args: argparse.Namespace) -> int:
-    from .archive import cli as archive_cli
-
-    return archive_cli.command(args)
-
-
 def _pairs_joined(command: str, argv: list[str], parser: argparse.ArgumentParser) -> list[str]:
     """``argv`` with each pair option's value attached (``--displace=-2,3``), or a usage error.
 
@@ -1202,7 +1202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         log = logging.getLogger("dtalign")
         log.addHandler(_WARNINGS)
         _WARNINGS.messages = _Messages()
-        _log_label(args.command if args.command == "demo" else "")
+        _WARNINGS.label = args.command if args.command == "demo" else ""
         try:
             return int(args.handler(args))
         except CLIError as exc:

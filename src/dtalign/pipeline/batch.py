@@ -88,7 +88,7 @@ from concurrent.futures import (
     ThreadPoolExecutor,
     as_completed,
 )
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
@@ -108,6 +108,8 @@ __all__ = ["DEFAULT_WORKERS", "fit_images", "fit_many", "map_ordered", "results_
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
+#: ``hand(i, result, error)``: an item of :meth:`_Runner.each` handed on in input order.
+_Hand = Callable[[int, Any, "Exception | None"], Any]
 
 
 def _usable_cpus() -> int:
@@ -123,8 +125,6 @@ def _usable_cpus() -> int:
 DEFAULT_WORKERS = _usable_cpus()
 
 _EXECUTORS = ("thread", "process")
-
-
 
 
 @contextmanager
@@ -280,7 +280,8 @@ class _Runner:
             self.report.advance(k)
 
     def each(self, fn: Callable[[_T], _R], items: Sequence[_T], *, stop_early: bool,
-             sizes: Sequence[int] | None = None) -> tuple[list[_R | None], dict[int, Exception]]:
+             sizes: Sequence[int] | None = None, ordered: _Hand | None = None,
+             ) -> tuple[list[_R | None], dict[int, Exception]]:
         """``fn(x)`` for each of ``items``, taken in input order: ``(results, errors)``.
 
         ``results[i]`` is what ``fn(items[i])`` returned (None if it raised
@@ -290,14 +291,18 @@ class _Runner:
         first failure in input order is in ``errors``. Each item that
         returns (or fails, without ``stop_early``) is reported as
         ``sizes[i]`` items done (default 1), in the calling thread as it
-        completes.
+        completes. ``ordered(i, result, error)`` is then called (calling
+        thread) for each item in input order, as soon as it and the items
+        before it have returned or failed; with ``stop_early``, for none
+        after a failed one.
         """
         if self.pool is None:
-            return self._each_here(fn, items, stop_early, sizes)
+            return self._each_here(fn, items, stop_early, sizes, ordered)
         n = len(items)
         results: list[_R | None] = [None] * n
         errors: dict[int, Exception] = {}
         first, lock = [n], threading.Lock()  # the first failed item
+        settled, after = [False] * n, 0  # the items returned or failed; the next to hand on
 
         def guarded(i: int) -> Any:
             if self.stop.is_set() or i > first[0]:
@@ -334,18 +339,23 @@ class _Runner:
                     if stop_early:
                         for later in futures[i + 1 :]:
                             later.cancel()
-                        continue
                 else:
                     raise error
                 if not (stop_early and errors):
                     self.advance(1 if sizes is None else sizes[i])
+                settled[i] = True
+                while (ordered is not None and after < n and settled[after]
+                       and not (stop_early and errors and after > min(errors))):
+                    ordered(after, results[after], errors.get(after))
+                    after += 1
         finally:
             for future in futures:  # a no-op for those done
                 future.cancel()
         return results, errors
 
     def _each_here(self, fn: Callable[[_T], _R], items: Sequence[_T], stop_early: bool,
-                   sizes: Sequence[int] | None) -> tuple[list[_R | None], dict[int, Exception]]:
+                   sizes: Sequence[int] | None, ordered: _Hand | None,
+                   ) -> tuple[list[_R | None], dict[int, Exception]]:
         """:meth:`each` in the calling thread (no pool), looking at the
         enclosing batch's stop event before each item."""
         results: list[_R | None] = [None] * len(items)
@@ -357,9 +367,12 @@ class _Runner:
                 results[i] = fn(x)
             except Exception as exc:  # the item's error, reported in input order
                 errors[i] = exc
-                if stop_early:
-                    break
-            self.advance(1 if sizes is None else sizes[i])
+            if not (stop_early and errors):
+                self.advance(1 if sizes is None else sizes[i])
+            if ordered is not None:
+                ordered(i, results[i], errors.get(i))
+            if stop_early and errors:
+                break
         return results, errors
 
 
@@ -623,13 +636,16 @@ def fit_many(
 
 def _log(results: list[Any], label: str) -> None:
     """Report on dtalign's logger each failed or suspect fit
-    (:func:`dtalign.pipeline.status.log_fits`) and, collected, each error at WARNING."""
-    if not any(isinstance(r, Exception) for r in results):
+    (:func:`dtalign.pipeline.status.log_fits`) and, collected, each error at
+    WARNING; an image's list of fits (:func:`fit_images`) as ``label[i].polylines``."""
+    if not any(isinstance(r, (Exception, list)) for r in results):
         log_fits(results, label)
         return
     for i, r in enumerate(results):
         if isinstance(r, Exception):
             logger.warning("%s", r)
+        elif isinstance(r, list):
+            _log(r, f"{label}[{i}].polylines")
         else:
             log_fit(r, f"{label}[{i}]")
 
@@ -814,15 +830,15 @@ def _is_path(image: Any) -> bool:
     return isinstance(image, (str, os.PathLike))
 
 
-def _fit_image(
-    job: tuple[Any, float | None, list[tuple[Any, Any, Any, Any, Any]], Any, Any, FitOptions,
-               bool],
-    abort: threading.Event | None = None,
-) -> list[Any]:
-    """One image: loaded if a path, its products, then its polylines serially,
-    stopping between them once ``abort`` (the batch's stop event) is set
-    (module level: picklable for a process pool)."""
-    image, noise, parts, window, config, options, collect = job
+def _fit_image(job: tuple[Any, ...], abort: threading.Event | None = None) -> list[Any]:
+    """One image (``job``: its item's parts, the call's arguments and its
+    index): made by its loader if it has one, loaded if a path, its
+    products, then its polylines serially, stopping between them once
+    ``abort`` (the batch's stop event) is set (module level: picklable for a
+    process pool)."""
+    image, noise, parts, window, config, options, collect, index = job
+    if parts is None:  # a loader (fit_images' callable item): the item is made here
+        image, noise, parts = _image_parts(image(), index)
     if _is_path(image):
         from ..io.files import load_image
 
@@ -839,14 +855,16 @@ def fit_images(
     items: Iterable[Any], *, search_window_vu: tuple[int, int] = ..., workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
     errors: Literal["raise"] = ..., progress: Callable[[int, int], Any] | bool | None = ...,
-    options: FitOptions | None = ..., **overrides: Any,
+    on_image: Callable[[int, Any], Any] | None = ..., options: FitOptions | None = ...,
+    **overrides: Any,
 ) -> list[list[PolylineFit]]: ...
 @overload
 def fit_images(
     items: Iterable[Any], *, search_window_vu: tuple[int, int] = ..., workers: int = ...,
     executor: str | Executor = ..., config: ImageDerivativesConfig | None = ...,
     errors: Literal["collect"], progress: Callable[[int, int], Any] | bool | None = ...,
-    options: FitOptions | None = ..., **overrides: Any,
+    on_image: Callable[[int, Any], Any] | None = ..., options: FitOptions | None = ...,
+    **overrides: Any,
 ) -> list[list[PolylineFit | Exception] | Exception]: ...
 def fit_images(
     items: Iterable[Any],
@@ -857,6 +875,7 @@ def fit_images(
     config: ImageDerivativesConfig | None = None,
     errors: str = "raise",
     progress: Callable[[int, int], Any] | bool | None = None,
+    on_image: Callable[[int, Any], Any] | None = None,
     options: FitOptions | None = None,
     **overrides: Any,
 ) -> list[Any]:
@@ -869,7 +888,10 @@ def fit_images(
         object with those attributes, like :class:`dtalign.scenes.Scene`);
         ``image`` is an array or a path (loaded in the task with
         :func:`dtalign.io.load_image`), ``noise_sigma`` may be None
-        (estimated), ``polylines`` as in :func:`fit_many`.
+        (estimated), ``polylines`` as in :func:`fit_many`. An item may also
+        be a callable that returns such an item (a loader, as the command
+        line's files are read): it is called in the image's task, and what
+        it raises is the image's error.
     search_window_vu : tuple of int, optional
         Coarse-search margin for every polyline; default ``(30, 30)``
         (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
@@ -901,6 +923,16 @@ def fit_images(
         an ``Executor`` of the caller's, the tasks it runs already finish
         there) and its exception propagates unchanged. ``True`` shows a tqdm
         bar (tqdm is needed); None or False (default): no report.
+    on_image : callable, optional
+        ``on_image(i, result)`` is called for each image in input order, as
+        soon as it and the images before it are done, from the calling
+        thread; ``result`` is what the returned list holds at ``i`` (with
+        ``errors="raise"``, only the images before the first failure). A
+        stream of results: what was handed on stays handed on if the batch
+        is then interrupted. The images handed on are not logged: reporting
+        them is the callback's (as :func:`dtalign.pipeline.status.log_fits`
+        does). If it raises, the batch stops as on an interrupt and its
+        exception propagates unchanged.
     options : FitOptions, optional
         The options of every polyline's fit, as in :func:`fit_many`.
     **overrides
@@ -928,45 +960,44 @@ def fit_images(
         raise TypeError(f"config must be an ImageDerivativesConfig, got {type(config).__name__}")
     progress = _check_progress(progress)
     opts = resolve(options, overrides, profile=False)
-    jobs = [
-        (*_image_parts(item, i), search_window_vu, config, opts, collect)
-        for i, item in enumerate(items)
-    ]
+    jobs = [((item, None, None) if callable(item) else _image_parts(item, i))
+            + (search_window_vu, config, opts, collect, i) for i, item in enumerate(items)]
+    out: list[Any] = [None] * len(jobs)
+
+    def hand(i: int, fits: Any, exc: Exception | None) -> None:  # in input order
+        image: Any = jobs[i][0]  # an image's error is named with its path if it has one
+        label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
+        out[i] = fits if exc is None else _named(exc, label, i)
+        if on_image is not None and (exc is None or collect):
+            on_image(i, out[i])
+
+    own = not isinstance(executor, Executor)
     with _reporter(progress, len(jobs), "image") as report:
-        if isinstance(executor, Executor):
-            with _Runner(pool=executor, report=report) as runner:
-                results, failures = runner.each(_fit_image, jobs, stop_early=not collect)
-        elif executor == "process" and n > 1 and len(jobs) > 1:
-            with (_process_pool(min(n, len(jobs))) as pool,
-                  _Runner(pool=pool, report=report) as runner):
-                results, failures = runner.each(_fit_image, jobs, stop_early=not collect)
-        else:
+        if own and (executor == "thread" or n == 1 or len(jobs) < 2):
             with _runner(n, report) as runner:
-                results, failures = runner.each(
-                    lambda job: _fit_image(job, runner.stop), jobs, stop_early=not collect)
+                _, failures = runner.each(lambda job: _fit_image(job, runner.stop), jobs,
+                                          stop_early=not collect, ordered=hand)
                 # in a worker, as fit_many logs
-                return runner.call(_image_results, jobs, results, failures, collect)
-    return _image_results(jobs, results, failures, collect)
+                return runner.call(_image_results, out, failures, collect, on_image is None)
+        with (nullcontext(executor) if isinstance(executor, Executor)
+              else _process_pool(min(n, len(jobs))) as pool,
+              _Runner(pool=pool, report=report) as runner):
+            _, failures = runner.each(_fit_image, jobs, stop_early=not collect, ordered=hand)
+    return _image_results(out, failures, collect, on_image is None)
 
 
-def _image_results(jobs: list[Any], results: list[Any], failures: dict[int, Exception],
-                   collect: bool) -> list[Any]:
-    """:func:`fit_images`' results: failures named (raised, or collected in
-    place), the failed and suspect fits logged (in the caller's process).
+def _image_results(out: list[Any], failures: dict[int, Exception], collect: bool,
+                   log: bool) -> list[Any]:
+    """:func:`fit_images`' results (each failed image's named error in its
+    place): the first failure raised, else the failed and suspect fits
+    logged (in the caller's process) unless ``on_image`` took them.
 
     On threads this runs in a worker. On an executor the calling
     thread runs it: an exception a signal handler raises inside a log
     record's output there is logging's to drop (it prints "Logging error").
     """
-    for i, exc in sorted(failures.items()):
-        image = jobs[i][0]
-        label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
-        if not collect:
-            raise _named(exc, label, i)
-        results[i] = _named(exc, label, i)
-    for i, fits in enumerate(results):
-        if isinstance(fits, Exception):
-            logger.warning("%s", fits)
-        else:
-            _log(fits, f"items[{i}].polylines")
-    return results
+    if failures and not collect:
+        raise out[min(failures)]
+    if log:
+        _log(out, "items")
+    return out
