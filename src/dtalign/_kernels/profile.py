@@ -68,6 +68,10 @@ MIN_WING_RATIO = 3.0
 #: ... and at least this (pixels; with no core blur, a wing narrower than
 #: the pixel box is the box's own business).
 MIN_WING_SIGMA_PX = 1.0
+#: ... and at most this (pixels): across a strip of +-3.5 px a wider
+#: Gaussian is a ramp, which the background slope fits, and its fraction
+#: would be undetermined.
+MAX_WING_SIGMA_PX = 10.0
 
 #: Step halvings tried before an iteration is declared stuck.
 MAX_HALVINGS = 8
@@ -412,6 +416,35 @@ def wing_mixed(rows: np.ndarray, o0: float, h: float, frac: float, sigma_extra: 
 
 
 @kernel
+def hold_bounds(params: np.ndarray, active: np.ndarray, step: np.ndarray, info: np.ndarray,
+                grad: np.ndarray) -> bool:
+    """Hold the wing parameters that sit on a bound the step pushes past (the
+    fraction at 0 or :data:`MAX_WING_FRACTION`, the wing sigma at its least
+    or :data:`MAX_WING_SIGMA_PX`):
+    their rows of ``info`` and ``grad`` become those of a zero step, in place,
+    so the other parameters' step is solved without them (a step clipped at
+    the bound afterwards would not be a descent direction). True when any
+    was held."""
+    n_act = active.shape[0]
+    least = max(MIN_WING_RATIO * params[4], MIN_WING_SIGMA_PX)
+    held = False
+    for a in range(n_act):
+        ia = active[a]
+        out = ((ia == 7 and ((params[7] <= 0.0 and step[a] < 0.0)
+                             or (params[7] >= MAX_WING_FRACTION and step[a] > 0.0)))
+               or (ia == 8 and ((params[8] <= least and step[a] < 0.0)
+                                or (params[8] >= MAX_WING_SIGMA_PX and step[a] > 0.0))))
+        if out:
+            for e in range(n_act):
+                info[a, e] = 0.0
+                info[e, a] = 0.0
+            info[a, a] = 1.0
+            grad[a] = 0.0
+            held = True
+    return held
+
+
+@kernel
 def all_tables(values: np.ndarray, shape: np.ndarray, o0: float, h: float, j0: int, nb: int,
                sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                       np.ndarray, float, float]:
@@ -437,7 +470,8 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
     PSF's wide component (parameters 7 and 8; held at a fraction 0
     otherwise). The sigmas are held >= 0, the wing fraction in
     [0, :data:`MAX_WING_FRACTION`] and the wing sigma at least
-    :data:`MIN_WING_RATIO` times the core's. Returns the parameters, the
+    :data:`MIN_WING_RATIO` times the core's and :data:`MIN_WING_SIGMA_PX`,
+    at most :data:`MAX_WING_SIGMA_PX`. Returns the parameters, the
     iterations, whether the last full step fell below ``tolerance_px``,
     the inverse information matrix of the active parameters, the residual
     scale (1.4826 MAD, floored) and the final robust cost.
@@ -486,6 +520,10 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
         step, ok = solve_small(info, grad)
         if not ok:
             break
+        if use_wings and hold_bounds(params, active, step, info, grad):
+            step, ok = solve_small(info, grad)
+            if not ok:
+                break
         full = 0.0
         for a in range(n_act):
             ia = active[a]
@@ -500,7 +538,8 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
                 trial[4] = 0.0
             if use_wings:
                 trial[7] = min(max(trial[7], 0.0), MAX_WING_FRACTION)
-                trial[8] = max(trial[8], MIN_WING_RATIO * trial[4], MIN_WING_SIGMA_PX)
+                trial[8] = min(max(trial[8], MIN_WING_RATIO * trial[4], MIN_WING_SIGMA_PX),
+                               MAX_WING_SIGMA_PX)
             tt = tab
             if trial[4] != params[4]:
                 tt = all_tables(values, shape, o0, h, j0, nb, trial[4])

@@ -402,6 +402,7 @@ def refine_with_profile(
     else:
         pb, _, out = _recentred(pb, params)
     p, it, conv, inv, scale, _, npx = out
+    psf = params  # the PSF the full run held (its wings folded into the profile)
     iterations += int(it)
     d0 = pb.d0
     off = (float(p[0]), float(p[1]))
@@ -416,7 +417,8 @@ def refine_with_profile(
         offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
         gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
         shape_amplitude=float(p[5]),
-        psf_sigma_px=float(p[4]), wing_fraction=float(p[7]), wing_sigma_px=float(p[8]),
+        psf_sigma_px=float(p[4]), wing_fraction=float(psf[7]),
+        wing_sigma_px=float(psf[8]) if psf[7] > 0.0 else math.nan,
         psf_estimated=not known, iterations=iterations, converged=bool(conv), walk_px=walk,
         n_pixels=int(npx), residual_scale=float(scale),
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
@@ -438,21 +440,37 @@ def _start(d0: tuple[float, float], sigma: float, wings: bool) -> FloatArray:
 def _estimate_psf(pb: _Problem, params: FloatArray, fit_sigma: bool, wings: bool
                   ) -> tuple[FloatArray, int]:
     """The PSF estimated on a subset of the vertices with the shape free (a
-    wrong law would bias it), then held: its sigma when ``fit_sigma``, its
-    wings when ``wings``. Returns the start parameters of the full run and
-    the iterations spent. With the wings, the full run starts as one with
-    a given PSF does (its gain and background solved at the DT lock): the
-    wing model's photometric parameters belong to another model than the
-    one the full run fits (the profile with the wings folded in)."""
+    wrong law would bias it), then held: its sigma when ``fit_sigma`` (a
+    single Gaussian first), then its wings when ``wings`` (from the single
+    Gaussian's fit: started from a narrow core, a core and wings can mimic
+    a wider Gaussian inside the strips, and do). Returns the start
+    parameters of the full run and the iterations spent. With the wings,
+    the full run starts as one with a given PSF does (its gain and
+    background solved at the DT lock): the full run fits the profile with
+    the wings folded in, whose photometric parameters are not the stage's."""
     stride = max(1, pb.verts.shape[0] // SIGMA_VERTICES)
     idx = np.arange(0, pb.verts.shape[0], stride, dtype=np.int64)
-    p_a, it_a, _, _, _, _, _ = _run(pb, idx, params, fit_sigma, SIGMA_TOLERANCE, wings=wings,
-                                    fit_wings=wings)
-    out = np.array(params if wings else p_a, dtype=np.float64)
+    p_a = params
+    iterations = 0
+    if fit_sigma:
+        p_a, it_a, _, _, _, _, _ = _run(pb, idx, params, True, SIGMA_TOLERANCE)
+        p_a = np.array(p_a, dtype=np.float64)
+        p_a[4] = max(float(p_a[4]), 0.0)
+        iterations += int(it_a)
+    out = np.array(p_a, dtype=np.float64)
+    if wings:
+        start = np.array(p_a, dtype=np.float64)
+        start[7] = params[7]
+        start[8] = max(float(params[8]), loop.profile_kernels.MIN_WING_RATIO * start[4])
+        # a sigma of 0 is a stationary point of the model (the blur's change
+        # is second order): the wings are then fitted with the sigma held
+        p_b, it_b, _, _, _, _, _ = _run(pb, idx, start, fit_sigma and start[4] > 0.0,
+                                        SIGMA_TOLERANCE, wings=True, fit_wings=True)
+        iterations += int(it_b)
+        out = np.array(params, dtype=np.float64)
+        out[4], out[7], out[8] = max(float(p_b[4]), 0.0), float(p_b[7]), float(p_b[8])
     out[0], out[1] = pb.d0
-    out[4] = max(float(p_a[4]), 0.0)
-    out[7], out[8] = float(p_a[7]), float(p_a[8])
-    return out, int(it_a)
+    return out, iterations
 
 
 def _with_wings(pb: _Problem, params: FloatArray) -> _Problem:

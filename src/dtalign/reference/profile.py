@@ -17,6 +17,7 @@ from .._kernels.profile import (
     COARSEN_SIGMAS,
     MAX_HALVINGS,
     MAX_WING_FRACTION,
+    MAX_WING_SIGMA_PX,
     MIN_BOX_WIDTH,
     MIN_WING_RATIO,
     MIN_WING_SIGMA_PX,
@@ -236,6 +237,19 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
         info[free, free] = 1.0
         try:
             step = np.linalg.solve(info, grad)
+            if use_wings:
+                least = max(MIN_WING_RATIO * params[4], MIN_WING_SIGMA_PX)
+                f = params[7]
+                out = (((active == 7) & (((f <= 0.0) & (step < 0.0))
+                                         | ((f >= MAX_WING_FRACTION) & (step > 0.0))))
+                       | ((active == 8) & (((params[8] <= least) & (step < 0.0))
+                                          | ((params[8] >= MAX_WING_SIGMA_PX) & (step > 0.0)))))
+                if out.any():
+                    info[out, :] = 0.0
+                    info[:, out] = 0.0
+                    info[out, out] = 1.0
+                    grad[out] = 0.0
+                    step = np.linalg.solve(info, grad)
         except np.linalg.LinAlgError:
             break
         full = float(np.abs(step[np.isin(active, (0, 1, 4))]).max())
@@ -246,7 +260,8 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
             trial[4] = max(trial[4], 0.0)
             if use_wings:
                 trial[7] = min(max(trial[7], 0.0), MAX_WING_FRACTION)
-                trial[8] = max(trial[8], MIN_WING_RATIO * trial[4], MIN_WING_SIGMA_PX)
+                trial[8] = min(max(trial[8], MIN_WING_RATIO * trial[4], MIN_WING_SIGMA_PX),
+                               MAX_WING_SIGMA_PX)
             tt = all_tables(values, shape, o0, h, j0, nb, trial[4]) if trial[4] != params[4] else tab
             wt = (all_tables(values, shape, o0, h, j0, nb, trial[8])
                   if use_wings and trial[8] != params[8] else wtab)
