@@ -13,15 +13,18 @@ the edge, corrected for the edge's curvature ``kappa_k``::
     s_eff = s - kappa_k (tau^2 + sigma^2 + 1/12) / 2
     value = b + g * M_k(s_eff; sigma)
 
-``M_k = P_k * G_sigma * box * box``. The curvature term is the mean shift of
+``M_k = P_k * G_sigma * box * box``; with the PSF's wings (a fraction ``f``
+of the light in a Gaussian of sigma ``sigma_w``), ``(1 - f) M_k(s_eff;
+sigma) + f M_k(s_eff_w; sigma_w)``, each read at its own curvature-corrected
+distance. The curvature term is the mean shift of
 a curved edge over the tangential spread of the pixel's own offset, the PSF
 (variance ``sigma^2``) and the pixel box (variance 1/12 along any
 direction). The profile ``P_k`` is piecewise linear between its samples;
 the Gaussian blur of a piecewise-linear function is exact at the samples
 (:func:`hat_gauss_taps`), the box average is exact through the second
 antiderivative (:func:`cumulate`, :func:`box_model`). The pose ``d``, the
-gain ``g``, the background ``b`` and, when unknown, ``sigma`` are fitted by
-Gauss-Newton with Tukey weights (:func:`refine`). Kernels assume valid
+gain ``g``, the background ``b`` and, when unknown, ``sigma`` and the wings
+are fitted by Gauss-Newton with Tukey weights (:func:`refine`). Kernels assume valid
 C-contiguous float64 input and never validate.
 """
 

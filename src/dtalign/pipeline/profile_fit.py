@@ -5,11 +5,13 @@ one-sided photometric edge (a limb) lies inside the geometric edge; the
 integer DT adds a one-pixel ripple. After the DT-LM lock this module fits
 the image's own pixels in a strip along each vertex's normal with the
 profile's model (the kernels of ``dtalign._kernels.profile``, specified
-by :mod:`dtalign.reference.profile`): free offset, gain, background and,
-when the profile does not give it, the PSF sigma, with the amplitude of
-the profile's shape basis (a reflectance law's limb darkening) and a
-background slope (scattered light); Gauss-Newton with Tukey weights. The rotation, when fitted by the DT-LM, is held at its value: the
-refinement fits the offset only.
+by :mod:`dtalign.reference.profile`): free offset, gain, background and
+the PSF (a Gaussian core, its sigma when the profile does not give it,
+and wings: a fraction of the light in a wider Gaussian, :data:`FIT_WINGS`),
+with the amplitude of the profile's shape basis (a reflectance law's limb
+darkening) and a background slope (scattered light); Gauss-Newton with
+Tukey weights. The rotation, when fitted by the DT-LM, is held at its
+value: the refinement fits the offset only.
 
 The result, :class:`ProfileRefinement`, says whether the refinement was
 accepted: it is discarded when it did not converge, walked farther than
@@ -41,6 +43,7 @@ __all__ = [
     "SCAN_STEP_PX",
     "TERMINATOR_RECENTRES",
     "SOFT_EDGE_STEP_JUMP",
+    "FIT_WINGS",
     "ProfileRefinement",
     "refine_with_profile",
 ]
@@ -160,7 +163,8 @@ class ProfileRefinement:
     wing_fraction, wing_sigma_px : float
         The PSF's wings, estimated (:data:`FIT_WINGS`): this fraction of the
         light in a Gaussian of this sigma, the rest in the core of
-        ``psf_sigma_px``; a fraction of 0 when none were fitted or found.
+        ``psf_sigma_px``; a fraction of 0 and a sigma of NaN when none
+        were fitted or found.
     iterations : int
         Gauss-Newton iterations (both stages when the sigma was estimated).
     converged : bool

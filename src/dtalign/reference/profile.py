@@ -214,8 +214,9 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
 
     def residuals(p: FloatArray, t: tuple[Any, ...], w: tuple[Any, ...]
                   ) -> tuple[FloatArray, FloatArray]:
-        return evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, *t[:6], use_shape,
-                        t[6], t[7], *w[:6], use_wings, w[6], w[7], p)
+        return evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, t[0], t[1], t[2], t[3],
+                        t[4], t[5], use_shape, t[6], t[7], w[0], w[1], w[2], w[3], w[4], w[5],
+                        use_wings, w[6], w[7], p)
 
     r, jac = residuals(params, tab, wtab)
     converged, iterations, scale, cost = False, 0, 0.0, 0.0
