@@ -110,8 +110,8 @@ SIGMA_TOLERANCE = 1e-3
 SIGMA_START_PX = 0.7
 
 #: Fit the PSF's wings: a fraction of the light in a second, wider Gaussian
-#: (scattered light in the optics), estimated with the PSF on the subset of
-#: :data:`SIGMA_VERTICES` vertices and then held; a core sigma given by the
+#: (scattered light in the optics), estimated with the PSF on a subset of
+#: about 48 vertices and then held; a core sigma given by the
 #: profile is the core's. Not for a terminator (its start is a scan whose
 #: strips are placed with the core alone; see :ref:`profiles-terminator`).
 FIT_WINGS = True
