@@ -448,10 +448,11 @@ def _estimate_psf(pb: _Problem, params: FloatArray, fit_sigma: bool, wings: bool
     single Gaussian first), then its wings when ``wings`` (from the single
     Gaussian's fit: started from a narrow core, a core and wings can mimic
     a wider Gaussian inside the strips, and do). Returns the start
-    parameters of the full run and the iterations spent. With the wings,
+    parameters of the full run and the iterations spent. With wings found,
     the full run starts as one with a given PSF does (its gain and
-    background solved at the DT lock): the full run fits the profile with
-    the wings folded in, whose photometric parameters are not the stage's."""
+    background solved at the DT lock: a start from the stage's were slow to
+    converge on a surface of the wrong law); with none, as it would without
+    the wings' stage."""
     stride = max(1, pb.verts.shape[0] // SIGMA_VERTICES)
     idx = np.arange(0, pb.verts.shape[0], stride, dtype=np.int64)
     p_a = params
@@ -471,8 +472,11 @@ def _estimate_psf(pb: _Problem, params: FloatArray, fit_sigma: bool, wings: bool
         p_b, it_b, _, _, _, _, _ = _run(pb, idx, start, fit_sigma and start[4] > 0.0,
                                         SIGMA_TOLERANCE, wings=True, fit_wings=True)
         iterations += int(it_b)
-        out = np.array(params, dtype=np.float64)
-        out[4], out[7], out[8] = max(float(p_b[4]), 0.0), float(p_b[7]), float(p_b[8])
+        if p_b[7] > 0.0:
+            out = np.array(params, dtype=np.float64)
+            out[4], out[7], out[8] = max(float(p_b[4]), 0.0), float(p_b[7]), float(p_b[8])
+        else:  # none found: the full run starts as it would without the wings' stage
+            out[7] = 0.0
     out[0], out[1] = pb.d0
     return out, iterations
 
