@@ -44,6 +44,7 @@ __all__ = [
     "TERMINATOR_RECENTRES",
     "SOFT_EDGE_STEP_JUMP",
     "FIT_WINGS",
+    "MIN_WING_FRACTION",
     "ProfileRefinement",
     "refine_with_profile",
 ]
