@@ -117,9 +117,11 @@ SIGMA_START_PX = 0.7
 #: strips are placed with the core alone; see :ref:`profiles-terminator`).
 FIT_WINGS = True
 
-#: The wings' start: this fraction of the light ...
+#: The wings' start: this fraction of the light (a weak halo; not 0, where
+#: the wing sigma would have no gradient) ...
 WING_FRACTION_START = 0.05
-#: ... in a Gaussian of this sigma (pixels) ...
+#: ... in a Gaussian of this sigma (pixels; a few pixels, inside the strip
+#: of +-3.5 px, and at least ``MIN_WING_RATIO`` core sigmas) ...
 WING_SIGMA_START_PX = 3.0
 #: ... whose sigma is fitted too (else held at its start).
 FIT_WING_SIGMA = True
