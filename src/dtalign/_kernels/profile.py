@@ -13,15 +13,18 @@ the edge, corrected for the edge's curvature ``kappa_k``::
     s_eff = s - kappa_k (tau^2 + sigma^2 + 1/12) / 2
     value = b + g * M_k(s_eff; sigma)
 
-``M_k = P_k * G_sigma * box * box``. The curvature term is the mean shift of
+``M_k = P_k * G_sigma * box * box``; with the PSF's wings (a fraction ``f``
+of the light in a Gaussian of sigma ``sigma_w``), ``(1 - f) M_k(s_eff;
+sigma) + f M_k(s_eff_w; sigma_w)``, each read at its own curvature-corrected
+distance. The curvature term is the mean shift of
 a curved edge over the tangential spread of the pixel's own offset, the PSF
 (variance ``sigma^2``) and the pixel box (variance 1/12 along any
 direction). The profile ``P_k`` is piecewise linear between its samples;
 the Gaussian blur of a piecewise-linear function is exact at the samples
 (:func:`hat_gauss_taps`), the box average is exact through the second
 antiderivative (:func:`cumulate`, :func:`box_model`). The pose ``d``, the
-gain ``g``, the background ``b`` and, when unknown, ``sigma`` are fitted by
-Gauss-Newton with Tukey weights (:func:`refine`). Kernels assume valid
+gain ``g``, the background ``b`` and, when unknown, ``sigma`` and the wings
+are fitted by Gauss-Newton with Tukey weights (:func:`refine`). Kernels assume valid
 C-contiguous float64 input and never validate.
 """
 
@@ -49,13 +52,29 @@ TAPS_SIGMAS = 4.0
 SCALE_ITERATIONS = 3
 
 #: Parameters of the refinement: dv, du, gain, background, PSF sigma, the
-#: amplitude of the profile's optional shape basis, and the background's
-#: slope along the normal (scattered light: a PSF's wings, a glow).
-N_PARAMS = 7
+#: amplitude of the profile's optional shape basis, the background's slope
+#: along the normal (scattered light: a glow), and the PSF's wings: the
+#: fraction of the light in a second, wider Gaussian and its sigma.
+N_PARAMS = 9
 
 #: The blur is computed on merged cells once its sigma spans this many of
 #: them (see :func:`tables`): the taps then stay few whatever the sigma.
 COARSEN_SIGMAS = 3.0
+
+#: The PSF's wide component: its fraction of the light is held in [0, this]
+#: (a halo holding more than half the light would be the PSF, not its
+#: wings) ...
+MAX_WING_FRACTION = 0.5
+#: ... and its sigma at least this many times the core's (a wing as narrow
+#: as the core is the core: the fraction would then be undetermined) ...
+MIN_WING_RATIO = 3.0
+#: ... and at least this (pixels; with no core blur, a wing narrower than
+#: the pixel box is the box's own business).
+MIN_WING_SIGMA_PX = 1.0
+#: ... and at most this (pixels): across a strip of +-3.5 px a wider
+#: Gaussian is a ramp, which the background slope fits, and its fraction
+#: would be undetermined.
+MAX_WING_SIGMA_PX = 10.0
 
 #: Step halvings tried before an iteration is declared stuck.
 MAX_HALVINGS = 8
@@ -204,23 +223,49 @@ def select_pixels(shape_h: int, shape_w: int, verts: np.ndarray, normals: np.nda
     return kk[:m].copy(), ii[:m].copy(), jj[:m].copy()
 
 
+@inline_kernel
+def component(b: np.ndarray, c: np.ndarray, d: np.ndarray, bs: np.ndarray, cs: np.ndarray,
+              ds: np.ndarray, use_shape: bool, k: int, s: float, tau: float, kap: float,
+              sigma: float, t0: float, h: float, wa: float, wb: float, amp: float
+              ) -> tuple[float, float, float, float]:
+    """One Gaussian component's ``M, M', d M / d sigma`` and shape value at a pixel:
+    the profile ``P + amp S`` blurred by ``sigma`` (tables ``b, c, d`` and
+    ``bs, cs, ds``), box-averaged, read at the curvature-corrected distance."""
+    s_eff = s - 0.5 * kap * (tau * tau + (sigma * sigma + 1.0 / 12.0))
+    m0, m1, m2 = box_model(b, c, d, k, s_eff - t0, h, wa, wb)
+    a0 = 0.0
+    if use_shape:
+        a0, a1, a2 = box_model(bs, cs, ds, k, s_eff - t0, h, wa, wb)
+        m0 += amp * a0
+        m1 += amp * a1
+        m2 += amp * a2
+    # heat equation: dM/dsigma = sigma M''; the curvature shift moves with sigma^2
+    return m0, m1, sigma * m2 - kap * sigma * m1, a0
+
+
 @kernel
 def evaluate(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndarray,
              verts: np.ndarray, normals: np.ndarray, curv: np.ndarray,
              b: np.ndarray, c: np.ndarray, d: np.ndarray,
              bs: np.ndarray, cs: np.ndarray, ds: np.ndarray, use_shape: bool,
-             t0: float, h: float, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+             t0: float, h: float,
+             bw: np.ndarray, cw: np.ndarray, dw: np.ndarray,
+             bws: np.ndarray, cws: np.ndarray, dws: np.ndarray, use_wings: bool,
+             tw0: float, hw: float, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Residuals ``obs - model`` and the model's Jacobian.
 
-    Columns: dv, du, gain, background, sigma, shape amplitude. The profile
-    is ``P + a S`` (``S`` the optional shape basis, tables ``bs, cs, ds``).
+    Columns: dv, du, gain, background, sigma, shape amplitude, background
+    slope, wing fraction, wing sigma. The profile is ``P + a S`` (``S`` the
+    optional shape basis, tables ``bs, cs, ds``); the PSF is ``(1 - f)``
+    of a Gaussian of ``sigma`` (tables ``b .. ds``) plus ``f`` of one of the
+    wing sigma (tables ``bw .. dws``, read only when ``use_wings``).
     """
     npx = obs.shape[0]
     r = np.empty(npx)
     jac = np.zeros((npx, N_PARAMS))
     dv0, du0, gain, bg, sigma, amp, slope = (params[0], params[1], params[2], params[3],
                                              params[4], params[5], params[6])
-    spread = sigma * sigma + 1.0 / 12.0
+    frac, sigma_w = params[7], params[8]
     for q in range(npx):
         k = pix_k[q]
         nv, nu = normals[k, 0], normals[k, 1]
@@ -229,14 +274,17 @@ def evaluate(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.nd
         s = ev * nv + eu * nu
         tau = -ev * nu + eu * nv
         kap = curv[k]
-        s_eff = s - 0.5 * kap * (tau * tau + spread)
-        m0, m1, m2 = box_model(b, c, d, k, s_eff - t0, h, abs(nv), abs(nu))
-        a0 = 0.0
-        if use_shape:
-            a0, a1, a2 = box_model(bs, cs, ds, k, s_eff - t0, h, abs(nv), abs(nu))
-            m0 += amp * a0
-            m1 += amp * a1
-            m2 += amp * a2
+        m0, m1, ms, a0 = component(b, c, d, bs, cs, ds, use_shape, k, s, tau, kap, sigma, t0, h,
+                                   abs(nv), abs(nu), amp)
+        if use_wings:
+            w0, w1, ws, aw = component(bw, cw, dw, bws, cws, dws, use_shape, k, s, tau, kap,
+                                       sigma_w, tw0, hw, abs(nv), abs(nu), amp)
+            jac[q, 7] = gain * (w0 - m0)
+            jac[q, 8] = gain * frac * ws
+            m0 = (1.0 - frac) * m0 + frac * w0
+            m1 = (1.0 - frac) * m1 + frac * w1
+            ms = (1.0 - frac) * ms
+            a0 = (1.0 - frac) * a0 + frac * aw
         r[q] = obs[q] - (bg + slope * s + gain * m0)
         # d s_eff / d(dv, du) = -n + kappa tau t, with t = (-nu, nv)
         gv = -nv - kap * tau * nu
@@ -245,8 +293,7 @@ def evaluate(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.nd
         jac[q, 1] = gain * m1 * gu - slope * nu
         jac[q, 2] = m0
         jac[q, 3] = 1.0
-        # heat equation: dM/dsigma = sigma M''; the curvature shift moves with sigma^2
-        jac[q, 4] = gain * (sigma * m2 - kap * sigma * m1)
+        jac[q, 4] = gain * ms
         jac[q, 5] = gain * a0
         jac[q, 6] = s
     return r, jac
@@ -342,31 +389,104 @@ def tables(values: np.ndarray, o0: float, h: float, j0: int, nb: int, sigma: flo
 
 
 @kernel
+def wing_mixed(rows: np.ndarray, o0: float, h: float, frac: float, sigma_extra: float,
+               shift: np.ndarray) -> np.ndarray:
+    """``(1 - frac) P + frac (P * G_extra)(x - shift_k)`` of each row ``P``
+    on its own grid: the profile whose model under the core Gaussian alone
+    is the core-plus-wings one (Gaussians compose; ``shift_k`` is row
+    ``k``'s extra curvature shift of the wider component). ``P * G_extra``
+    is :func:`tables`' blurred row, linearly interpolated (held beyond its ends)."""
+    n, m = rows.shape
+    b, _, _, t0, ht = tables(rows, o0, h, 0, m, sigma_extra)
+    nb = b.shape[1]
+    out = np.empty((n, m))
+    for k in range(n):
+        for j in range(m):
+            wing = b[k, 0]
+            if nb > 1:
+                pos = (o0 + h * j - shift[k] - t0) / ht
+                if pos < 0.0:
+                    pos = 0.0
+                elif pos > nb - 1.0:
+                    pos = nb - 1.0
+                i = int(pos)
+                if i > nb - 2:
+                    i = nb - 2
+                t = pos - i
+                wing = b[k, i] * (1.0 - t) + b[k, i + 1] * t
+            out[k, j] = (1.0 - frac) * rows[k, j] + frac * wing
+    return out
+
+
+@kernel
+def hold_bounds(params: np.ndarray, active: np.ndarray, step: np.ndarray, info: np.ndarray,
+                grad: np.ndarray) -> bool:
+    """Hold the wing parameters that sit on a bound the step pushes past (the
+    fraction at 0 or :data:`MAX_WING_FRACTION`, the wing sigma at its least
+    or :data:`MAX_WING_SIGMA_PX`):
+    their rows of ``info`` and ``grad`` become those of a zero step, in place,
+    so the other parameters' step is solved without them (a step clipped at
+    the bound afterwards would not be a descent direction). True when any
+    was held."""
+    n_act = active.shape[0]
+    least = max(MIN_WING_RATIO * params[4], MIN_WING_SIGMA_PX)
+    held = False
+    for a in range(n_act):
+        ia = active[a]
+        out = ((ia == 7 and ((params[7] <= 0.0 and step[a] < 0.0)
+                             or (params[7] >= MAX_WING_FRACTION and step[a] > 0.0)))
+               or (ia == 8 and ((params[8] <= least and step[a] < 0.0)
+                                or (params[8] >= MAX_WING_SIGMA_PX and step[a] > 0.0))))
+        if out:
+            for e in range(n_act):
+                info[a, e] = 0.0
+                info[e, a] = 0.0
+            info[a, a] = 1.0
+            grad[a] = 0.0
+            held = True
+    return held
+
+
+@kernel
+def all_tables(values: np.ndarray, shape: np.ndarray, o0: float, h: float, j0: int, nb: int,
+               sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                      np.ndarray, float, float]:
+    """:func:`tables` of the profile and of its shape basis (the profile's own when it has none)."""
+    b, c, d, t0, ht = tables(values, o0, h, j0, nb, sigma)
+    if shape.shape[1] > 0:
+        bs, cs, ds, _, _ = tables(shape, o0, h, j0, nb, sigma)
+        return b, c, d, bs, cs, ds, t0, ht
+    return b, c, d, b, c, d, t0, ht
+
+
+@kernel
 def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndarray,
            verts: np.ndarray, normals: np.ndarray, curv: np.ndarray, values: np.ndarray,
            shape: np.ndarray, o0: float, h: float, j0: int, nb: int, params0: np.ndarray,
-           active: np.ndarray, max_iterations: int, tolerance_px: float, tukey_c: float
-           ) -> tuple[np.ndarray, int, bool, np.ndarray, float, float]:
+           active: np.ndarray, use_wings: bool, max_iterations: int, tolerance_px: float,
+           tukey_c: float) -> tuple[np.ndarray, int, bool, np.ndarray, float, float]:
     """Gauss-Newton with Tukey weights on the ``active`` parameters.
 
-    Parameters are ``(dv, du, gain, background, sigma, shape amplitude)``;
-    ``active`` lists the fitted ones (the others are held). ``shape`` is
-    the shape basis, or an empty ``(N, 0)`` array for none. Returns the
-    parameters, the iterations, whether the last full step fell below
-    ``tolerance_px``, the inverse information matrix of the active
-    parameters, the residual scale (1.4826 MAD, floored) and the final
-    robust cost.
+    Parameters are those of :func:`evaluate` (:data:`N_PARAMS`); ``active``
+    lists the fitted ones (the others are held). ``shape`` is the shape
+    basis, or an empty ``(N, 0)`` array for none. ``use_wings`` adds the
+    PSF's wide component (parameters 7 and 8; held at a fraction 0
+    otherwise). The sigmas are held >= 0, the wing fraction in
+    [0, :data:`MAX_WING_FRACTION`] and the wing sigma at least
+    :data:`MIN_WING_RATIO` times the core's and :data:`MIN_WING_SIGMA_PX`,
+    at most :data:`MAX_WING_SIGMA_PX`. Returns the parameters, the
+    iterations, whether the last full step fell below ``tolerance_px``,
+    the inverse information matrix of the active parameters, the residual
+    scale (1.4826 MAD, floored) and the final robust cost.
     """
     n_act = active.shape[0]
     use_shape = shape.shape[1] > 0
     params = params0.copy()
-    b, c, d, t0, ht = tables(values, o0, h, j0, nb, params[4])
-    if use_shape:
-        bs, cs_, ds, _, _ = tables(shape, o0, h, j0, nb, params[4])
-    else:
-        bs, cs_, ds = b, c, d
-    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, b, c, d, bs, cs_, ds,
-                      use_shape, t0, ht, params)
+    tab = all_tables(values, shape, o0, h, j0, nb, params[4])
+    wtab = all_tables(values, shape, o0, h, j0, nb, params[8]) if use_wings else tab
+    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, tab[0], tab[1], tab[2],
+                      tab[3], tab[4], tab[5], use_shape, tab[6], tab[7], wtab[0], wtab[1],
+                      wtab[2], wtab[3], wtab[4], wtab[5], use_wings, wtab[6], wtab[7], params)
     converged = False
     iterations = 0
     info = np.zeros((n_act, n_act))
@@ -396,9 +516,17 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
         for a in range(n_act):
             for e in range(a):
                 info[a, e] = info[e, a]
+            if active[a] == 8 and info[a, a] == 0.0:
+                # the wing sigma at a wing fraction of 0: no pixel depends on it,
+                # so it takes no step instead of making the system singular
+                info[a, a] = 1.0
         step, ok = solve_small(info, grad)
         if not ok:
             break
+        if use_wings and hold_bounds(params, active, step, info, grad):
+            step, ok = solve_small(info, grad)
+            if not ok:
+                break
         full = 0.0
         for a in range(n_act):
             ia = active[a]
@@ -411,20 +539,22 @@ def refine(obs: np.ndarray, pix_k: np.ndarray, pix_v: np.ndarray, pix_u: np.ndar
                 trial[active[a]] += step[a]
             if trial[4] < 0.0:
                 trial[4] = 0.0
+            if use_wings:
+                trial[7] = min(max(trial[7], 0.0), MAX_WING_FRACTION)
+                trial[8] = min(max(trial[8], MIN_WING_RATIO * trial[4], MIN_WING_SIGMA_PX),
+                               MAX_WING_SIGMA_PX)
+            tt = tab
             if trial[4] != params[4]:
-                bt, ct, dt, t0t, htt = tables(values, o0, h, j0, nb, trial[4])
-                if use_shape:
-                    bst, cst, dst, _, _ = tables(shape, o0, h, j0, nb, trial[4])
-                else:
-                    bst, cst, dst = bt, ct, dt
-            else:
-                bt, ct, dt, bst, cst, dst, t0t, htt = b, c, d, bs, cs_, ds, t0, ht
-            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, bt, ct, dt,
-                              bst, cst, dst, use_shape, t0t, htt, trial)
+                tt = all_tables(values, shape, o0, h, j0, nb, trial[4])
+            wt = wtab
+            if use_wings and trial[8] != params[8]:
+                wt = all_tables(values, shape, o0, h, j0, nb, trial[8])
+            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, tt[0], tt[1],
+                              tt[2], tt[3], tt[4], tt[5], use_shape, tt[6], tt[7], wt[0], wt[1],
+                              wt[2], wt[3], wt[4], wt[5], use_wings, wt[6], wt[7], trial)
             if robust_cost(rt, cut) <= cost:
                 params = trial
-                b, c, d, bs, cs_, ds, r, jac = bt, ct, dt, bst, cst, dst, rt, jt
-                t0, ht = t0t, htt
+                tab, wtab, r, jac = tt, wt, rt, jt
                 accepted = True
                 # judged on the full Gauss-Newton step: a halved one is short by construction
                 if full < tolerance_px:

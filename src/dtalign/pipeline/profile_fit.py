@@ -5,11 +5,13 @@ one-sided photometric edge (a limb) lies inside the geometric edge; the
 integer DT adds a one-pixel ripple. After the DT-LM lock this module fits
 the image's own pixels in a strip along each vertex's normal with the
 profile's model (the kernels of ``dtalign._kernels.profile``, specified
-by :mod:`dtalign.reference.profile`): free offset, gain, background and,
-when the profile does not give it, the PSF sigma, with the amplitude of
-the profile's shape basis (a reflectance law's limb darkening) and a
-background slope (scattered light); Gauss-Newton with Tukey weights. The rotation, when fitted by the DT-LM, is held at its value: the
-refinement fits the offset only.
+by :mod:`dtalign.reference.profile`): free offset, gain, background and
+the PSF (a Gaussian core, its sigma when the profile does not give it,
+and wings: a fraction of the light in a wider Gaussian, :data:`FIT_WINGS`),
+with the amplitude of the profile's shape basis (a reflectance law's limb
+darkening) and a background slope (scattered light); Gauss-Newton with
+Tukey weights. The rotation, when fitted by the DT-LM, is held at its
+value: the refinement fits the offset only.
 
 The result, :class:`ProfileRefinement`, says whether the refinement was
 accepted: it is discarded when it did not converge, walked farther than
@@ -42,6 +44,8 @@ __all__ = [
     "TERMINATOR_RECENTRES",
     "RIVAL_AGREEMENT_SIGMAS",
     "SOFT_EDGE_STEP_JUMP",
+    "FIT_WINGS",
+    "MIN_WING_FRACTION",
     "ProfileRefinement",
     "refine_with_profile",
 ]
@@ -117,6 +121,29 @@ SIGMA_TOLERANCE = 1e-3
 #: Starting PSF sigma (pixels) when the profile does not give it.
 SIGMA_START_PX = 0.7
 
+#: Fit the PSF's wings: a fraction of the light in a second, wider Gaussian
+#: (scattered light in the optics), estimated with the PSF on a subset of
+#: about 48 vertices and then held; a core sigma given by the
+#: profile is the core's. Not for a terminator (its start is a scan whose
+#: strips are placed with the core alone; see :ref:`profiles-terminator`).
+FIT_WINGS = True
+
+#: The wings' start: this fraction of the light (a weak halo; not 0, where
+#: the wing sigma would have no gradient) ...
+WING_FRACTION_START = 0.05
+#: ... in a Gaussian of this sigma (pixels; a few pixels, inside the strip
+#: of +-3.5 px, and at least ``MIN_WING_RATIO`` core sigmas) ...
+WING_SIGMA_START_PX = 3.0
+#: ... whose sigma is fitted too (else held at its start).
+FIT_WING_SIGMA = True
+
+#: Wings with less of the light than this are dropped (the full run then
+#: starts as it would without them): ignoring wings moves the edge by about
+#: 0.8 px per unit of their fraction (0.16 px at 20 %, on the rendered
+#: scenes of :ref:`profiles-bias-table`), under 0.004 px here, and folding
+#: them into the profile costs a fraction of the fit.
+MIN_WING_FRACTION = 0.005
+
 #: The PSF sigma is estimated on about this many vertices (every k-th),
 #: then held while the offset is fitted on all of them: the estimate's
 #: cost is then independent of the polyline's length.
@@ -154,6 +181,11 @@ class ProfileRefinement:
         The PSF sigma used (given, or estimated).
     psf_estimated : bool
         True when ``psf_sigma_px`` was estimated.
+    wing_fraction, wing_sigma_px : float
+        The PSF's wings, estimated (:data:`FIT_WINGS`): this fraction of the
+        light in a Gaussian of this sigma, the rest in the core of
+        ``psf_sigma_px``; a fraction of 0 and a sigma of NaN when none
+        were fitted or found.
     iterations : int
         Gauss-Newton iterations (both stages when the sigma was estimated).
     converged : bool
@@ -215,6 +247,8 @@ class ProfileRefinement:
     start_offset_vu: tuple[float, float] | None = None
     rival_offset_vu: tuple[float, float] | None = None
     rival_agrees: bool | None = None
+    wing_fraction: float = 0.0
+    wing_sigma_px: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (a value that is not finite is ``None``, as in
@@ -240,6 +274,7 @@ class ProfileRefinement:
             "rival_offset_vu": (None if self.rival_offset_vu is None
                                 else [num(x) for x in self.rival_offset_vu]),
             "rival_agrees": self.rival_agrees,
+            "wing_fraction": num(self.wing_fraction), "wing_sigma_px": num(self.wing_sigma_px),
         }
 
     @classmethod
@@ -267,6 +302,9 @@ class ProfileRefinement:
             rival_offset_vu=(None if d.get("rival_offset_vu") is None
                              else pair(d["rival_offset_vu"])),
             rival_agrees=d.get("rival_agrees"),
+            # absent from a dict written before the wings were fitted
+            wing_fraction=num(d.get("wing_fraction", 0.0)),
+            wing_sigma_px=num(d.get("wing_sigma_px")),
         )
 
 
@@ -384,7 +422,8 @@ def refine_with_profile(
     # profile whatever its model says, and neither is soft for lacking a step
     soft = profile.edge == "limb" and step_jump < SOFT_EDGE_STEP_JUMP
 
-    params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
+    wings = FIT_WINGS and start is None
+    params = _start(d0, sigma, wings)
     iterations = 0
     if start is not None and not known:
         # a terminator's strips are placed first, with the sigma held at its
@@ -395,15 +434,18 @@ def refine_with_profile(
         if placed[2]:
             pb = pb._replace(d0=(float(placed[0][0]), float(placed[0][1])))
         d0 = pb.d0
-        params = np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0])
-    if not known and pb.verts.shape[0] > 0:
-        params, it_a = _estimate_sigma(pb, params)
+        params = _start(d0, sigma, False)
+    if (wings or not known) and pb.verts.shape[0] > 0:
+        params, it_a = _estimate_psf(pb, params, not known, wings)
         iterations += it_a
     if start is None:
-        out = _run(pb, None, params, False, TOLERANCE_PX)
+        # the PSF is held from here: its wings go into the profile itself, so the
+        # full run costs what it costs without them
+        out = _run(_with_wings(pb, params), None, params, False, TOLERANCE_PX)
     else:
         pb, _, out = _recentred(pb, params)
     p, it, conv, inv, scale, _, npx = out
+    psf = params  # the PSF the full run held (its wings folded into the profile)
     iterations += int(it)
     d0 = pb.d0
     off = (float(p[0]), float(p[1]))
@@ -418,7 +460,8 @@ def refine_with_profile(
         offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
         gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
         shape_amplitude=float(p[5]),
-        psf_sigma_px=float(p[4]),
+        psf_sigma_px=float(p[4]), wing_fraction=float(psf[7]),
+        wing_sigma_px=float(psf[8]) if psf[7] > 0.0 else math.nan,
         psf_estimated=not known, iterations=iterations, converged=bool(conv), walk_px=walk,
         n_pixels=int(npx), residual_scale=float(scale),
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
@@ -427,16 +470,80 @@ def refine_with_profile(
     )
 
 
-def _estimate_sigma(pb: _Problem, params: FloatArray) -> tuple[FloatArray, int]:
-    """The PSF sigma estimated on a subset of the vertices with the shape free
-    (a wrong law would bias it), then held: the start parameters of the full
-    run, and the iterations spent."""
+def _start(d0: tuple[float, float], sigma: float, wings: bool) -> FloatArray:
+    """The start parameters (see ``dtalign._kernels.profile.N_PARAMS``): the
+    offset ``d0``, the gain and background to be solved for, the sigma, and
+    the wings' start when ``wings`` (else none)."""
+    frac = WING_FRACTION_START if wings else 0.0
+    kp = loop.profile_kernels
+    return np.array([d0[0], d0[1], 0.0, 0.0, sigma, 0.0, 0.0, frac,
+                     max(WING_SIGMA_START_PX, kp.MIN_WING_RATIO * sigma, kp.MIN_WING_SIGMA_PX)])
+
+
+def _estimate_psf(pb: _Problem, params: FloatArray, fit_sigma: bool, wings: bool
+                  ) -> tuple[FloatArray, int]:
+    """The PSF estimated on a subset of the vertices with the shape free (a
+    wrong law would bias it), then held: its sigma when ``fit_sigma`` (a
+    single Gaussian first), then its wings when ``wings`` (from the single
+    Gaussian's fit: started from a narrow core, a core and wings can mimic
+    a wider Gaussian inside the strips, and do). Returns the start
+    parameters of the full run and the iterations spent. With wings found,
+    the full run starts as one with a given PSF does (its gain and
+    background solved at the DT lock: a start from the stage's were slow to
+    converge on a surface of the wrong law); with none, as it would without
+    the wings' stage."""
     stride = max(1, pb.verts.shape[0] // SIGMA_VERTICES)
     idx = np.arange(0, pb.verts.shape[0], stride, dtype=np.int64)
-    p_a, it_a, _, _, _, _, _ = _run(pb, idx, params, True, SIGMA_TOLERANCE)
-    d0 = pb.d0
-    return np.array([d0[0], d0[1], p_a[2], p_a[3], max(float(p_a[4]), 0.0), p_a[5],
-                     p_a[6]]), int(it_a)
+    p_a = params
+    iterations = 0
+    if fit_sigma:
+        p_a, it_a, _, _, _, _, _ = _run(pb, idx, params, True, SIGMA_TOLERANCE)
+        p_a = np.array(p_a, dtype=np.float64)
+        p_a[4] = max(float(p_a[4]), 0.0)
+        iterations += int(it_a)
+    out = np.array(p_a, dtype=np.float64)
+    if wings:
+        start = np.array(p_a, dtype=np.float64)
+        start[7] = params[7]
+        start[8] = max(float(params[8]), loop.profile_kernels.MIN_WING_RATIO * start[4])
+        # a sigma of 0 is a stationary point of the model (the blur's change
+        # is second order): the wings are then fitted with the sigma held
+        p_b, it_b, _, _, _, _, _ = _run(pb, idx, start, fit_sigma and start[4] > 0.0,
+                                        SIGMA_TOLERANCE, wings=True, fit_wings=True)
+        iterations += int(it_b)
+        if p_b[7] > MIN_WING_FRACTION:
+            out = np.array(params, dtype=np.float64)
+            out[4], out[7], out[8] = max(float(p_b[4]), 0.0), float(p_b[7]), float(p_b[8])
+        else:  # none found: the full run starts as it would without the wings' stage
+            out[7] = 0.0
+    out[0], out[1] = pb.d0
+    return out, iterations
+
+
+def _with_wings(pb: _Problem, params: FloatArray) -> _Problem:
+    """``pb`` with a profile whose model under the core Gaussian alone is the
+    model under the core and the wings of ``params`` (itself when it has
+    none): Gaussians compose, so the wing component ``f (P * G_w)`` is
+    ``f (P * G_e) * G_core`` with ``e^2 = w^2 - core^2``; the profile
+    becomes ``(1 - f) P + f (P * G_e)`` (the kernels' ``wing_mixed``), the
+    second term read at the wing's extra curvature shift
+    ``kappa (w^2 - core^2) / 2`` (the model reads each component at
+    ``s - kappa (tau^2 + sigma^2 + 1/12) / 2``). ``P * G_e`` is linearly
+    interpolated from the kernels' blurred table; it is at least
+    ``MIN_WING_RATIO`` core sigmas wide, so the interpolation's error is
+    far below the profile's own."""
+    frac, sigma, sigma_w = float(params[7]), float(params[4]), float(params[8])
+    if not frac > 0.0:
+        return pb
+    extra2 = sigma_w * sigma_w - sigma * sigma
+    shift = np.ascontiguousarray((0.5 * extra2) * pb.curv)
+
+    def mixed(rows: FloatArray) -> FloatArray:
+        return np.asarray(pb.kernels.wing_mixed(rows, pb.o0, pb.h, frac, math.sqrt(extra2),
+                                                shift))
+
+    shape = mixed(pb.shape) if pb.use_shape else pb.shape
+    return pb._replace(values=mixed(pb.values), shape=shape)
 
 
 def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, Any]:
@@ -456,7 +563,7 @@ def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, 
         if math.hypot(off[0] - pb.d0[0], off[1] - pb.d0[1]) <= MAX_WALK_PX or not conv:
             break
         pb = pb._replace(d0=off)
-        params = np.array([off[0], off[1], 0.0, 0.0, float(p[4]), 0.0, 0.0])
+        params = _start(off, float(p[4]), False)
     return pb, params, (out[0], total, *out[2:])
 
 
@@ -486,7 +593,8 @@ def _scan_start(pb: _Problem, sigma: float) -> tuple[float, float]:
         obs = np.ascontiguousarray(pb.image[ii, jj])
         r, _ = k.evaluate(obs, kk, ii.astype(np.float64), jj.astype(np.float64), pb.verts,
                           pb.normals, pb.curv, b, c, d, b, c, d, False, t0, ht,
-                          np.array([off[0], off[1], 1.0, 0.0, sigma, 0.0, 0.0]))
+                          b, c, d, b, c, d, False, t0, ht,
+                          np.array([off[0], off[1], 1.0, 0.0, sigma, 0.0, 0.0, 0.0, 0.0]))
         model = obs - r
         sm, so = float(model.std()), float(obs.std())
         if sm > 0.0 and so > 0.0:
@@ -547,9 +655,11 @@ def _problem(image: FloatArray, profile: EdgeProfile, vertices_vu: ArrayLike,
 
 
 def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_sigma: bool,
-         tolerance: float) -> Any:
+         tolerance: float, *, wings: bool = False, fit_wings: bool = False) -> Any:
     """The kernels' refinement over the vertices ``idx`` (all when None) from
-    ``params``: ``(params, iterations, converged, inverse, scale, _, n_pixels)``."""
+    ``params``, with the PSF's wings when ``wings`` (fitted when
+    ``fit_wings``, else held): ``(params, iterations, converged, inverse,
+    scale, _, n_pixels)``."""
     k = pb.kernels
     arrays: tuple[FloatArray, ...] = (pb.verts, pb.normals, pb.curv, pb.values, pb.shape, pb.tau)
     if idx is not None:
@@ -561,19 +671,24 @@ def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_si
     obs = np.ascontiguousarray(pb.image[ii, jj])
     pv = ii.astype(np.float64)
     pu = jj.astype(np.float64)
+    params = params.copy()
+    if not wings:
+        params[7] = 0.0
     if params[2] == 0.0:  # the linear gain and background at the start
         b, c, d, t0, ht = k.tables(val, pb.o0, pb.h, pb.j0, pb.nb, params[4])
         r, _ = k.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False, t0, ht,
-                          np.array([pb.d0[0], pb.d0[1], 1.0, 0.0, params[4], 0.0, 0.0]))
+                          b, c, d, b, c, d, False, t0, ht,
+                          np.array([pb.d0[0], pb.d0[1], 1.0, 0.0, params[4], 0.0, 0.0, 0.0, 0.0]))
         model = obs - r
         a = np.stack([model, np.ones_like(model)], axis=1)
         sol = np.linalg.lstsq(a, obs, rcond=None)[0]
-        params = params.copy()
         params[2], params[3] = float(sol[0]), float(sol[1])
     active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if pb.use_shape else [])
-              + ([6] if FIT_SLOPE else []))
+              + ([6] if FIT_SLOPE else [])
+              + ([7] + ([8] if FIT_WING_SIGMA else []) if wings and fit_wings else []))
     out = k.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, pb.o0, pb.h, pb.j0, pb.nb, params,
-                   np.asarray(active, dtype=np.int64), MAX_ITERATIONS, tolerance, TUKEY_C)
+                   np.asarray(active, dtype=np.int64), bool(wings), MAX_ITERATIONS, tolerance,
+                   TUKEY_C)
     return (*out, obs.shape[0])
 
 
@@ -625,7 +740,9 @@ def profile_samples(
     verts = np.ascontiguousarray(vertices_vu, dtype=np.float64)
     r = refinement
     params = np.array([r.offset_vu[0], r.offset_vu[1], r.gain, r.background, r.psf_sigma_px,
-                       r.shape_amplitude, r.background_slope])
+                       r.shape_amplitude, r.background_slope, r.wing_fraction,
+                       r.wing_sigma_px if r.wing_fraction > 0.0 else 0.0])
+    wings = r.wing_fraction > 0.0
     h = profile.step_px
     o0 = float(profile.offsets_px[0])
     reach = HALF_WIDTH_PX + TABLE_MARGIN_PX
@@ -641,23 +758,25 @@ def profile_samples(
         val = np.ascontiguousarray(profile.values[sel])
         shp = (np.ascontiguousarray(profile.shape_values[sel]) if profile.shape_values is not None
                else np.zeros((1, 0)))
-        b, c, d, t0, ht = kernels.tables(val, o0, h, j0, j1 - j0 + 1, r.psf_sigma_px)
-        bs, cs, ds = kernels.tables(shp, o0, h, j0, j1 - j0 + 1, r.psf_sigma_px)[:3] if (
-            shp.shape[1]) else (b, c, d)
+        tab = kernels.all_tables(val, shp, o0, h, j0, j1 - j0 + 1, r.psf_sigma_px)
+        wtab = (kernels.all_tables(val, shp, o0, h, j0, j1 - j0 + 1, float(params[8]))
+                if wings else tab)
         kk, ii, jj = kernels.select_pixels(img.shape[0], img.shape[1],
                                            np.ascontiguousarray(v + np.asarray(r.offset_vu)),
                                            nrm, np.ascontiguousarray(tau[sel]), HALF_WIDTH_PX)
         pv, pu = ii.astype(np.float64), jj.astype(np.float64)
         obs = np.ascontiguousarray(img[ii, jj])
-        rr, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, bs, cs, ds,
-                                 shp.shape[1] > 0, t0, ht, params)
+        use_shape = shp.shape[1] > 0
+        rr, _ = kernels.evaluate(obs, kk, pv, pu, v, nrm, cv, *tab[:6], use_shape, tab[6], tab[7],
+                                 *wtab[:6], wings, wtab[6], wtab[7], params)
         s_px = (pv - v[0, 0] - r.offset_vu[0]) * nrm[0, 0] + (pu - v[0, 1] - r.offset_vu[1]) * nrm[0, 1]
         ms = np.linspace(-HALF_WIDTH_PX, HALF_WIDTH_PX, n_model)
         mv = v[0, 0] + r.offset_vu[0] + ms * nrm[0, 0]
         mu = v[0, 1] + r.offset_vu[1] + ms * nrm[0, 1]
         zeros = np.zeros(n_model)
         model, _ = kernels.evaluate(zeros, np.zeros(n_model, dtype=np.int64), mv, mu, v, nrm, cv,
-                                    b, c, d, bs, cs, ds, shp.shape[1] > 0, t0, ht, params)
+                                    *tab[:6], use_shape, tab[6], tab[7], *wtab[:6], wings,
+                                    wtab[6], wtab[7], params)
         dt_shift = float((np.asarray(r.dt_offset_vu) - np.asarray(r.offset_vu)) @ nrm[0])
         out.append({"s": s_px, "value": obs, "model_s": ms, "model": -model,
                     "residual": rr, "dt_shift": np.asarray(dt_shift)})

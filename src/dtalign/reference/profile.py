@@ -16,7 +16,11 @@ from scipy.special import erf
 from .._kernels.profile import (
     COARSEN_SIGMAS,
     MAX_HALVINGS,
+    MAX_WING_FRACTION,
+    MAX_WING_SIGMA_PX,
     MIN_BOX_WIDTH,
+    MIN_WING_RATIO,
+    MIN_WING_SIGMA_PX,
     SCALE_FLOOR,
     SCALE_ITERATIONS,
     TAPS_SIGMAS,
@@ -125,29 +129,73 @@ def select_pixels(shape_h: int, shape_w: int, verts: FloatArray, normals: FloatA
             np.concatenate(jj).astype(np.int64))
 
 
+def _component(b: FloatArray, c: FloatArray, d: FloatArray, bs: FloatArray, cs: FloatArray,
+               ds: FloatArray, use_shape: bool, k: np.ndarray, s: FloatArray, tau: FloatArray,
+               kap: FloatArray, sigma: float, t0: float, h: float, wa: FloatArray,
+               wb: FloatArray, amp: float) -> tuple[FloatArray, ...]:
+    s_eff = s - 0.5 * kap * (tau * tau + (sigma * sigma + 1.0 / 12.0))
+    m0, m1, m2 = _box_model(b, c, d, k, s_eff - t0, h, wa, wb)
+    a0 = np.zeros_like(m0)
+    if use_shape:
+        a0, a1, a2 = _box_model(bs, cs, ds, k, s_eff - t0, h, wa, wb)
+        m0, m1, m2 = m0 + amp * a0, m1 + amp * a1, m2 + amp * a2
+    return m0, m1, sigma * m2 - kap * sigma * m1, a0
+
+
 def evaluate(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatArray,
              verts: FloatArray, normals: FloatArray, curv: FloatArray, b: FloatArray,
              c: FloatArray, d: FloatArray, bs: FloatArray, cs: FloatArray, ds: FloatArray,
-             use_shape: bool, t0: float, h: float, params: FloatArray
-             ) -> tuple[FloatArray, FloatArray]:
-    dv0, du0, gain, bg, sigma, amp, slope = params
+             use_shape: bool, t0: float, h: float, bw: FloatArray, cw: FloatArray,
+             dw: FloatArray, bws: FloatArray, cws: FloatArray, dws: FloatArray, use_wings: bool,
+             tw0: float, hw: float, params: FloatArray) -> tuple[FloatArray, FloatArray]:
+    dv0, du0, gain, bg, sigma, amp, slope, frac, sigma_w = params
     nv, nu = normals[pix_k, 0], normals[pix_k, 1]
     ev = pix_v - verts[pix_k, 0] - dv0
     eu = pix_u - verts[pix_k, 1] - du0
     s = ev * nv + eu * nu
     tau = -ev * nu + eu * nv
     kap = curv[pix_k]
-    s_eff = s - 0.5 * kap * (tau * tau + sigma * sigma + 1.0 / 12.0)
-    m0, m1, m2 = _box_model(b, c, d, pix_k, s_eff - t0, h, np.abs(nv), np.abs(nu))
-    a0 = np.zeros_like(m0)
-    if use_shape:
-        a0, a1, a2 = _box_model(bs, cs, ds, pix_k, s_eff - t0, h, np.abs(nv), np.abs(nu))
-        m0, m1, m2 = m0 + amp * a0, m1 + amp * a1, m2 + amp * a2
+    wa, wb = np.abs(nv), np.abs(nu)
+    m0, m1, ms, a0 = _component(b, c, d, bs, cs, ds, use_shape, pix_k, s, tau, kap, sigma, t0,
+                                h, wa, wb, amp)
+    jf = np.zeros_like(m0)
+    jw = np.zeros_like(m0)
+    if use_wings:
+        w0, w1, ws, aw = _component(bw, cw, dw, bws, cws, dws, use_shape, pix_k, s, tau, kap,
+                                    sigma_w, tw0, hw, wa, wb, amp)
+        jf, jw = gain * (w0 - m0), gain * frac * ws
+        m0 = (1.0 - frac) * m0 + frac * w0
+        m1 = (1.0 - frac) * m1 + frac * w1
+        ms = (1.0 - frac) * ms
+        a0 = (1.0 - frac) * a0 + frac * aw
     r = obs - (bg + slope * s + gain * m0)
     cols = [gain * m1 * (-nv - kap * tau * nu) - slope * nv,
             gain * m1 * (-nu + kap * tau * nv) - slope * nu, m0, np.ones_like(m0),
-            gain * (sigma * m2 - kap * sigma * m1), gain * a0, s]
+            gain * ms, gain * a0, s, jf, jw]
     return r, np.stack(cols, axis=1)
+
+
+def wing_mixed(rows: FloatArray, o0: float, h: float, frac: float, sigma_extra: float,
+               shift: FloatArray) -> FloatArray:
+    m = rows.shape[1]
+    b, _, _, t0, ht = tables(rows, o0, h, 0, m, sigma_extra)
+    nb = b.shape[1]
+    if nb == 1:
+        wing = np.repeat(b[:, :1], m, axis=1)
+    else:
+        pos = np.clip((o0 + h * np.arange(m)[None, :] - shift[:, None] - t0) / ht, 0.0, nb - 1.0)
+        i = np.minimum(pos.astype(np.int64), nb - 2)
+        t = pos - i
+        wing = (np.take_along_axis(b, i, axis=1) * (1.0 - t)
+                + np.take_along_axis(b, i + 1, axis=1) * t)
+    return np.asarray((1.0 - frac) * rows + frac * wing)
+
+
+def all_tables(values: FloatArray, shape: FloatArray, o0: float, h: float, j0: int, nb: int,
+               sigma: float) -> tuple[Any, ...]:
+    t = tables(values, o0, h, j0, nb, sigma)
+    u = tables(shape, o0, h, j0, nb, sigma) if shape.shape[1] > 0 else t
+    return (t[0], t[1], t[2], u[0], u[1], u[2], t[3], t[4])
 
 
 def _rho(x: FloatArray) -> FloatArray:
@@ -157,19 +205,20 @@ def _rho(x: FloatArray) -> FloatArray:
 def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatArray,
            verts: FloatArray, normals: FloatArray, curv: FloatArray, values: FloatArray,
            shape: FloatArray, o0: float, h: float, j0: int, nb: int, params0: FloatArray,
-           active: np.ndarray, max_iterations: int, tolerance_px: float, tukey_c: float
-           ) -> tuple[FloatArray, int, bool, FloatArray, float, float]:
+           active: np.ndarray, use_wings: bool, max_iterations: int, tolerance_px: float,
+           tukey_c: float) -> tuple[FloatArray, int, bool, FloatArray, float, float]:
     use_shape = shape.shape[1] > 0
-
-    def both(sigma: float) -> tuple[Any, ...]:
-        t = tables(values, o0, h, j0, nb, sigma)
-        u = tables(shape, o0, h, j0, nb, sigma) if use_shape else t
-        return (t[0], t[1], t[2], u[0], u[1], u[2], t[3], t[4])
-
     params = params0.copy()
-    tab = both(params[4])
-    r, jac = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, tab[0], tab[1], tab[2],
-                      tab[3], tab[4], tab[5], use_shape, tab[6], tab[7], params)
+    tab = all_tables(values, shape, o0, h, j0, nb, params[4])
+    wtab = all_tables(values, shape, o0, h, j0, nb, params[8]) if use_wings else tab
+
+    def residuals(p: FloatArray, t: tuple[Any, ...], w: tuple[Any, ...]
+                  ) -> tuple[FloatArray, FloatArray]:
+        return evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, t[0], t[1], t[2], t[3],
+                        t[4], t[5], use_shape, t[6], t[7], w[0], w[1], w[2], w[3], w[4], w[5],
+                        use_wings, w[6], w[7], p)
+
+    r, jac = residuals(params, tab, wtab)
     converged, iterations, scale, cost = False, 0, 0.0, 0.0
     n_act = active.shape[0]
     info = np.zeros((n_act, n_act))
@@ -185,8 +234,23 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
         ja = jac[:, active]
         info = (ja * w[:, None]).T @ ja
         grad = (ja * w[:, None]).T @ r
+        free = (active == 8) & (np.diag(info) == 0.0)
+        info[free, free] = 1.0
         try:
             step = np.linalg.solve(info, grad)
+            if use_wings:
+                least = max(MIN_WING_RATIO * params[4], MIN_WING_SIGMA_PX)
+                f = params[7]
+                out = (((active == 7) & (((f <= 0.0) & (step < 0.0))
+                                         | ((f >= MAX_WING_FRACTION) & (step > 0.0))))
+                       | ((active == 8) & (((params[8] <= least) & (step < 0.0))
+                                          | ((params[8] >= MAX_WING_SIGMA_PX) & (step > 0.0)))))
+                if out.any():
+                    info[out, :] = 0.0
+                    info[:, out] = 0.0
+                    info[out, out] = 1.0
+                    grad[out] = 0.0
+                    step = np.linalg.solve(info, grad)
         except np.linalg.LinAlgError:
             break
         full = float(np.abs(step[np.isin(active, (0, 1, 4))]).max())
@@ -195,11 +259,16 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
             trial = params.copy()
             trial[active] += step
             trial[4] = max(trial[4], 0.0)
-            tt = both(trial[4]) if trial[4] != params[4] else tab
-            rt, jt = evaluate(obs, pix_k, pix_v, pix_u, verts, normals, curv, tt[0], tt[1],
-                              tt[2], tt[3], tt[4], tt[5], use_shape, tt[6], tt[7], trial)
+            if use_wings:
+                trial[7] = min(max(trial[7], 0.0), MAX_WING_FRACTION)
+                trial[8] = min(max(trial[8], MIN_WING_RATIO * trial[4], MIN_WING_SIGMA_PX),
+                               MAX_WING_SIGMA_PX)
+            tt = all_tables(values, shape, o0, h, j0, nb, trial[4]) if trial[4] != params[4] else tab
+            wt = (all_tables(values, shape, o0, h, j0, nb, trial[8])
+                  if use_wings and trial[8] != params[8] else wtab)
+            rt, jt = residuals(trial, tt, wt)
             if float(_rho(rt / cut).sum()) <= cost:
-                params, tab, r, jac = trial, tt, rt, jt
+                params, tab, wtab, r, jac = trial, tt, wt, rt, jt
                 accepted = True
                 converged = full < tolerance_px
                 break
