@@ -422,8 +422,7 @@ def refine_with_profile(
     # profile whatever its model says, and neither is soft for lacking a step
     soft = profile.edge == "limb" and step_jump < SOFT_EDGE_STEP_JUMP
 
-    wings = FIT_WINGS and start is None
-    params = _start(d0, sigma, wings)
+    params = _start(d0, sigma, wings := FIT_WINGS and start is None)
     iterations = 0
     if start is not None and not known:
         # a terminator's strips are placed first, with the sigma held at its
@@ -439,13 +438,10 @@ def refine_with_profile(
         params, it_a = _estimate_psf(pb, params, not known, wings)
         iterations += it_a
     if start is None:
-        # the PSF is held from here: its wings go into the profile itself, so the
-        # full run costs what it costs without them
-        out = _run(_with_wings(pb, params), None, params, False, TOLERANCE_PX)
+        out = _run(_with_wings(pb, params), None, params, False, TOLERANCE_PX)  # PSF held
     else:
         pb, _, out = _recentred(pb, params)
     p, it, conv, inv, scale, _, npx = out
-    psf = params  # the PSF the full run held (its wings folded into the profile)
     iterations += int(it)
     d0 = pb.d0
     off = (float(p[0]), float(p[1]))
@@ -460,8 +456,8 @@ def refine_with_profile(
         offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
         gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
         shape_amplitude=float(p[5]),
-        psf_sigma_px=float(p[4]), wing_fraction=float(psf[7]),
-        wing_sigma_px=float(psf[8]) if psf[7] > 0.0 else math.nan,
+        psf_sigma_px=float(p[4]), wing_fraction=float(params[7]),
+        wing_sigma_px=float(params[8]) if params[7] > 0.0 else math.nan,
         psf_estimated=not known, iterations=iterations, converged=bool(conv), walk_px=walk,
         n_pixels=int(npx), residual_scale=float(scale),
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
