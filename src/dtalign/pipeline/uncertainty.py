@@ -52,6 +52,7 @@ from numpy.typing import NDArray
 
 from ..api.constants import JACOBIAN_TRANSLATION_EPS_PX
 from ..api.sampling import sample_dt_bilinear
+from .products import _readonly
 
 __all__ = [
     "CORRELATION_LENGTH_PX",
@@ -334,7 +335,7 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
     floor = floor_px(source, fit.profile)
     if fit.lm.degenerate:
         full = np.full((p, p), np.inf)
-        return PoseUncertainty(_frozen(full), _frozen(full), floor, source)
+        return PoseUncertainty(_readonly(full), _readonly(full), floor, source)
     jac = np.asarray(found.jacobian)
     inlier = w >= INLIER_WEIGHT_FRACTION * float(w.max())
     w_in = np.where(inlier, w, 0.0)
@@ -350,17 +351,6 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
         noise[:2, :2] = prof if np.isfinite(prof).all() else np.inf
     if not np.isfinite(noise).all():
         full = np.full((p, p), np.inf)
-        return PoseUncertainty(_frozen(full), _frozen(noise), floor, source)
+        return PoseUncertainty(_readonly(full), _readonly(noise), floor, source)
     cov = noise + floor_covariance(jac, w, floor)
-    return PoseUncertainty(_frozen(cov), _frozen(noise), floor, source)
-
-
-def _readonly(a: FloatArray) -> FloatArray:
-    a.flags.writeable = False
-    return a
-
-
-def _frozen(a: Any) -> FloatArray:
-    out = np.array(a, dtype=np.float64)
-    out.flags.writeable = False
-    return out
+    return PoseUncertainty(_readonly(cov), _readonly(noise), floor, source)
