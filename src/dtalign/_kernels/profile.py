@@ -109,21 +109,32 @@ def hat_gauss_taps(sigma: float, h: float) -> np.ndarray:
 
 @kernel
 def blur_rows(values: np.ndarray, j0: int, nb: int, taps: np.ndarray) -> np.ndarray:
-    """Rows of ``values`` convolved with ``taps`` at columns ``j0 .. j0 + nb - 1`` (ends held)."""
+    """Rows of ``values`` convolved with ``taps`` at columns ``j0 .. j0 + nb - 1`` (ends held).
+
+    Each row is first copied with its ends held over the taps' reach, so the
+    inner loop runs over the output columns without a bounds test: every
+    output sums its taps in the same order as a tap-inner loop (the same
+    bits), and the columns, independent, vectorise.
+    """
     n, m = values.shape
-    half = (taps.shape[0] - 1) // 2
-    out = np.empty((n, nb))
+    nt = taps.shape[0]
+    half = (nt - 1) // 2
+    out = np.zeros((n, nb))
+    ext = np.empty(nb + nt - 1)
     for k in range(n):
-        for i in range(nb):
-            acc = 0.0
-            for t in range(taps.shape[0]):
-                j = j0 + i + half - t
-                if j < 0:
-                    j = 0
-                elif j > m - 1:
-                    j = m - 1
-                acc += values[k, j] * taps[t]
-            out[k, i] = acc
+        for x in range(nb + nt - 1):
+            j = j0 - half + x
+            if j < 0:
+                j = 0
+            elif j > m - 1:
+                j = m - 1
+            ext[x] = values[k, j]
+        row = out[k]
+        for t in range(nt):
+            tap = taps[t]
+            src = ext[nt - 1 - t : nt - 1 - t + nb]
+            for i in range(nb):  # 1-D views: the loop vectorises
+                row[i] += src[i] * tap
     return out
 
 
@@ -371,19 +382,25 @@ def tables(values: np.ndarray, o0: float, h: float, j0: int, nb: int, sigma: flo
         return b, c, d, o0 + j0 * h, h
     n, m = values.shape
     mc = m // f
-    coarse = np.empty((n, mc))
-    for k in range(n):
-        for jc in range(mc):
-            acc = 0.0
-            for t in range(f):
-                acc += values[k, jc * f + t]
-            coarse[k, jc] = acc / f
     hc = f * h
     oc0 = o0 + 0.5 * (f - 1) * h
     jc0 = j0 // f
     jc1 = min(mc - 1, (j0 + nb - 1) // f + 1)
     s2 = sigma * sigma - 0.25 * (hc * hc - h * h)
-    b = blur_rows(coarse, jc0, jc1 - jc0 + 1, hat_gauss_taps(math.sqrt(max(s2, 0.0)), hc))
+    taps = hat_gauss_taps(math.sqrt(max(s2, 0.0)), hc)
+    # only the merged cells the taps reach (a clamped read is to cell 0 or
+    # mc - 1, which the range then holds): the same sums as merging all
+    half = (taps.shape[0] - 1) // 2
+    lo = max(0, jc0 - half)
+    hi = min(mc - 1, jc1 + half)
+    coarse = np.empty((n, hi - lo + 1))
+    for k in range(n):
+        for jc in range(lo, hi + 1):
+            acc = 0.0
+            for t in range(f):
+                acc += values[k, jc * f + t]
+            coarse[k, jc - lo] = acc / f
+    b = blur_rows(coarse, jc0 - lo, jc1 - jc0 + 1, taps)
     c, d = cumulate(b, hc)
     return b, c, d, oc0 + jc0 * hc, hc
 
