@@ -81,7 +81,7 @@ SCRIPT = textwrap.dedent(
     scene = scenes.navigation_scene(shape=(size, size), radius=size / 4, n_vertices=40,
                                     offset_vu=(2.4, -1.2), search_window=W[0])
     products = prepare_image(scene.image, scene.noise_sigma)
-    polys = list(scene.polylines) * (4 if SMALL else 40)
+    polys = list(scene.polylines) * (4 if SMALL else 20)
     serial = [fit_polyline_products(products, p.vertices_vu, p.normals_vu, p.sigmas,
                                     search_window_vu=W) for p in polys]
     images = [scenes.navigation_scene(shape=(size, size), radius=size / 4, n_vertices=40,
