@@ -42,6 +42,8 @@ __all__ = [
     "SCAN_LIT_PX",
     "SCAN_STEP_PX",
     "TERMINATOR_RECENTRES",
+    "TERMINATOR_CENTRED_PX",
+    "TERMINATOR_FREE_SIGMA",
     "RIVAL_AGREEMENT_SIGMAS",
     "SOFT_EDGE_STEP_JUMP",
     "FIT_WINGS",
@@ -78,12 +80,21 @@ SCAN_LIT_PX = 4.0
 #: the best three.
 SCAN_STEP_PX = 0.5
 
-#: A terminator's fit whose walk from its start exceeds :data:`MAX_WALK_PX`
-#: (the scan places it along the mean normal only: at high phase the DT
-#: lock is also off across it) is run again from where it went, with the
-#: strips centred there, at most this many times in all; the walk limit
-#: holds for the last run.
-TERMINATOR_RECENTRES = 4
+#: A terminator's fit that lands more than :data:`TERMINATOR_CENTRED_PX`
+#: from its strips' centre (the scan places the start along the mean normal
+#: only: at high phase the DT lock is also off across it) is run again from
+#: where it went, with the strips centred there, at most this many times in
+#: all; the walk limit :data:`MAX_WALK_PX` holds for the last run.
+TERMINATOR_RECENTRES = 6
+
+#: ... until it lands within this of their centre, pixels: a kink off the
+#: strips' centre leaves one side of it short (1.5 px of the 3.5 px
+#: half-width at a 2 px walk), and the dark side is what tells the kink's
+#: position from the gain and background; the fits more than 1 px off on
+#: the rendered terminators (:ref:`profiles-terminator`) stopped 0.6-1.1 px
+#: from their strips' centre. A tenth of the half-width, below which a
+#: further run moves the fit by less than the noise does.
+TERMINATOR_CENTRED_PX = 0.3
 
 #: An accepted refinement of a fit whose DT stage found an ambiguous rival
 #: basin is run again from the rival's DT-LM pose; when it lands within
@@ -105,12 +116,28 @@ TABLE_MARGIN_PX = 2.5
 MAX_ITERATIONS = 50
 TOLERANCE_PX = 1e-4
 
+#: A terminator's PSF sigma, when the profile does not give it, is fitted
+#: once more with the offset on every vertex after the strips are placed
+#: (:func:`refine_with_profile`), not held at its estimate on
+#: :data:`SIGMA_VERTICES` vertices as a limb's is: a kink's blur only
+#: rounds its toe, which a shift of the kink does too, so the offset moves
+#: with the sigma (0.4-0.8 px per 0.5 px of sigma on the rendered
+#: terminators of :ref:`profiles-terminator`), and on the fits more than
+#: 1 px off the subset's sigma was 0.9-1.6 px too wide, where a narrower
+#: one fitted all the pixels better. Its covariance then includes the
+#: sigma's uncertainty.
+TERMINATOR_FREE_SIGMA = True
+
 #: Tukey cutoff of the refinement, in residual scales (the 95 %-efficient value).
 TUKEY_C = 4.685
 
 #: Fit a background slope along the normals: scattered light (a PSF's
 #: wings, a glow around a bright disc) is a ramp across the strip, which a
-#: flat background would hand to the edge's position.
+#: flat background would hand to the edge's position. Not for a terminator:
+#: its lit side is itself a ramp, so a background ramp trades with the gain
+#: and moves the kink (only the strips' dark half tells them apart); on the
+#: rendered terminators the fits more than 1 px off had fitted a slope and
+#: a gain of a third to two thirds of the albedo (:ref:`profiles-terminator`).
 FIT_SLOPE = True
 
 
@@ -441,6 +468,18 @@ def refine_with_profile(
         out = _run(_with_wings(pb, params), None, params, False, TOLERANCE_PX)  # PSF held
     else:
         pb, _, out = _recentred(pb, params)
+        if TERMINATOR_FREE_SIGMA and not known and bool(out[2]):
+            # the blur trades with a kink's position (TERMINATOR_FREE_SIGMA):
+            # the last run again with the sigma free on every vertex
+            it_held = int(out[1])
+            out = _run(pb, None, np.array(out[0], dtype=np.float64), True, TOLERANCE_PX)
+            it_held += int(out[1])
+            if not bool(out[2]) and not float(out[0][4]) > 0.0:
+                # it stopped at a sigma of 0, a stationary point of the model
+                # (the blur's change is second order): held there
+                out = _run(pb, None, np.array(out[0], dtype=np.float64), False, TOLERANCE_PX)
+                it_held += int(out[1])
+            out = (out[0], it_held, *out[2:])
     p, it, conv, inv, scale, _, npx = out
     iterations += int(it)
     d0 = pb.d0
@@ -544,10 +583,10 @@ def _with_wings(pb: _Problem, params: FloatArray) -> _Problem:
 
 def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, Any]:
     """A terminator's offset fit from ``params`` (the sigma held): run again
-    with the strips centred where it went while it walks more than
-    :data:`MAX_WALK_PX` (the scan places it along the mean normal only; at
-    high phase the DT lock is off across it too), at most
-    :data:`TERMINATOR_RECENTRES` runs. Returns the last run's problem (its
+    with the strips centred where it went while it lands more than
+    :data:`TERMINATOR_CENTRED_PX` from their centre (the scan places it
+    along the mean normal only; at high phase the DT lock is off across it
+    too), at most :data:`TERMINATOR_RECENTRES` runs. Returns the last run's problem (its
     strips' centre ``d0``), its start parameters and its :func:`_run`
     output with the iterations of every run."""
     total = 0
@@ -556,7 +595,7 @@ def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, 
         total += int(out[1])
         p, conv = out[0], bool(out[2])
         off = (float(p[0]), float(p[1]))
-        if math.hypot(off[0] - pb.d0[0], off[1] - pb.d0[1]) <= MAX_WALK_PX or not conv:
+        if math.hypot(off[0] - pb.d0[0], off[1] - pb.d0[1]) <= TERMINATOR_CENTRED_PX or not conv:
             break
         pb = pb._replace(d0=off)
         params = _start(off, float(p[4]), False)
@@ -624,6 +663,7 @@ class _Problem(NamedTuple):
     nb: int
     d0: tuple[float, float]  #: the DT-LM offset, the start
     kernels: Any
+    fit_slope: bool = FIT_SLOPE  #: fit the background slope (:data:`FIT_SLOPE`; not a terminator's)
 
 
 def _problem(image: FloatArray, profile: EdgeProfile, vertices_vu: ArrayLike,
@@ -647,6 +687,7 @@ def _problem(image: FloatArray, profile: EdgeProfile, vertices_vu: ArrayLike,
         curv=np.ascontiguousarray(profile.curvature_px), values=values, shape=shape,
         use_shape=profile.shape_values is not None, tau=_tau_max(verts), o0=o0, h=h, j0=j0,
         nb=j1 - j0 + 1, d0=(float(dt_offset_vu[0]), float(dt_offset_vu[1])), kernels=kernels,
+        fit_slope=FIT_SLOPE and profile.edge != "terminator",
     )
 
 
@@ -680,7 +721,7 @@ def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_si
         sol = np.linalg.lstsq(a, obs, rcond=None)[0]
         params[2], params[3] = float(sol[0]), float(sol[1])
     active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if pb.use_shape else [])
-              + ([6] if FIT_SLOPE else [])
+              + ([6] if pb.fit_slope else [])
               + ([7] + ([8] if FIT_WING_SIGMA else []) if wings and fit_wings else []))
     out = k.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, pb.o0, pb.h, pb.j0, pb.nb, params,
                    np.asarray(active, dtype=np.int64), bool(wings), MAX_ITERATIONS, tolerance,
