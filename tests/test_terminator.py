@@ -214,7 +214,7 @@ def test_campaign_records_the_edge_kind(tmp_path, one):
 
 def test_a_barely_measured_terminator_is_not_ok():
     # scene 33 of the benchmark's seed 2028 (noisy, phase 91 deg): the terminator is
-    # nearly straight, the refinement 1.56 px off along it, with a one-sigma of 0.93 px
+    # nearly straight, the refinement 2.4 px off along it, with a one-sigma of 1.56 px
     rng = np.random.default_rng(SUBSET_SEED)
     for _ in range(33):
         _draws(rng)

@@ -11,7 +11,10 @@ and wings: a fraction of the light in a wider Gaussian, :data:`FIT_WINGS`),
 with the amplitude of the profile's shape basis (a reflectance law's limb
 darkening) and a background slope (scattered light); Gauss-Newton with
 Tukey weights. The rotation, when fitted by the DT-LM, is held at its
-value: the refinement fits the offset only.
+value: the refinement fits the offset only. A terminator (a kink, not a
+step) starts from a scan, is fitted without the background slope, with
+its strips recentred on it, and with an estimated sigma fitted last on
+every vertex (:ref:`profiles-terminator`).
 
 The result, :class:`ProfileRefinement`, says whether the refinement was
 accepted: it is discarded when it did not converge, walked farther than
@@ -90,10 +93,10 @@ TERMINATOR_RECENTRES = 6
 #: ... until it lands within this of their centre, pixels: a kink off the
 #: strips' centre leaves one side of it short (1.5 px of the 3.5 px
 #: half-width at a 2 px walk), and the dark side is what tells the kink's
-#: position from the gain and background; the fits more than 1 px off on
-#: the rendered terminators (:ref:`profiles-terminator`) stopped 0.6-1.1 px
-#: from their strips' centre. A tenth of the half-width, below which a
-#: further run moves the fit by less than the noise does.
+#: position from the gain and background; two of the four held-out fits
+#: more than 1 px off on the rendered terminators (:ref:`profiles-terminator`)
+#: had stopped 0.9-1.1 px from their strips' centre. About a tenth of the
+#: half-width.
 TERMINATOR_CENTRED_PX = 0.3
 
 #: An accepted refinement of a fit whose DT stage found an ambiguous rival
@@ -122,10 +125,10 @@ TOLERANCE_PX = 1e-4
 #: :data:`SIGMA_VERTICES` vertices as a limb's is: a kink's blur only
 #: rounds its toe, which a shift of the kink does too, so the offset moves
 #: with the sigma (0.4-0.8 px per 0.5 px of sigma on the rendered
-#: terminators of :ref:`profiles-terminator`), and on the fits more than
-#: 1 px off the subset's sigma was 0.9-1.6 px too wide, where a narrower
-#: one fitted all the pixels better. Its covariance then includes the
-#: sigma's uncertainty.
+#: terminators of :ref:`profiles-terminator`), and on the fits that the
+#: slope and the centring left more than 1 px off the subset's sigma was
+#: 0.9-1.6 px too wide, where a narrower one fitted all the pixels better.
+#: The refinement's covariance then includes the sigma's uncertainty.
 TERMINATOR_FREE_SIGMA = True
 
 #: Tukey cutoff of the refinement, in residual scales (the 95 %-efficient value).
@@ -136,8 +139,9 @@ TUKEY_C = 4.685
 #: flat background would hand to the edge's position. Not for a terminator:
 #: its lit side is itself a ramp, so a background ramp trades with the gain
 #: and moves the kink (only the strips' dark half tells them apart); on the
-#: rendered terminators the fits more than 1 px off had fitted a slope and
-#: a gain of a third to two thirds of the albedo (:ref:`profiles-terminator`).
+#: rendered terminators the fits more than 1 px off had fitted a slope of
+#: 0.3-1.3 DN/px and a gain of 54-163 DN where the albedo was 200 DN
+#: (:ref:`profiles-terminator`).
 FIT_SLOPE = True
 
 
