@@ -122,7 +122,7 @@ TOLERANCE_PX = 1e-4
 #: A terminator's PSF sigma, when the profile does not give it, is fitted
 #: once more with the offset on every vertex after the strips are placed
 #: (:func:`refine_with_profile`), not held at its estimate on
-#: :data:`SIGMA_VERTICES` vertices as a limb's is: a kink's blur only
+#: ``SIGMA_VERTICES`` vertices as a limb's is: a kink's blur only
 #: rounds its toe, which a shift of the kink does too, so the offset moves
 #: with the sigma (0.4-0.8 px per 0.5 px of sigma on the rendered
 #: terminators of :ref:`profiles-terminator`), and on the fits that the
