@@ -203,7 +203,8 @@ class ProfileRefinement:
         Why it was discarded (empty when accepted).
     gain, background, background_slope : float
         The fitted photometric scale, sky level (image units) and the sky's
-        slope along the normals (image units per pixel).
+        slope along the normals (image units per pixel; 0 for a terminator,
+        whose slope is not fitted: :data:`FIT_SLOPE`).
     shape_amplitude : float
         The fitted amplitude of the profile's shape basis (0 without one;
         for :func:`~dtalign.sphere_edge_profile`, the change of Minnaert's
