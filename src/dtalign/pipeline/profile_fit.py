@@ -204,7 +204,7 @@ class ProfileRefinement:
     gain, background, background_slope : float
         The fitted photometric scale, sky level (image units) and the sky's
         slope along the normals (image units per pixel; 0 for a terminator,
-        whose slope is not fitted: :data:`FIT_SLOPE`).
+        whose slope is not fitted: ``FIT_SLOPE``).
     shape_amplitude : float
         The fitted amplitude of the profile's shape basis (0 without one;
         for :func:`~dtalign.sphere_edge_profile`, the change of Minnaert's
@@ -472,19 +472,7 @@ def refine_with_profile(
     if start is None:
         out = _run(_with_wings(pb, params), None, params, False, TOLERANCE_PX)  # PSF held
     else:
-        pb, _, out = _recentred(pb, params)
-        if TERMINATOR_FREE_SIGMA and not known and bool(out[2]):
-            # the blur trades with a kink's position (TERMINATOR_FREE_SIGMA):
-            # the last run again with the sigma free on every vertex
-            it_held = int(out[1])
-            out = _run(pb, None, np.array(out[0], dtype=np.float64), True, TOLERANCE_PX)
-            it_held += int(out[1])
-            if not bool(out[2]) and not float(out[0][4]) > 0.0:
-                # it stopped at a sigma of 0, a stationary point of the model
-                # (the blur's change is second order): held there
-                out = _run(pb, None, np.array(out[0], dtype=np.float64), False, TOLERANCE_PX)
-                it_held += int(out[1])
-            out = (out[0], it_held, *out[2:])
+        pb, out = _terminator_fit(pb, params, known)
     p, it, conv, inv, scale, _, npx = out
     iterations += int(it)
     d0 = pb.d0
@@ -605,6 +593,26 @@ def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, 
         pb = pb._replace(d0=off)
         params = _start(off, float(p[4]), False)
     return pb, params, (out[0], total, *out[2:])
+
+
+def _terminator_fit(pb: _Problem, params: FloatArray, known: bool) -> tuple[_Problem, Any]:
+    """A terminator's offset fit from ``params``: :func:`_recentred`, then,
+    when the sigma is estimated (not ``known``), the last run again with
+    the sigma free on every vertex (:data:`TERMINATOR_FREE_SIGMA`: the blur
+    trades with a kink's position). Returns the last run's problem and its
+    :func:`_run` output with the iterations of every run."""
+    pb, _, out = _recentred(pb, params)
+    if not (TERMINATOR_FREE_SIGMA and not known and bool(out[2])):
+        return pb, out
+    iterations = int(out[1])
+    out = _run(pb, None, np.array(out[0], dtype=np.float64), True, TOLERANCE_PX)
+    iterations += int(out[1])
+    if not bool(out[2]) and not float(out[0][4]) > 0.0:
+        # it stopped at a sigma of 0, a stationary point of the model (the
+        # blur's change is second order): held there
+        out = _run(pb, None, np.array(out[0], dtype=np.float64), False, TOLERANCE_PX)
+        iterations += int(out[1])
+    return pb, (out[0], iterations, *out[2:])
 
 
 def _scan_start(pb: _Problem, sigma: float) -> tuple[float, float]:
