@@ -255,12 +255,12 @@ def test_a_rotation_fit_gets_a_rotation_row(nav, nav_products) -> None:
 # --------------------------------------------------------------------------- rival basins
 
 
-@pytest.mark.parametrize(("seed", "agrees"), [(4, True), (24, False)])
+@pytest.mark.parametrize(("seed", "agrees"), [(4, True), (36, False)])
 def test_a_profile_that_lands_on_the_same_pose_from_the_rival_clears_the_ambiguity(
         seed: int, agrees: bool) -> None:
     # rendered terminators whose DT lock has a rival basin (the ramp has no
-    # edge); seed 24's refinement is 1.5 px off and lands 2 px away from the
-    # rival's start: it stays ambiguous
+    # edge); seed 36's refinement (phase 91 deg) is 2.7 px off and lands
+    # elsewhere from the rival's start: it stays ambiguous
     case = cov.FAMILIES["sphere_terminator"](seed)
     fit = cov.profile_fit(case)
     assert fit.ambiguity is not None and fit.ambiguity.ambiguous

@@ -11,7 +11,10 @@ and wings: a fraction of the light in a wider Gaussian, :data:`FIT_WINGS`),
 with the amplitude of the profile's shape basis (a reflectance law's limb
 darkening) and a background slope (scattered light); Gauss-Newton with
 Tukey weights. The rotation, when fitted by the DT-LM, is held at its
-value: the refinement fits the offset only.
+value: the refinement fits the offset only. A terminator (a kink, not a
+step) starts from a scan, is fitted without the background slope, with
+its strips recentred on it, and with an estimated sigma fitted last on
+every vertex (:ref:`profiles-terminator`).
 
 The result, :class:`ProfileRefinement`, says whether the refinement was
 accepted: it is discarded when it did not converge, walked farther than
@@ -42,6 +45,8 @@ __all__ = [
     "SCAN_LIT_PX",
     "SCAN_STEP_PX",
     "TERMINATOR_RECENTRES",
+    "TERMINATOR_CENTRED_PX",
+    "TERMINATOR_FREE_SIGMA",
     "RIVAL_AGREEMENT_SIGMAS",
     "SOFT_EDGE_STEP_JUMP",
     "FIT_WINGS",
@@ -78,12 +83,21 @@ SCAN_LIT_PX = 4.0
 #: the best three.
 SCAN_STEP_PX = 0.5
 
-#: A terminator's fit whose walk from its start exceeds :data:`MAX_WALK_PX`
-#: (the scan places it along the mean normal only: at high phase the DT
-#: lock is also off across it) is run again from where it went, with the
-#: strips centred there, at most this many times in all; the walk limit
-#: holds for the last run.
-TERMINATOR_RECENTRES = 4
+#: A terminator's fit that lands more than :data:`TERMINATOR_CENTRED_PX`
+#: from its strips' centre (the scan places the start along the mean normal
+#: only: at high phase the DT lock is also off across it) is run again from
+#: where it went, with the strips centred there, at most this many times in
+#: all; the walk limit :data:`MAX_WALK_PX` holds for the last run.
+TERMINATOR_RECENTRES = 6
+
+#: ... until it lands within this of their centre, pixels: a kink off the
+#: strips' centre leaves one side of it short (1.5 px of the 3.5 px
+#: half-width at a 2 px walk), and the dark side is what tells the kink's
+#: position from the gain and background; two of the four held-out fits
+#: more than 1 px off on the rendered terminators (:ref:`profiles-terminator`)
+#: had stopped 0.9-1.1 px from their strips' centre. About a tenth of the
+#: half-width.
+TERMINATOR_CENTRED_PX = 0.3
 
 #: An accepted refinement of a fit whose DT stage found an ambiguous rival
 #: basin is run again from the rival's DT-LM pose; when it lands within
@@ -105,12 +119,29 @@ TABLE_MARGIN_PX = 2.5
 MAX_ITERATIONS = 50
 TOLERANCE_PX = 1e-4
 
+#: A terminator's PSF sigma, when the profile does not give it, is fitted
+#: once more with the offset on every vertex after the strips are placed
+#: (:func:`refine_with_profile`), not held at its estimate on
+#: ``SIGMA_VERTICES`` vertices as a limb's is: a kink's blur only
+#: rounds its toe, which a shift of the kink does too, so the offset moves
+#: with the sigma (0.4-0.8 px per 0.5 px of sigma on the rendered
+#: terminators of :ref:`profiles-terminator`), and on the fits that the
+#: slope and the centring left more than 1 px off the subset's sigma was
+#: 0.9-1.6 px too wide, where a narrower one fitted all the pixels better.
+#: The refinement's covariance then includes the sigma's uncertainty.
+TERMINATOR_FREE_SIGMA = True
+
 #: Tukey cutoff of the refinement, in residual scales (the 95 %-efficient value).
 TUKEY_C = 4.685
 
 #: Fit a background slope along the normals: scattered light (a PSF's
 #: wings, a glow around a bright disc) is a ramp across the strip, which a
-#: flat background would hand to the edge's position.
+#: flat background would hand to the edge's position. Not for a terminator:
+#: its lit side is itself a ramp, so a background ramp trades with the gain
+#: and moves the kink (only the strips' dark half tells them apart); on the
+#: rendered terminators the fits more than 1 px off had fitted a slope of
+#: 0.3-1.3 DN/px and a gain of 54-163 DN where the albedo was 200 DN
+#: (:ref:`profiles-terminator`).
 FIT_SLOPE = True
 
 
@@ -172,7 +203,8 @@ class ProfileRefinement:
         Why it was discarded (empty when accepted).
     gain, background, background_slope : float
         The fitted photometric scale, sky level (image units) and the sky's
-        slope along the normals (image units per pixel).
+        slope along the normals (image units per pixel; 0 for a terminator,
+        whose slope is not fitted: ``FIT_SLOPE``).
     shape_amplitude : float
         The fitted amplitude of the profile's shape basis (0 without one;
         for :func:`~dtalign.sphere_edge_profile`, the change of Minnaert's
@@ -440,7 +472,7 @@ def refine_with_profile(
     if start is None:
         out = _run(_with_wings(pb, params), None, params, False, TOLERANCE_PX)  # PSF held
     else:
-        pb, _, out = _recentred(pb, params)
+        pb, out = _terminator_fit(pb, params, known)
     p, it, conv, inv, scale, _, npx = out
     iterations += int(it)
     d0 = pb.d0
@@ -544,10 +576,10 @@ def _with_wings(pb: _Problem, params: FloatArray) -> _Problem:
 
 def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, Any]:
     """A terminator's offset fit from ``params`` (the sigma held): run again
-    with the strips centred where it went while it walks more than
-    :data:`MAX_WALK_PX` (the scan places it along the mean normal only; at
-    high phase the DT lock is off across it too), at most
-    :data:`TERMINATOR_RECENTRES` runs. Returns the last run's problem (its
+    with the strips centred where it went while it lands more than
+    :data:`TERMINATOR_CENTRED_PX` from their centre (the scan places it
+    along the mean normal only; at high phase the DT lock is off across it
+    too), at most :data:`TERMINATOR_RECENTRES` runs. Returns the last run's problem (its
     strips' centre ``d0``), its start parameters and its :func:`_run`
     output with the iterations of every run."""
     total = 0
@@ -556,11 +588,31 @@ def _recentred(pb: _Problem, params: FloatArray) -> tuple[_Problem, FloatArray, 
         total += int(out[1])
         p, conv = out[0], bool(out[2])
         off = (float(p[0]), float(p[1]))
-        if math.hypot(off[0] - pb.d0[0], off[1] - pb.d0[1]) <= MAX_WALK_PX or not conv:
+        if math.hypot(off[0] - pb.d0[0], off[1] - pb.d0[1]) <= TERMINATOR_CENTRED_PX or not conv:
             break
         pb = pb._replace(d0=off)
         params = _start(off, float(p[4]), False)
     return pb, params, (out[0], total, *out[2:])
+
+
+def _terminator_fit(pb: _Problem, params: FloatArray, known: bool) -> tuple[_Problem, Any]:
+    """A terminator's offset fit from ``params``: :func:`_recentred`, then,
+    when the sigma is estimated (not ``known``), the last run again with
+    the sigma free on every vertex (:data:`TERMINATOR_FREE_SIGMA`: the blur
+    trades with a kink's position). Returns the last run's problem and its
+    :func:`_run` output with the iterations of every run."""
+    pb, _, out = _recentred(pb, params)
+    if not (TERMINATOR_FREE_SIGMA and not known and bool(out[2])):
+        return pb, out
+    iterations = int(out[1])
+    out = _run(pb, None, np.array(out[0], dtype=np.float64), True, TOLERANCE_PX)
+    iterations += int(out[1])
+    if not bool(out[2]) and not float(out[0][4]) > 0.0:
+        # it stopped at a sigma of 0, a stationary point of the model (the
+        # blur's change is second order): held there
+        out = _run(pb, None, np.array(out[0], dtype=np.float64), False, TOLERANCE_PX)
+        iterations += int(out[1])
+    return pb, (out[0], iterations, *out[2:])
 
 
 def _scan_start(pb: _Problem, sigma: float) -> tuple[float, float]:
@@ -624,6 +676,7 @@ class _Problem(NamedTuple):
     nb: int
     d0: tuple[float, float]  #: the DT-LM offset, the start
     kernels: Any
+    fit_slope: bool = FIT_SLOPE  #: fit the background slope (:data:`FIT_SLOPE`; not a terminator's)
 
 
 def _problem(image: FloatArray, profile: EdgeProfile, vertices_vu: ArrayLike,
@@ -647,6 +700,7 @@ def _problem(image: FloatArray, profile: EdgeProfile, vertices_vu: ArrayLike,
         curv=np.ascontiguousarray(profile.curvature_px), values=values, shape=shape,
         use_shape=profile.shape_values is not None, tau=_tau_max(verts), o0=o0, h=h, j0=j0,
         nb=j1 - j0 + 1, d0=(float(dt_offset_vu[0]), float(dt_offset_vu[1])), kernels=kernels,
+        fit_slope=FIT_SLOPE and profile.edge != "terminator",
     )
 
 
@@ -680,7 +734,7 @@ def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_si
         sol = np.linalg.lstsq(a, obs, rcond=None)[0]
         params[2], params[3] = float(sol[0]), float(sol[1])
     active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if pb.use_shape else [])
-              + ([6] if FIT_SLOPE else [])
+              + ([6] if pb.fit_slope else [])
               + ([7] + ([8] if FIT_WING_SIGMA else []) if wings and fit_wings else []))
     out = k.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, pb.o0, pb.h, pb.j0, pb.nb, params,
                    np.asarray(active, dtype=np.int64), bool(wings), MAX_ITERATIONS, tolerance,

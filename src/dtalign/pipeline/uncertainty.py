@@ -97,13 +97,16 @@ CORRELATION_LENGTH_PX: float = 8.0
 #: profile model's residual error with no blur; it grows with the blur
 #: (:data:`PROFILE_FLOOR_PER_PSF`).
 #: ``"profile_terminator"``: an accepted terminator profile refinement,
-#: whose kink is located less sharply than a limb's step.
+#: whose kink is located less sharply than a limb's step (chosen on the
+#: rendered terminators' seeds 0-199 once the refinement fitted a
+#: terminator without a background slope and with its sigma free; 0.15 px
+#: before, when those fits were 0.17 px off at the median).
 FLOORS_PX: dict[str, float] = {
     "dt": 0.03,
     "dt_limb": 0.23,
     "dt_terminator": 4.0,
     "profile": 0.003,
-    "profile_terminator": 0.15,
+    "profile_terminator": 0.05,
 }
 
 #: The profile floor's growth with the PSF's sigma ``s`` (px per px): an
