@@ -675,13 +675,7 @@ class PolylineFit:
                 settling=None if d["settling"] is None else _settling_from(d["settling"]),
                 profile=None if prof is None else ProfileRefinement.from_dict(prof),
                 edge_kind=d.get("edge_kind"),
-                evidence=None if found is None else Evidence(*(
-                    # a fit saved before the curvature and second edges: None
-                    None if found.get(k) is None
-                    else _readonly(np.asarray(found[k], dtype=np.float64).reshape(shape))
-                    for k, shape in (("residuals", (-1,)), ("jacobian", (len(vertices), -1)),
-                                     ("points_vu", (-1, 2)), ("curvature", (-1,)),
-                                     ("second_edge_vu", (-1, 2))))),
+                evidence=None if found is None else _evidence_from(found, len(vertices)),
             )
         except KeyError as exc:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
@@ -904,6 +898,19 @@ def fit_polyline(
 # ---------------------------------------------------------------------------
 
 
+def _evidence_from(found: dict[str, Any], n: int) -> Evidence:
+    """The :class:`Evidence` of a :meth:`PolylineFit.to_dict`'s ``"evidence"``;
+    a fit saved before the curvature and the second edges has None there."""
+    def read(key: str, shape: tuple[int, ...]) -> FloatArray:
+        return _readonly(np.asarray(found[key], dtype=np.float64).reshape(shape))
+
+    return Evidence(
+        read("residuals", (-1,)), read("jacobian", (n, -1)), read("points_vu", (-1, 2)),
+        None if found.get("curvature") is None else read("curvature", (-1,)),
+        None if found.get("second_edge_vu") is None else read("second_edge_vu", (-1, 2)),
+    )
+
+
 def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
              kind: str | None) -> PolylineFit:
     """The last steps of every fit, the batch's too: the refinement with its
@@ -915,8 +922,8 @@ def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
     # the detector's own edge threshold: a second edge is one it keeps
     threshold = products.config.edge_threshold_k_sigma * max(products.noise_sigma,
                                                               NOISE_SIGMA_FLOOR)
-    found = None if fit.lm.degenerate else evidence(fit, products.edge_dt,
-                                                    products.gradient_vu, threshold)
+    found = None if fit.lm.degenerate else evidence(
+        fit, products.edge_dt, (products.gradient_magnitude, products.gradient_vu), threshold)
     return dataclasses.replace(fit, edge_kind=kind, evidence=found)
 
 

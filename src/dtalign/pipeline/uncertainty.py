@@ -150,16 +150,18 @@ INLIER_WEIGHT_FRACTION: float = 0.7
 #: cone, whose curvature across its gradient is ``1/r``; the DT of a thinned
 #: line of edge pixels is flat along the line but for the pixel scallops,
 #: which a step of a few pixels averages away (a step of 1 px meets them).
-#: Measured on seeds 0-199 of the robustness families: 1, 2 and 3 px give
-#: ``heavy_noise`` 0.57 / 0.93, 0.67 / 0.95 and 0.71 / 0.97 (68 % / 95 %
-#: coverage), the dense-edge families a few hundredths apart; 3 px is the
-#: one that keeps ``crater_rim`` in its band on the check seeds.
+#: Measured on seeds 0-199 of the robustness families (68 % / 95 %
+#: coverage, before the second-edge term): 1, 2 and 3 px give
+#: ``heavy_noise`` 0.57 / 0.93, 0.67 / 0.95 and 0.71 / 0.97 (0.89 / 0.99
+#: without the curvature) and ``crater_rim`` 0.61 / 0.89, 0.67 / 0.91 and
+#: 0.68 / 0.91. 3 px was chosen with seeds 200-399 seen as well (2 px put
+#: ``crater_rim`` at 0.59 / 0.87 there); seeds 400-599 checked it.
 CURVATURE_STEP_PX: float = 3.0
 
 #: How far along each vertex's normal, either way, :func:`evidence` looks
 #: for an edge of the opposite polarity, px: beyond it the shift
-#: :func:`second_edge_shift` assigns is below 0.01 px.
-SECOND_EDGE_REACH_PX: float = 6.0
+#: :func:`second_edge_shift` assigns is below 0.02 px.
+SECOND_EDGE_REACH_PX: float = 5.0
 
 #: The shift of a vertex's detected edge by an edge of opposite polarity
 #: 3 px away along its normal, px (:func:`second_edge_shift`), and
@@ -182,8 +184,9 @@ SECOND_EDGE_DECAY_PX: float = 0.65
 SECOND_EDGE_MAX_SHIFT_PX: float = 0.5
 
 #: The step of the gradient profile :func:`evidence` reads along each
-#: normal, px.
-_PROFILE_STEP_PX: float = 0.25
+#: normal, px: a peak's place is refined between the samples by a
+#: parabola, so half a pixel is enough.
+_PROFILE_STEP_PX: float = 0.5
 
 #: Where along the normal, px either side of the vertex, its own edge's
 #: gradient peak is looked for.
@@ -210,7 +213,7 @@ class PoseUncertainty:
     Attributes
     ----------
     covariance : ndarray, shape (P, P)
-        ``noise + floor``: what :attr:`dtalign.pipeline.PolylineFit.covariance`
+        ``noise + bias + floor``: what :attr:`dtalign.pipeline.PolylineFit.covariance`
         reports (read-only).
     noise : ndarray, shape (P, P)
         The measured part: the DT-LM sandwich, or the profile refinement's
@@ -219,12 +222,17 @@ class PoseUncertainty:
         The floor added along every observed direction, px.
     source : str
         Which pose and floor: a key of :data:`FLOORS_PX`.
+    bias : ndarray, shape (P, P), or None
+        ``beta beta^T``, the DT-LM pose's shift by second edges of the
+        opposite polarity (part 4 above; zero for an accepted profile
+        refinement), read-only; None when the covariance is all ``inf``.
     """
 
     covariance: FloatArray
     noise: FloatArray
     floor_px: float
     source: str
+    bias: FloatArray | None = None
 
 
 def _pinv_psd(m: FloatArray) -> FloatArray:
@@ -429,44 +437,57 @@ def _sample_vectors(grid: FloatArray, pts: FloatArray) -> FloatArray:
                       + fv * ((1 - fu) * grid[v1, u0] + fu * grid[v1, u1]))
 
 
-def _second_edges(gradient_vu: FloatArray, pts: FloatArray, normals: FloatArray,
-                  threshold: float) -> FloatArray:
+def _second_edges(magnitude: FloatArray, gradient_vu: FloatArray, pts: FloatArray,
+                  normals: FloatArray, threshold: float) -> FloatArray:
     """Each vertex's :attr:`Evidence.second_edge_vu`.
 
-    The gradient along the vertex's normal is read within
+    The gradient magnitude is read along the vertex's normal within
     :data:`SECOND_EDGE_REACH_PX` either way. The vertex's own edge is its
     peak within :data:`_OWN_EDGE_PX`, which must pass ``threshold`` (the
-    detector's edge threshold); the second edge is the nearest local
-    minimum below ``-threshold``: an edge the detector keeps, of the
-    opposite polarity.
+    detector's edge threshold); the second edge is the nearest other local
+    peak above ``threshold`` whose gradient points against the normal: an
+    edge the detector keeps, of the opposite polarity.
     """
     n = pts.shape[0]
     s = np.arange(-SECOND_EDGE_REACH_PX, SECOND_EDGE_REACH_PX + 0.5 * _PROFILE_STEP_PX,
                   _PROFILE_STEP_PX)
     at = pts[:, None, :] + s[None, :, None] * normals[:, None, :]
-    g = _sample_vectors(gradient_vu, at.reshape(-1, 2)).reshape(n, s.size, 2)
-    prof = np.einsum("nsk,nk->ns", g, normals)
-    own = prof[:, np.abs(s) <= _OWN_EDGE_PX].max(axis=1)
-    mid = prof[:, 1:-1]
-    minimum = (mid < -threshold) & (mid <= prof[:, :-2]) & (mid <= prof[:, 2:])
-    dist = np.where(minimum, np.abs(s[1:-1])[None, :], np.inf)
-    j = np.argmin(dist, axis=1)
+    prof = sample_dt_bilinear(magnitude, at.reshape(-1, 2)).reshape(n, s.size)
+    near = np.abs(s) <= _OWN_EDGE_PX
+    own_at = np.flatnonzero(near)[np.argmax(prof[:, near], axis=1)]
     rows = np.arange(n)
+    own = prof[rows, own_at]
+    mid = prof[:, 1:-1]
+    peak = (mid > threshold) & (mid >= prof[:, :-2]) & (mid > prof[:, 2:])
+    peak[rows, own_at - 1] = False  # the vertex's own edge (never at the ends)
+    vi, si = np.nonzero(peak)
+    # the polarity of each candidate: its gradient along the vertex's normal
+    g = _sample_vectors(gradient_vu, at[vi, si + 1])
+    opposite = np.einsum("nk,nk->n", g, normals[vi]) < 0.0
+    # each peak's place refined by the parabola through its three samples
+    vo, so = vi[opposite], si[opposite] + 1
+    lo, top, hi = prof[vo, so - 1], prof[vo, so], prof[vo, so + 1]
+    bend = lo - 2.0 * top + hi
+    shift_at = np.where(bend < 0.0, 0.5 * (lo - hi) / np.where(bend < 0.0, bend, -1.0), 0.0)
+    dist = np.full((n, s.size - 2), np.inf)
+    dist[vo, so - 1] = np.abs(s[so] + _PROFILE_STEP_PX * shift_at)
+    j = np.argmin(dist, axis=1)
     d = dist[rows, j]
     found = np.isfinite(d) & (own > threshold)
-    ratio = np.where(found, np.minimum(-mid[rows, j] / np.where(own > 0.0, own, 1.0), 1.0), 0.0)
+    ratio = np.where(found, np.minimum(mid[rows, j] / np.where(own > 0.0, own, 1.0), 1.0), 0.0)
     shift = second_edge_shift(np.where(found, d, np.inf), ratio)
     # the ridge moves away from the other edge
     side = np.sign(s[1:-1][j])
     return np.asarray(-(shift * side)[:, None] * normals)
 
 
-def evidence(fit: Any, edge_dt: FloatArray, gradient_vu: FloatArray | None = None,
+def evidence(fit: Any, edge_dt: FloatArray, gradient: tuple[FloatArray, FloatArray] | None = None,
              threshold: float = math.inf) -> Evidence:
     """The :class:`Evidence` of ``fit`` (a :class:`~dtalign.pipeline.PolylineFit`)
-    on ``edge_dt``, the edge DT it was fitted to; with ``gradient_vu`` (the
-    image products' gradient) and ``threshold`` (their edge threshold),
-    the second edges too (zero without)."""
+    on ``edge_dt``, the edge DT it was fitted to; with ``gradient`` (the
+    image products' ``gradient_magnitude`` and ``gradient_vu``) and
+    ``threshold`` (their edge threshold), the second edges too (zero
+    without)."""
     lm = fit.lm
     rel = np.asarray(fit.vertices_vu, dtype=np.float64) - np.asarray(fit.pivot_vu)
     normals = np.asarray(fit.normals_vu, dtype=np.float64).reshape(-1, 2)
@@ -494,8 +515,8 @@ def evidence(fit: Any, edge_dt: FloatArray, gradient_vu: FloatArray | None = Non
     bend = (side[0] + side[1] - 2.0 * at[0]) / CURVATURE_STEP_PX**2
     bend = np.where(np.hypot(jac[:, 0], jac[:, 1]) > 0.0, np.clip(bend, 0.0, None), 0.0)
     unit = normals / np.maximum(np.hypot(normals[:, 0], normals[:, 1]), 1e-300)[:, None]
-    second = (np.zeros((n, 2)) if gradient_vu is None or n == 0
-              else _second_edges(np.asarray(gradient_vu), pts, unit, threshold))
+    second = (np.zeros((n, 2)) if gradient is None or n == 0
+              else _second_edges(gradient[0], np.asarray(gradient[1]), pts, unit, threshold))
     return Evidence(_readonly(at[0]), _readonly(jac), _readonly(pts), _readonly(bend),
                     _readonly(second))
 
@@ -572,4 +593,4 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
         full = np.full((p, p), np.inf)
         return PoseUncertainty(_readonly(full), _readonly(noise), floor, source)
     cov = noise + bias + floor_covariance(jac, w, floor)
-    return PoseUncertainty(_readonly(cov), _readonly(noise), floor, source)
+    return PoseUncertainty(_readonly(cov), _readonly(noise), floor, source, _readonly(bias))
