@@ -328,7 +328,7 @@ def information(jac: FloatArray, residuals: FloatArray, weights: FloatArray,
         As :func:`sandwich_covariance`'s.
     curvature : ndarray, shape (N,), optional
         The DT's second difference across its gradient at each vertex,
-        ``>= 0`` (:attr:`Evidence.curvature`).
+        ``>= 0`` (the ``curvature`` of :class:`Evidence`).
     lever_vu : ndarray, shape (N, 2), optional
         Each vertex's lever arm from the pivot (a fit with a rotation).
 
@@ -439,7 +439,7 @@ def _sample_vectors(grid: FloatArray, pts: FloatArray) -> FloatArray:
 
 def _second_edges(magnitude: FloatArray, gradient_vu: FloatArray, pts: FloatArray,
                   normals: FloatArray, threshold: float) -> FloatArray:
-    """Each vertex's :attr:`Evidence.second_edge_vu`.
+    """Each vertex's ``second_edge_vu`` (:class:`Evidence`).
 
     The gradient magnitude is read along the vertex's normal within
     :data:`SECOND_EDGE_REACH_PX` either way. The vertex's own edge is its
