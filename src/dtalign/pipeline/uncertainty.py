@@ -85,8 +85,8 @@ __all__ = [
     "floor_px",
     "information",
     "pose_uncertainty",
-    "second_edge_shift",
     "sandwich_covariance",
+    "second_edge_shift",
     "source_of",
 ]
 
