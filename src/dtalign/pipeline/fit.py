@@ -39,7 +39,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..api import checks as check
-from ..api.constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C, POLARITY_PENALTY_RESIDUAL
+from ..api.constants import (
+    DEFAULT_PINVH_RCOND,
+    DEFAULT_TUKEY_C,
+    NOISE_SIGMA_FLOOR,
+    POLARITY_PENALTY_RESIDUAL,
+)
 from ..api.lm import fit_checked
 from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from ..api.results import ImageDerivativesConfig, LMRefineResult, summary_text
@@ -670,10 +675,7 @@ class PolylineFit:
                 settling=None if d["settling"] is None else _settling_from(d["settling"]),
                 profile=None if prof is None else ProfileRefinement.from_dict(prof),
                 edge_kind=d.get("edge_kind"),
-                evidence=None if found is None else Evidence(*(
-                    _readonly(np.asarray(found[k], dtype=np.float64).reshape(shape))
-                    for k, shape in (("residuals", (-1,)), ("jacobian", (len(vertices), -1)),
-                                     ("points_vu", (-1, 2))))),
+                evidence=None if found is None else _evidence_from(found, len(vertices)),
             )
         except KeyError as exc:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
@@ -896,6 +898,19 @@ def fit_polyline(
 # ---------------------------------------------------------------------------
 
 
+def _evidence_from(found: dict[str, Any], n: int) -> Evidence:
+    """The :class:`Evidence` of a :meth:`PolylineFit.to_dict`'s ``"evidence"``;
+    a fit saved before the curvature and the second edges has None there."""
+    def read(key: str, shape: tuple[int, ...]) -> FloatArray:
+        return _readonly(np.asarray(found[key], dtype=np.float64).reshape(shape))
+
+    return Evidence(
+        read("residuals", (-1,)), read("jacobian", (n, -1)), read("points_vu", (-1, 2)),
+        None if found.get("curvature") is None else read("curvature", (-1,)),
+        None if found.get("second_edge_vu") is None else read("second_edge_vu", (-1, 2)),
+    )
+
+
 def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
              kind: str | None) -> PolylineFit:
     """The last steps of every fit, the batch's too: the refinement with its
@@ -904,7 +919,11 @@ def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
     from which :attr:`PolylineFit.covariance` is formed."""
     if profile is not None:
         fit = with_profile(fit, products, profile, kind)
-    found = None if fit.lm.degenerate else evidence(fit, products.edge_dt)
+    # the detector's own edge threshold: a second edge is one it keeps
+    threshold = products.config.edge_threshold_k_sigma * max(products.noise_sigma,
+                                                              NOISE_SIGMA_FLOOR)
+    found = None if fit.lm.degenerate else evidence(
+        fit, products.edge_dt, (products.gradient_magnitude, products.gradient_vu), threshold)
     return dataclasses.replace(fit, edge_kind=kind, evidence=found)
 
 

@@ -21,6 +21,11 @@ measures how often it covers the truth:
    an accepted profile refinement, its own covariance from the image
    pixels' residuals (:class:`~dtalign.pipeline.profile_fit.ProfileRefinement`):
    the pixels' noise is independent where the vertices' is not.
+   The bread ``H`` holds the cost's curvature across the DT gradient too
+   (:data:`CURVATURE_STEP_PX`): a vertex whose nearest edge pixel is an
+   isolated point (a sparse, noisy edge) sits in a cone of the DT, stiff
+   along the edge as well as across it, which the Gauss-Newton part
+   ``w J J^T`` misses.
 2. **The correlation of neighbouring vertices.** ``B`` sums
    ``k(s_ij) psi_i psi_j^T`` over pairs of vertices with a Bartlett
    (triangular) weight of their distance ``s_ij``, which reaches zero at
@@ -35,6 +40,15 @@ measures how often it covers the truth:
    DT edge's localisation, a limb fitted without its profile (the steepest
    gradient sits inside the silhouette), a terminator without one (no edge
    at all), and the profile model's residual error.
+4. **The pull of a second edge**, ``beta beta^T``: a DT-LM pose whose
+   vertices have an edge of the opposite polarity a few pixels away along
+   their normals (a thin crescent's other edge, a crater's rim inside a
+   limb) is pushed away from it, because the smoothed gradient of the two
+   edges overlaps and its ridge moves (:data:`SECOND_EDGE_SHIFT_PX`). Each
+   vertex's shift is measured from the gradient along its normal
+   (:func:`evidence`) and ``beta`` is the pose shift they make together,
+   propagated through the same ``H``: a bias, which more vertices do not
+   average away, added to the covariance as a mean squared error.
 
 Directions the geometry does not observe (a straight edge's along-edge
 shift) get zero here, as in the drop-in's pseudoinverse; the fit's
@@ -56,16 +70,23 @@ from .products import _readonly
 
 __all__ = [
     "CORRELATION_LENGTH_PX",
+    "CURVATURE_STEP_PX",
     "Evidence",
     "FLOORS_PX",
     "INLIER_WEIGHT_FRACTION",
     "PROFILE_FLOOR_PER_PSF",
     "PoseUncertainty",
+    "SECOND_EDGE_DECAY_PX",
+    "SECOND_EDGE_MAX_SHIFT_PX",
+    "SECOND_EDGE_REACH_PX",
+    "SECOND_EDGE_SHIFT_PX",
     "evidence",
     "floor_covariance",
     "floor_px",
+    "information",
     "pose_uncertainty",
     "sandwich_covariance",
+    "second_edge_shift",
     "source_of",
 ]
 
@@ -127,6 +148,53 @@ PROFILE_FLOOR_PER_PSF: float = 0.01
 #: 1.5 times the real scatter).
 INLIER_WEIGHT_FRACTION: float = 0.7
 
+#: The step of the DT's second difference across its gradient (the
+#: curvature of :func:`evidence`), px. The DT of an isolated edge pixel is a
+#: cone, whose curvature across its gradient is ``1/r``; the DT of a thinned
+#: line of edge pixels is flat along the line but for the pixel scallops,
+#: which a step of a few pixels averages away (a step of 1 px meets them).
+#: Measured on seeds 0-199 of the robustness families (68 % / 95 %
+#: coverage, before the second-edge term): 1, 2 and 3 px give
+#: ``heavy_noise`` 0.57 / 0.93, 0.67 / 0.95 and 0.71 / 0.97 (0.89 / 0.99
+#: without the curvature) and ``crater_rim`` 0.61 / 0.89, 0.67 / 0.91 and
+#: 0.68 / 0.91. 3 px was chosen with seeds 200-399 seen as well (2 px put
+#: ``crater_rim`` at 0.59 / 0.87 there); seeds 400-599 checked it.
+CURVATURE_STEP_PX: float = 3.0
+
+#: How far along each vertex's normal, either way, :func:`evidence` looks
+#: for an edge of the opposite polarity, px: beyond it the shift
+#: :func:`second_edge_shift` assigns is below 0.02 px.
+SECOND_EDGE_REACH_PX: float = 5.0
+
+#: The shift of a vertex's detected edge by an edge of opposite polarity
+#: 3 px away along its normal, px (:func:`second_edge_shift`), and
+#: :data:`SECOND_EDGE_DECAY_PX` its e-folding with the distance. The edge
+#: pixels are the ridge of a gradient smoothed by a Gaussian of 1.2 px: two
+#: opposite edges a few pixels apart overlap in it and their ridges move
+#: apart. A 1-D model of the detector (the Gaussian, the pixel's box, the
+#: central difference) gives 0.22, 0.15, 0.08 and 0.04 px at 3.0, 3.3, 3.8
+#: and 4.2 px; on the ``terminator_limb`` crescents (seeds 0-199), measured
+#: against the distance the search finds (about the width plus 0.25 px),
+#: the fits are off by a median 0.27 px at 3.25 px, 0.12 px at 3.85 px and
+#: 0.06 px at 4.35 px, about 1.5 times the 1-D model (the thinning on a
+#: tilted pixel grid): the constants are the measured ones.
+SECOND_EDGE_SHIFT_PX: float = 0.43
+#: See :data:`SECOND_EDGE_SHIFT_PX`.
+SECOND_EDGE_DECAY_PX: float = 0.65
+#: The shift is capped here, px: closer than 3 px the two edges' gradients
+#: merge into one ridge and the model no longer holds; the largest shift
+#: measured was 0.36 px.
+SECOND_EDGE_MAX_SHIFT_PX: float = 0.5
+
+#: The step of the gradient profile :func:`evidence` reads along each
+#: normal, px: a peak's place is refined between the samples by a
+#: parabola, so half a pixel is enough.
+_PROFILE_STEP_PX: float = 0.5
+
+#: Where along the normal, px either side of the vertex, its own edge's
+#: gradient peak is looked for.
+_OWN_EDGE_PX: float = 1.5
+
 #: Lags of the correlation sum are capped here (a vertex pairs with at most
 #: this many successors): a densely sampled polyline reaches the
 #: correlation length within far fewer, and the cap keeps the sum linear.
@@ -148,7 +216,7 @@ class PoseUncertainty:
     Attributes
     ----------
     covariance : ndarray, shape (P, P)
-        ``noise + floor``: what :attr:`dtalign.pipeline.PolylineFit.covariance`
+        ``noise + bias + floor``: what :attr:`dtalign.pipeline.PolylineFit.covariance`
         reports (read-only).
     noise : ndarray, shape (P, P)
         The measured part: the DT-LM sandwich, or the profile refinement's
@@ -157,12 +225,17 @@ class PoseUncertainty:
         The floor added along every observed direction, px.
     source : str
         Which pose and floor: a key of :data:`FLOORS_PX`.
+    bias : ndarray, shape (P, P), or None
+        ``beta beta^T``, the DT-LM pose's shift by second edges of the
+        opposite polarity (part 4 above; zero for an accepted profile
+        refinement), read-only; None when the covariance is all ``inf``.
     """
 
     covariance: FloatArray
     noise: FloatArray
     floor_px: float
     source: str
+    bias: FloatArray | None = None
 
 
 def _pinv_psd(m: FloatArray) -> FloatArray:
@@ -175,7 +248,8 @@ def _pinv_psd(m: FloatArray) -> FloatArray:
 
 def sandwich_covariance(jac: FloatArray, residuals: FloatArray, weights: FloatArray,
                         points_vu: FloatArray, *,
-                        correlation_px: float = CORRELATION_LENGTH_PX) -> FloatArray:
+                        correlation_px: float = CORRELATION_LENGTH_PX,
+                        information: FloatArray | None = None) -> FloatArray:
     """The robust fit's covariance from its residuals, neighbours correlated.
 
     Parameters
@@ -191,6 +265,9 @@ def sandwich_covariance(jac: FloatArray, residuals: FloatArray, weights: FloatAr
         weighted by its distance, over at most ``_MAX_LAG`` successors.
     correlation_px : float, optional
         Where the Bartlett weight of a pair reaches zero.
+    information : ndarray, shape (P, P), optional
+        The bread ``H``; the Gauss-Newton ``sum w J J^T`` of the weighted
+        vertices when None (:func:`information` adds the DT's curvature).
 
     Returns
     -------
@@ -206,7 +283,7 @@ def sandwich_covariance(jac: FloatArray, residuals: FloatArray, weights: FloatAr
     a = jac[keep]
     w = weights[keep]
     pts = points_vu[keep]
-    info = (a * w[:, None]).T @ a
+    info = (a * w[:, None]).T @ a if information is None else information
     psi = (w * residuals[keep])[:, None] * a
     meat = psi.T @ psi
     # the triangle is a positive semi-definite kernel of the distance along a
@@ -223,6 +300,69 @@ def sandwich_covariance(jac: FloatArray, residuals: FloatArray, weights: FloatAr
     # rounding of a near-singular product, clipped back to semi-definite
     ev, vec = np.linalg.eigh(0.5 * (cov + cov.T))
     return np.asarray((vec * np.clip(ev, 0.0, None)) @ vec.T)
+
+
+def _motion(jac: FloatArray, lever_vu: FloatArray | None) -> FloatArray:
+    """Each vertex's unit direction across its DT gradient, as a pose row:
+    how far each pose parameter moves the vertex along it."""
+    g = jac[:, :2] / np.maximum(np.hypot(jac[:, 0], jac[:, 1]), 1e-300)[:, None]
+    across = np.column_stack([-g[:, 1], g[:, 0]])
+    if jac.shape[1] == 2 or lever_vu is None:
+        return across
+    # the rotation moves a vertex along perp(lever), as in :func:`evidence`
+    turn = -lever_vu[:, 1] * across[:, 0] + lever_vu[:, 0] * across[:, 1]
+    return np.column_stack([across, turn])
+
+
+def information(jac: FloatArray, residuals: FloatArray, weights: FloatArray,
+                curvature: FloatArray | None = None,
+                lever_vu: FloatArray | None = None) -> FloatArray:
+    """The bread of :func:`sandwich_covariance`: the robust cost's Hessian.
+
+    ``sum w J J^T`` (Gauss-Newton) plus, with ``curvature``, the DT's own
+    curvature across its gradient, ``sum w r c m m^T`` with ``m`` the
+    vertex's motion across its DT gradient per pose parameter. For an
+    isolated edge pixel at distance ``r`` the DT is a cone and
+    ``r c = 1``: moving the vertex along the edge costs as much as across.
+
+    Parameters
+    ----------
+    jac, residuals, weights : ndarray
+        As :func:`sandwich_covariance`'s.
+    curvature : ndarray, shape (N,), optional
+        The DT's second difference across its gradient at each vertex,
+        ``>= 0`` (the ``curvature`` of :class:`Evidence`).
+    lever_vu : ndarray, shape (N, 2), optional
+        Each vertex's lever arm from the pivot (a fit with a rotation).
+
+    Returns
+    -------
+    ndarray, shape (P, P)
+    """
+    keep = weights > 0.0
+    a = jac[keep]
+    w = weights[keep]
+    info = (a * w[:, None]).T @ a
+    if curvature is None:
+        return np.asarray(info)
+    m = _motion(a, None if lever_vu is None else lever_vu[keep])
+    bend = w * residuals[keep] * curvature[keep]
+    return np.asarray(info + (m * bend[:, None]).T @ m)
+
+
+def second_edge_shift(distance_px: FloatArray, ratio: FloatArray) -> FloatArray:
+    """The shift of a vertex's detected edge by an edge of the opposite
+    polarity ``distance_px`` away along its normal, px.
+
+    ``ratio`` is that edge's gradient over the vertex's own (at most 1):
+    the shift of a ridge by a small overlapping one is linear in the
+    overlap. ``inf`` distances (no such edge) shift nothing.
+    """
+    d = np.asarray(distance_px, dtype=np.float64)
+    shift = np.where(np.isfinite(d), SECOND_EDGE_SHIFT_PX
+                     * np.exp(-(np.where(np.isfinite(d), d, 0.0) - 3.0) / SECOND_EDGE_DECAY_PX),
+                     0.0)
+    return np.asarray(np.minimum(shift, SECOND_EDGE_MAX_SHIFT_PX) * np.asarray(ratio))
 
 
 def floor_covariance(jac: FloatArray, weights: FloatArray, floor_px: float) -> FloatArray:
@@ -267,21 +407,98 @@ class Evidence(NamedTuple):
         rotation's through the vertex's lever arm).
     points_vu : ndarray, shape (N, 2)
         The vertices at the pose.
+    curvature : ndarray, shape (N,), or None
+        The DT's second difference across its gradient, step
+        :data:`CURVATURE_STEP_PX`, clipped at zero (1/px); None in a fit
+        saved before it was sampled.
+    second_edge_vu : ndarray, shape (N, 2), or None
+        The shift of each vertex's detected edge by an edge of the opposite
+        polarity along its normal (:func:`second_edge_shift`), px, pointing
+        away from that edge; zero where there is none. None in a fit saved
+        before it was sampled.
     """
 
     residuals: FloatArray
     jacobian: FloatArray
     points_vu: FloatArray
+    curvature: FloatArray | None = None
+    second_edge_vu: FloatArray | None = None
 
 
-def evidence(fit: Any, edge_dt: FloatArray) -> Evidence:
+def _sample_vectors(grid: FloatArray, pts: FloatArray) -> FloatArray:
+    """Bilinear samples of an ``(H, W, 2)`` grid at ``pts`` (``(M, 2)``), edge-clamped."""
+    h, w = grid.shape[:2]
+    v = np.clip(pts[:, 0], 0.0, h - 1.0)
+    u = np.clip(pts[:, 1], 0.0, w - 1.0)
+    v0 = np.minimum(np.floor(v).astype(np.intp), max(h - 2, 0))
+    u0 = np.minimum(np.floor(u).astype(np.intp), max(w - 2, 0))
+    fv = (v - v0)[:, None]
+    fu = (u - u0)[:, None]
+    v1 = np.minimum(v0 + 1, h - 1)
+    u1 = np.minimum(u0 + 1, w - 1)
+    return np.asarray((1 - fv) * ((1 - fu) * grid[v0, u0] + fu * grid[v0, u1])
+                      + fv * ((1 - fu) * grid[v1, u0] + fu * grid[v1, u1]))
+
+
+def _second_edges(magnitude: FloatArray, gradient_vu: FloatArray, pts: FloatArray,
+                  normals: FloatArray, threshold: float) -> FloatArray:
+    """Each vertex's ``second_edge_vu`` (:class:`Evidence`).
+
+    The gradient magnitude is read along the vertex's normal within
+    :data:`SECOND_EDGE_REACH_PX` either way. The vertex's own edge is its
+    peak within :data:`_OWN_EDGE_PX`, which must pass ``threshold`` (the
+    detector's edge threshold); the second edge is the nearest other local
+    peak above ``threshold`` whose gradient points against the normal: an
+    edge the detector keeps, of the opposite polarity.
+    """
+    n = pts.shape[0]
+    s = np.arange(-SECOND_EDGE_REACH_PX, SECOND_EDGE_REACH_PX + 0.5 * _PROFILE_STEP_PX,
+                  _PROFILE_STEP_PX)
+    at = pts[:, None, :] + s[None, :, None] * normals[:, None, :]
+    prof = sample_dt_bilinear(magnitude, at.reshape(-1, 2)).reshape(n, s.size)
+    near = np.abs(s) <= _OWN_EDGE_PX
+    own_at = np.flatnonzero(near)[np.argmax(prof[:, near], axis=1)]
+    rows = np.arange(n)
+    own = prof[rows, own_at]
+    mid = prof[:, 1:-1]
+    peak = (mid > threshold) & (mid >= prof[:, :-2]) & (mid > prof[:, 2:])
+    peak[rows, own_at - 1] = False  # the vertex's own edge (never at the ends)
+    vi, si = np.nonzero(peak)
+    # the polarity of each candidate: its gradient along the vertex's normal
+    g = _sample_vectors(gradient_vu, at[vi, si + 1])
+    opposite = np.einsum("nk,nk->n", g, normals[vi]) < 0.0
+    # each peak's place refined by the parabola through its three samples
+    vo, so = vi[opposite], si[opposite] + 1
+    lo, top, hi = prof[vo, so - 1], prof[vo, so], prof[vo, so + 1]
+    bend = lo - 2.0 * top + hi
+    shift_at = np.where(bend < 0.0, 0.5 * (lo - hi) / np.where(bend < 0.0, bend, -1.0), 0.0)
+    dist = np.full((n, s.size - 2), np.inf)
+    dist[vo, so - 1] = np.abs(s[so] + _PROFILE_STEP_PX * shift_at)
+    j = np.argmin(dist, axis=1)
+    d = dist[rows, j]
+    found = np.isfinite(d) & (own > threshold)
+    ratio = np.where(found, np.minimum(mid[rows, j] / np.where(own > 0.0, own, 1.0), 1.0), 0.0)
+    shift = second_edge_shift(np.where(found, d, np.inf), ratio)
+    # the ridge moves away from the other edge
+    side = np.sign(s[1:-1][j])
+    return np.asarray(-(shift * side)[:, None] * normals)
+
+
+def evidence(fit: Any, edge_dt: FloatArray, gradient: tuple[FloatArray, FloatArray] | None = None,
+             threshold: float = math.inf) -> Evidence:
     """The :class:`Evidence` of ``fit`` (a :class:`~dtalign.pipeline.PolylineFit`)
-    on ``edge_dt``, the edge DT it was fitted to."""
+    on ``edge_dt``, the edge DT it was fitted to; with ``gradient`` (the
+    image products' ``gradient_magnitude`` and ``gradient_vu``) and
+    ``threshold`` (their edge threshold), the second edges too (zero
+    without)."""
     lm = fit.lm
     rel = np.asarray(fit.vertices_vu, dtype=np.float64) - np.asarray(fit.pivot_vu)
+    normals = np.asarray(fit.normals_vu, dtype=np.float64).reshape(-1, 2)
     if lm.rotation_rad != 0.0:  # the pose rotation of :ref:`contract-numerics`
         c, s = np.cos(lm.rotation_rad), np.sin(lm.rotation_rad)
         rel = np.column_stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]])
+        normals = np.column_stack([c * normals[:, 0] - s * normals[:, 1],
+                                   s * normals[:, 0] + c * normals[:, 1]])
     pts = rel + np.asarray(fit.pivot_vu) + np.asarray(lm.offset_vu)
     eps = JACOBIAN_TRANSLATION_EPS_PX
     n = pts.shape[0]
@@ -295,7 +512,16 @@ def evidence(fit: Any, edge_dt: FloatArray) -> Evidence:
         # vertex's motion, perpendicular to its lever arm from the pivot
         lever = pts - np.asarray(lm.offset_vu) - np.asarray(fit.pivot_vu)
         jac[:, 2] = -lever[:, 1] * jac[:, 0] + lever[:, 0] * jac[:, 1]
-    return Evidence(_readonly(at[0]), _readonly(jac), _readonly(pts))
+    # the DT's curvature across its gradient (a zero gradient: none)
+    step = CURVATURE_STEP_PX * _motion(jac[:, :2], None)
+    side = sample_dt_bilinear(edge_dt, np.concatenate([pts + step, pts - step])).reshape(2, n)
+    bend = (side[0] + side[1] - 2.0 * at[0]) / CURVATURE_STEP_PX**2
+    bend = np.where(np.hypot(jac[:, 0], jac[:, 1]) > 0.0, np.clip(bend, 0.0, None), 0.0)
+    unit = normals / np.maximum(np.hypot(normals[:, 0], normals[:, 1]), 1e-300)[:, None]
+    second = (np.zeros((n, 2)) if gradient is None or n == 0
+              else _second_edges(gradient[0], np.asarray(gradient[1]), pts, unit, threshold))
+    return Evidence(_readonly(at[0]), _readonly(jac), _readonly(pts), _readonly(bend),
+                    _readonly(second))
 
 
 def source_of(fit: Any) -> str:
@@ -342,8 +568,15 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
     jac = np.asarray(found.jacobian)
     inlier = w >= INLIER_WEIGHT_FRACTION * float(w.max())
     w_in = np.where(inlier, w, 0.0)
-    noise = sandwich_covariance(jac, np.where(inlier, found.residuals, 0.0), w_in,
-                                np.asarray(found.points_vu))
+    res = np.where(inlier, found.residuals, 0.0)
+    lever = None
+    if p == 3:
+        lever = (np.asarray(found.points_vu) - np.asarray(fit.lm.offset_vu)
+                 - np.asarray(fit.pivot_vu))
+    bend = None if found.curvature is None else np.asarray(found.curvature)
+    info = information(jac, res, w_in, bend, lever)
+    noise = sandwich_covariance(jac, res, w_in, np.asarray(found.points_vu), information=info)
+    bias = np.zeros((p, p))
     if fit.profile is not None and fit.profile.accepted:
         # the translation is the profile's: its pixels' covariance replaces
         # the DT's (the rotation, when fitted, stays the DT-LM's)
@@ -352,8 +585,15 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
         noise[:2, :] = 0.0
         noise[:, :2] = 0.0
         noise[:2, :2] = prof if np.isfinite(prof).all() else np.inf
+    elif found.second_edge_vu is not None and w_in.any():
+        # the DT-LM pose's shift by the second edges, through the same bread
+        keep = w_in > 0.0
+        a = jac[keep]
+        moved = np.einsum("nk,nk->n", a[:, :2], np.asarray(found.second_edge_vu)[keep])
+        beta = _pinv_psd(info) @ ((a * w_in[keep, None]).T @ moved)
+        bias = np.outer(beta, beta)
     if not np.isfinite(noise).all():
         full = np.full((p, p), np.inf)
         return PoseUncertainty(_readonly(full), _readonly(noise), floor, source)
-    cov = noise + floor_covariance(jac, w, floor)
-    return PoseUncertainty(_readonly(cov), _readonly(noise), floor, source)
+    cov = noise + bias + floor_covariance(jac, w, floor)
+    return PoseUncertainty(_readonly(cov), _readonly(noise), floor, source, _readonly(bias))
