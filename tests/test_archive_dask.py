@@ -367,8 +367,12 @@ def test_ctrl_c_stops_cleanly_and_the_rerun_completes(cluster, frames, tmp_path)
     store = tmp_path / "store"
     cmd = [sys.executable, "-m", "dtalign", "archive", str(manifest), "--out", str(store),
            "--workers", "2", "--flush-every", "1", "--no-progress"]
+    # SIGINT at its default, as a terminal's program has it: a test run started
+    # in the background of a shell has it ignored (POSIX), and the command
+    # would inherit that and rightly ignore the Ctrl-C sent below
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + TIMEOUT_S
         while time.monotonic() < deadline and proc.poll() is None:
