@@ -238,6 +238,13 @@ def compute_all_image_derivatives(
     return all_derivatives(image, noise, cfg)
 
 
+def edge_threshold(cfg: ImageDerivativesConfig, noise: float) -> float:
+    """The gradient magnitude an edge pixel must reach: ``k`` noise sigmas
+    (``cfg.edge_threshold_k_sigma``), the noise floored at
+    :data:`~dtalign.api.constants.NOISE_SIGMA_FLOOR`."""
+    return float(cfg.edge_threshold_k_sigma * max(noise, NOISE_SIGMA_FLOOR))
+
+
 def all_derivatives(
     image: FloatArray, noise: float, cfg: ImageDerivativesConfig
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -245,7 +252,7 @@ def all_derivatives(
     pipeline checks the image once per call); the smoothing check is a few
     scalar comparisons and runs on both paths."""
     smoothing_sigma(cfg.image_gradient_sigma_px, image.shape, "config.image_gradient_sigma_px")
-    threshold = cfg.edge_threshold_k_sigma * max(noise, NOISE_SIGMA_FLOOR)
+    threshold = edge_threshold(cfg, noise)
     half_width = cfg.dt_half_width_px
     grad = np.empty(image.shape + (2,))
     magnitude = np.empty(image.shape)

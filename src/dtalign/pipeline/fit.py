@@ -39,12 +39,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..api import checks as check
-from ..api.constants import (
-    DEFAULT_PINVH_RCOND,
-    DEFAULT_TUKEY_C,
-    NOISE_SIGMA_FLOOR,
-    POLARITY_PENALTY_RESIDUAL,
-)
+from ..api.constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C, POLARITY_PENALTY_RESIDUAL
+from ..api.image import edge_threshold
 from ..api.lm import fit_checked
 from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
 from ..api.results import ImageDerivativesConfig, LMRefineResult, summary_text
@@ -920,8 +916,7 @@ def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
     if profile is not None:
         fit = with_profile(fit, products, profile, kind)
     # the detector's own edge threshold: a second edge is one it keeps
-    threshold = products.config.edge_threshold_k_sigma * max(products.noise_sigma,
-                                                              NOISE_SIGMA_FLOOR)
+    threshold = edge_threshold(products.config, products.noise_sigma)
     found = None if fit.lm.degenerate else evidence(
         fit, products.edge_dt, (products.gradient_magnitude, products.gradient_vu), threshold)
     return dataclasses.replace(fit, edge_kind=kind, evidence=found)
