@@ -96,6 +96,25 @@ PAIR_OPTIONS: dict[str, frozenset[str]] = {
 
 _NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
+#: ``fit``'s flags that set a :class:`~dtalign.api.options.FitOptions` field, in
+#: their help order: each flag's ``dest`` is the field's name, so the parsed
+#: arguments map straight onto FitOptions (:func:`_fit_options`).
+_FIT_OPTIONS: dict[str, dict[str, Any]] = {
+    "--rotation": dict(dest="fit_rotation", action="store_true", help="also fit an in-plane rotation"),
+    "--ridge": dict(dest="final_gradient_ridge", action="store_true",
+                    help="finish with the gradient-ridge polish"),
+    "--trust-region": dict(dest="trust_region_px", type=float, metavar="PX",
+                           help="LM trust region (1.0 in production)"),
+    "--tikhonov": dict(dest="tikhonov_alpha", type=float, default=0.0, metavar="ALPHA",
+                       help="pull toward the coarse seed"),
+    "--no-polarity": dict(dest="use_polarity", action="store_false",
+                          help="do not reject vertices by polarity"),
+    # the choices are dtalign.api.profiles.EDGE_KINDS (tests/test_terminator.py checks)
+    "--edge-kind": dict(dest="edge_kind", choices=("limb", "terminator", "ring", "other"),
+                        help="what kind of edge the polyline is (with --sphere: --edge's); a "
+                        "terminator without --sphere is reported suspect"),
+}
+
 #: Half-size of a ``--zoom`` panel unless ``--zoom-half`` says otherwise (px):
 #: wide enough to show the edge and the model's residual at a glance.
 DEFAULT_ZOOM_HALF_PX = 20.0
@@ -195,11 +214,6 @@ def _check_output_file(path: str | Path, option: str) -> Path:
     return p
 
 
-def _check_plotting(option: str) -> None:
-    if importlib.util.find_spec("matplotlib") is None:
-        raise CLIError(f"{option} needs matplotlib: pip install matplotlib")
-
-
 class _Stdout:
     """The command's result text: standard output, or ``--output FILE`` at the end."""
 
@@ -297,13 +311,22 @@ def _pair_arg(text: str, option: str, kind: Callable[[str], Any] = float,
         raise CLIError(f"{option} takes numbers, got {text!r}") from None
 
 
-def _zoom_points(args: argparse.Namespace) -> list[tuple[float, float]]:
+def _outputs(args: argparse.Namespace) -> tuple[list[tuple[float, float]], Path | None, _Stdout]:
+    """``--zoom``, ``--zoom-half``, ``--plot`` and ``--output`` checked before any
+    work: the zoom points, the plot's path (None without ``--plot``) and the
+    command's result text."""
     points = [_pair_arg(z, "--zoom") for z in (args.zoom or ())]
     if not all(math.isfinite(x) for pt in points for x in pt):
         raise CLIError("--zoom points must be finite")
     if not (math.isfinite(args.zoom_half) and args.zoom_half > 0):
         raise CLIError(f"--zoom-half must be a positive number, got {args.zoom_half}")
-    return points
+    plot = None
+    if args.plot:
+        plot = _check_output_file(args.plot, "--plot")
+        if importlib.util.find_spec("matplotlib") is None:
+            raise CLIError("--plot needs matplotlib: pip install matplotlib")
+    output = None if args.output is None else _check_output_file(args.output, "--output")
+    return points, plot, _Stdout(output)
 
 
 # ---------------------------------------------------------------------------
@@ -387,12 +410,10 @@ def _add_fit(sub: Any) -> None:
                      help="search margin in px: N for both axes, or V,U (e.g. 30,20); "
                      f"default {DEFAULT_WINDOW_PX}, as in Python")
     fit.add_argument("--noise-sigma", type=float, help="image noise sigma (default: estimated)")
-    fit.add_argument("--rotation", action="store_true", help="also fit an in-plane rotation")
-    fit.add_argument("--ridge", action="store_true", help="finish with the gradient-ridge polish")
-    fit.add_argument("--trust-region", type=float, metavar="PX", help="LM trust region (1.0 in production)")
-    fit.add_argument("--tikhonov", type=float, default=0.0, metavar="ALPHA", help="pull toward the coarse seed")
-    fit.add_argument("--no-polarity", action="store_true", help="do not reject vertices by polarity")
-    _add_sphere_options(fit)
+    for flag, spec in _FIT_OPTIONS.items():
+        if flag == "--edge-kind":  # listed after the --sphere options: its help speaks of --edge
+            _add_sphere_options(fit)
+        fit.add_argument(flag, **spec)
     _add_output_options(fit, "a table", "the table")
     _add_plot_options(fit, "write a picture of the fit (with several images: OUT_<image label>.png)")
     fit.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -412,10 +433,6 @@ def _add_sphere_options(fit: argparse.ArgumentParser) -> None:
                      help="with --sphere: which edge the polyline is (default limb)")
     fit.add_argument("--psf-sigma", type=float, metavar="PX",
                      help="with --sphere: the PSF's Gaussian sigma (default: estimated)")
-    # the choices are dtalign.api.profiles.EDGE_KINDS (tests/test_terminator.py checks)
-    fit.add_argument("--edge-kind", choices=("limb", "terminator", "ring", "other"),
-                     help="what kind of edge the polyline is (with --sphere: --edge's); a "
-                     "terminator without --sphere is reported suspect")
 
 
 def _add_overlay(sub: Any) -> None:
@@ -468,14 +485,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         fit = _demo_fit(scene, args)
     noise_est = pipeline.estimate_noise_sigma(scene.image)
     if args.json:
-        out = {
-            "true_offset_vu": list(scene.true_offset_vu),
-            "true_rotation_rad": scene.true_rotation_rad,
-            "noise_sigma_true": scene.noise_sigma,
-            "noise_sigma_estimated": noise_est,
-            "fit": fit.to_dict(),
-            "scene_s": t_scene,
-        }
+        out = {"true_offset_vu": list(scene.true_offset_vu),
+               "true_rotation_rad": scene.true_rotation_rad, "noise_sigma_true": scene.noise_sigma,
+               "noise_sigma_estimated": noise_est, "fit": fit.to_dict(), "scene_s": t_scene}
         stdout.emit(json.dumps(out, indent=2))
     else:
         stdout.emit(_demo_text(scene, fit, noise_est, args))
@@ -488,17 +500,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _demo_outputs(args: argparse.Namespace) -> tuple[list[tuple[float, float]], _Stdout, Path | None]:
     """The demo's options checked: its zoom points, its output, and the folder to save to."""
-    if args.n_vertices < 3:
-        raise CLIError(f"--n-vertices must be >= 3, got {args.n_vertices}")
-    if args.window < 0:
-        raise CLIError(f"--window must be >= 0, got {args.window}")
-    if args.repeat < 1:
-        raise CLIError(f"--repeat must be >= 1, got {args.repeat}")
-    zooms = _zoom_points(args)
-    if args.plot:
-        _check_output_file(args.plot, "--plot")
-        _check_plotting("--plot")
-    stdout = _Stdout(None if args.output is None else _check_output_file(args.output, "--output"))
+    for option, value, least in (("--n-vertices", args.n_vertices, 3), ("--window", args.window, 0),
+                                 ("--repeat", args.repeat, 1)):
+        if value < least:
+            raise CLIError(f"{option} must be >= {least}, got {value}")
+    zooms, _, stdout = _outputs(args)  # the plot is written to --plot as given
     save_dir = None
     if args.save:
         save_dir = Path(args.save)
@@ -514,19 +520,12 @@ def _demo_fit(scene: Any, args: argparse.Namespace) -> Any:
     """One run of the stages on the demo scene: derivatives, coarse search and LM."""
     import dtalign.pipeline as pipeline
 
-    poly = scene.polyline
+    poly, rotation = scene.polyline, args.rotation is not None
     products = pipeline.prepare_image(scene.image, scene.noise_sigma)
     return pipeline.fit_polyline_products(
-        products,
-        poly.vertices_vu,
-        poly.normals_vu,
-        poly.sigmas,
-        search_window_vu=scene.search_window_vu,
-        fit_rotation=args.rotation is not None,
-        pivot_vu=scene.pivot_vu,
-        pivot_distance_px=scene.pivot_distance_px if args.rotation is not None else None,
-        trust_region_px=1.0,
-    )
+        products, poly.vertices_vu, poly.normals_vu, poly.sigmas,
+        search_window_vu=scene.search_window_vu, fit_rotation=rotation, pivot_vu=scene.pivot_vu,
+        pivot_distance_px=scene.pivot_distance_px if rotation else None, trust_region_px=1.0)
 
 
 def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace) -> str:
@@ -599,16 +598,8 @@ def _save_demo(scene: Any, folder: Path, args: argparse.Namespace, messages: _Me
     )
 
 
-def _plot(
-    image: Any,
-    vertices: Any,
-    fit: Any,
-    path: str | Path,
-    label: str,
-    zooms: list[tuple[float, float]],
-    zoom_half: float,
-    messages: _Messages,
-) -> None:
+def _plot(image: Any, vertices: Any, fit: Any, path: str | Path, label: str,
+          zooms: list[tuple[float, float]], zoom_half: float, messages: _Messages) -> None:
     from .plotting import plot_fit
 
     plot_fit(image, vertices, fit, path, zoom_vu=zooms or None, zoom_half_px=zoom_half)
@@ -650,14 +641,10 @@ def _jobs(args: argparse.Namespace) -> tuple[list[_Job], bool]:
                 continue
             if len(parts) > 2:
                 raise CLIError(f"batch list {listfile}: expected 'IMAGE [POLYLINE]', got {line!r}")
-            img = Path(parts[0])
-            if not img.is_absolute():
-                img = listfile.parent / img
-            if len(parts) == 2:
-                pl = Path(parts[1]) if Path(parts[1]).is_absolute() else listfile.parent / parts[1]
-            else:
-                pl = img.with_suffix(".csv")
-            jobs.append(_Job(img, pl))
+            # relative to the list's folder (joined to it, an absolute path stays itself)
+            img = listfile.parent / parts[0]
+            jobs.append(_Job(img, listfile.parent / parts[1] if len(parts) == 2
+                             else img.with_suffix(".csv")))
     if args.glob:
         matches = sorted(p for p in glob.glob(args.glob) if not p.lower().endswith(".csv"))
         if not matches:
@@ -685,11 +672,8 @@ def _unique_names(paths: Sequence[Path]) -> list[str]:
         groups: dict[str, set[Path]] = {}
         for n, p in zip(names, resolved, strict=True):
             groups.setdefault(n, set()).add(p)
-        grow = [
-            i
-            for i, n in enumerate(names)
-            if len(groups[n]) > 1 and levels[i] < len(resolved[i].parent.parts)
-        ]
+        grow = [i for i, n in enumerate(names)
+                if len(groups[n]) > 1 and levels[i] < len(resolved[i].parent.parts)]
         if not grow:
             return names
         for i in grow:
@@ -755,10 +739,9 @@ def _load(job: _Job, args: argparse.Namespace, sphere: dict[str, Any] | None,
 
 
 def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The ``fit`` command's options, as :class:`~dtalign.api.options.FitOptions` fields."""
-    return {"fit_rotation": args.rotation, "use_polarity": not args.no_polarity,
-            "trust_region_px": args.trust_region, "tikhonov_alpha": args.tikhonov,
-            "final_gradient_ridge": args.ridge, "edge_kind": args.edge_kind}
+    """The ``fit`` command's options (:data:`_FIT_OPTIONS`), as
+    :class:`~dtalign.api.options.FitOptions` fields."""
+    return {spec["dest"]: getattr(args, spec["dest"]) for spec in _FIT_OPTIONS.values()}
 
 
 def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
@@ -778,15 +761,14 @@ def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
     if len(values) != 5:
         raise CLIError(f"--sphere takes five numbers V,U,R,PHASE,LIGHT, got {args.sphere!r}")
     law, _, k = str(args.law).partition(",")
+    minnaert_k: float | None = None
     if law == "minnaert":
         try:
-            minnaert_k: float | None = float(k)
+            minnaert_k = float(k)
         except ValueError:
             raise CLIError(f"--law minnaert needs its exponent (minnaert,K), got {args.law!r}") from None
     elif k:
         raise CLIError(f"--law takes lambert, minnaert,K or lommel-seeliger, got {args.law!r}")
-    else:
-        minnaert_k = None
     return {"center_vu": (values[0], values[1]), "radius_px": values[2], "phase_deg": values[3],
             "illumination_deg": values[4], "edge": args.edge, "law": law,
             "minnaert_k": minnaert_k, "psf_sigma_px": args.psf_sigma}
@@ -894,12 +876,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     window = search_window(args.window, "--window", form="option")
     sphere = _sphere_model(args)  # a malformed --sphere is the command's error, before any image
     jobs, batch = _jobs(args)
-    zooms = _zoom_points(args)
-    plot_path = None
-    if args.plot:
-        plot_path = _check_output_file(args.plot, "--plot")
-        _check_plotting("--plot")
-    stdout = _Stdout(None if args.output is None else _check_output_file(args.output, "--output"))
+    zooms, plot_path, stdout = _outputs(args)
     messages = _Messages()
     tally = _Tally()
     _WARNINGS.messages = messages
@@ -1006,15 +983,12 @@ class _Tally:
                 "the rows above are the ones finished"
             )
             return EXIT_INTERRUPTED
-        if self.failures:
-            messages.say(f"{PROG}: {self.failures} of {n_jobs} image(s) failed")
-            return 1
-        if self.failed_fits:
-            messages.say(f"{PROG}: {self.failed_fits} of {n_jobs} fit(s) failed (status 'failed')")
-            return EXIT_FIT_FAILED
-        if self.doubtful_fits:
-            messages.say(f"{PROG}: {self.doubtful_fits} of {n_jobs} fit(s) suspect or ambiguous")
-            return EXIT_FIT_DOUBTFUL
+        for count, what, code in ((self.failures, "image(s) failed", 1),
+                                  (self.failed_fits, "fit(s) failed (status 'failed')", EXIT_FIT_FAILED),
+                                  (self.doubtful_fits, "fit(s) suspect or ambiguous", EXIT_FIT_DOUBTFUL)):
+            if count:  # the worst kind of trouble decides the status
+                messages.say(f"{PROG}: {count} of {n_jobs} {what}")
+                return code
         return 0
 
 
@@ -1069,7 +1043,7 @@ def _table_batch(results: list[dict[str, Any]]) -> str:
 def _cmd_overlay(args: argparse.Namespace) -> int:
     if args.n_lines < 1:
         raise CLIError(f"--n-lines must be >= 1, got {args.n_lines}")
-    _pair_arg(args.displace, "--displace", example="3,-2")  # before any file is written
+    displace = _pair_arg(args.displace, "--displace", example="3,-2")  # before any file is written
     _check_output_file(args.image, "--image")
     _check_output_file(args.polyline, "--polyline")
 
@@ -1082,12 +1056,10 @@ def _cmd_overlay(args: argparse.Namespace) -> int:
     frame = load_cassini_overlay_frame(args.png)
     lines = overlay_polylines(frame, shape=args.shape, n_lines=args.n_lines)
     model = concatenate_polylines(lines, name=Path(args.png).stem)
-    displace = _pair_arg(args.displace, "--displace", example="3,-2")
     if not all(math.isfinite(x) for x in displace):
         raise CLIError(f"--displace must be finite, got {args.displace!r}")
-    moved = Polyline(
-        model.name, model.vertices_vu - np.asarray(displace), model.normals_vu, model.sigmas
-    )
+    moved = Polyline(model.name, model.vertices_vu - np.asarray(displace), model.normals_vu,
+                     model.sigmas)
     np.save(args.image, frame.image)
     save_polyline_csv(args.polyline, moved)
     print(

@@ -392,7 +392,7 @@ _SKIPPED = object()
 
 def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
     """``(vertices, normals, sigmas)`` of a polyline given as an object or a 3-sequence
-    (or a 4-sequence whose last item is its edge profile, :func:`_polyline_profile`)."""
+    (or a 4-sequence whose last item is its edge profile, :func:`_polyline`)."""
     if type(item) in (tuple, list) and len(item) in (3, 4):  # plain: no such attributes
         return item[0], item[1], _jobs.broadcast_sigmas(item[0], item[2])
     try:  # one attempt for the three attributes, not three hasattr() calls
@@ -408,45 +408,49 @@ def _polyline_parts(item: Any, index: int) -> tuple[Any, Any, Any]:
     )
 
 
-def _polyline_profile(item: Any) -> Any:
-    """The :class:`~dtalign.EdgeProfile` a polyline carries: the 4th item of a
-    ``(vertices_vu, normals_vu, sigmas, edge_profile)`` sequence or an
-    ``edge_profile`` attribute; None when it has none."""
-    if type(item) in (tuple, list):
-        return item[3] if len(item) == 4 else None
-    return getattr(item, "edge_profile", None)
+def _polyline(item: Any, index: int) -> tuple[Any, Any, Any, Any, str | None]:
+    """Polyline ``index`` of a call as ``(vertices, normals, sigmas, edge_profile,
+    edge_kind)``: its parts (:func:`_polyline_parts`), the profile it carries
+    (the 4th item of a ``(vertices_vu, normals_vu, sigmas, edge_profile)``
+    sequence or an ``edge_profile`` attribute) and the kind it declares (an
+    ``edge_kind`` attribute); None where it has none (for the kind: the
+    options' :attr:`~dtalign.api.options.FitOptions.edge_kind` then)."""
+    parts = _polyline_parts(item, index)
+    if type(item) in (tuple, list):  # plain: no such attributes
+        return (*parts, item[3] if len(item) == 4 else None, None)
+    return (*parts, getattr(item, "edge_profile", None), getattr(item, "edge_kind", None))
 
 
-def _polyline_edge_kind(item: Any, default: str | None) -> str | None:
-    """The edge kind a polyline declares (an ``edge_kind`` attribute), else ``default``
-    (the options' :attr:`~dtalign.api.options.FitOptions.edge_kind`)."""
-    kind = getattr(item, "edge_kind", None)
-    return default if kind is None else kind
+def _fit_and_conclude(products: ImageProducts, polylines: list[tuple[Any, ...]], window: Any,
+                      options: FitOptions, collect: bool, runner: _Runner) -> list[Any]:
+    """The fits of one image's checked polylines (:func:`_polyline`'s tuples),
+    each concluded (:func:`_concluded`), their steps run by ``runner``."""
+    fits = _fit_parts(products, [p[:3] for p in polylines], window, options, collect, runner)
+    return runner.call(_concluded, products, fits, polylines, options, collect)
 
 
-def _profiled(products: ImageProducts, fits: list[Any], profiles: list[Any], collect: bool,
-              label: str, kinds: list[str | None] | None = None) -> list[Any]:
+def _concluded(products: ImageProducts, fits: list[Any], polylines: list[tuple[Any, ...]],
+               options: FitOptions, collect: bool) -> list[Any]:
     """``fits`` concluded as :func:`~dtalign.pipeline.fit_polyline_products`
     concludes one (:func:`dtalign.pipeline.fit.conclude`): refined with their
-    polylines' edge profiles, marked with their edge kinds (``kinds``, or
-    each profile's ``edge``), their evidence for the covariance sampled; a
-    bad profile or kind is the polyline's error (raised, or collected in its
-    place)."""
-    if kinds is None:
-        kinds = [None] * len(fits)
+    polylines' edge profiles, marked with their edge kinds (each polyline's,
+    else the options', else each profile's ``edge``), their evidence for the
+    covariance sampled; a bad profile or kind is the polyline's error
+    (raised, or collected in its place)."""
     from .profile_fit import check_edge_profile, edge_kind_of
 
     out = list(fits)
-    for i, (fit, profile, kind) in enumerate(zip(fits, profiles, kinds, strict=True)):
+    for i, (fit, (*_, profile, kind)) in enumerate(zip(fits, polylines, strict=True)):
         if isinstance(fit, Exception):
             continue
         try:
             checked = None if profile is None else check_edge_profile(profile, fit.normals_vu)
+            kind = options.edge_kind if kind is None else kind
             out[i] = conclude(fit, products, checked, edge_kind_of(kind, checked))
         except (TypeError, ValueError) as exc:
+            out[i] = _named(exc, f"polylines[{i}]", i)
             if not collect:
-                raise _named(exc, f"{label}[{i}]", i) from exc
-            out[i] = _named(exc, f"{label}[{i}]", i)
+                raise out[i] from exc
     return out
 
 
@@ -620,14 +624,9 @@ def fit_many(
     collect = _check_errors(errors)
     progress = _check_progress(progress)
     opts = resolve(options, overrides, profile=False)
-    items = list(polylines)
-    parts = [_polyline_parts(item, i) for i, item in enumerate(items)]
-    profiles = [_polyline_profile(item) for item in items]
-    kinds = [_polyline_edge_kind(item, opts.edge_kind) for item in items]
-
-    with _reporter(progress, len(parts), "polyline") as report, _runner(n, report) as runner:
-        out = _fit_parts(products, parts, search_window_vu, opts, collect, runner)
-        out = runner.call(_profiled, products, out, profiles, collect, "polylines", kinds)
+    items = [_polyline(item, i) for i, item in enumerate(polylines)]
+    with _reporter(progress, len(items), "polyline") as report, _runner(n, report) as runner:
+        out = _fit_and_conclude(products, items, search_window_vu, opts, collect, runner)
         # logged in a worker: logging drops an exception raised inside a
         # handler's emit, a timeout's landing in the calling thread too
         runner.call(_log, out, "polylines")
@@ -820,10 +819,7 @@ def _image_parts(item: Any, index: int
         )
     if isinstance(polys, (str, bytes)) or not isinstance(polys, Iterable):
         raise TypeError(f"items[{index}] polylines must be an iterable of polylines")
-    # each polyline's parts, its edge profile (None without one) and its edge kind
-    # (None when not declared: the options' then)
-    return image, noise, [(*_polyline_parts(p, j), _polyline_profile(p),
-                           _polyline_edge_kind(p, None)) for j, p in enumerate(polys)]
+    return image, noise, [_polyline(p, j) for j, p in enumerate(polys)]
 
 
 def _is_path(image: Any) -> bool:
@@ -844,10 +840,8 @@ def _fit_image(job: tuple[Any, ...], abort: threading.Event | None = None) -> li
 
         image = load_image(image)
     products = prepare_image(image, noise, config=config)
-    fits = _fit_parts(products, [p[:3] for p in parts], window, options, collect,
-                      _Runner(stop=threading.Event() if abort is None else abort))
-    return _profiled(products, fits, [p[3] for p in parts], collect, "polylines",
-                     [options.edge_kind if p[4] is None else p[4] for p in parts])
+    return _fit_and_conclude(products, parts, window, options, collect,
+                             _Runner(stop=threading.Event() if abort is None else abort))
 
 
 @overload
