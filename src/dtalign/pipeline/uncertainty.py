@@ -47,8 +47,10 @@ measures how often it covers the truth:
    edges overlaps and its ridge moves (:data:`SECOND_EDGE_SHIFT_PX`). Each
    vertex's shift is measured from the gradient along its normal
    (:func:`evidence`) and ``beta`` is the pose shift they make together,
-   propagated through the same ``H``: a bias, which more vertices do not
-   average away, added to the covariance as a mean squared error.
+   propagated through the same ``H`` (:func:`second_edge_pull`). The fit's
+   pose is the DT-LM's less ``beta`` (``PolylineFit.offset_vu``);
+   ``beta beta^T`` stays in the covariance, the error a modelled
+   correction may leave, which more vertices do not average away.
 
 Directions the geometry does not observe (a straight edge's along-edge
 shift) get zero here, as in the drop-in's pseudoinverse; the fit's
