@@ -77,7 +77,8 @@ RESULT_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("rival_offset_v", "float64", "that rival basin's fitted offset (null when none)"),
     ("rival_offset_u", "float64", ""),
     ("dt_offset_v", "float64",
-     "the DT-LM offset (equals offset_v/u unless an edge-profile refinement was accepted)"),
+     "the DT-LM offset (equals offset_v/u unless an edge-profile refinement was accepted "
+     "or a second edge's pull corrected it)"),
     ("dt_offset_u", "float64", ""),
     ("profile_accepted", "bool", "the edge-profile refinement was kept (null: no profile)"),
     ("profile_psf_sigma_px", "float64", "its PSF sigma, given or estimated (null: no profile)"),

@@ -65,7 +65,14 @@ from .profile_fit import (
     refine_with_profile,
 )
 from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
-from .uncertainty import Evidence, PoseUncertainty, evidence, floor_px, pose_uncertainty
+from .uncertainty import (
+    Evidence,
+    PoseUncertainty,
+    evidence,
+    floor_px,
+    pose_uncertainty,
+    second_edge_pull,
+)
 
 __all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
 
@@ -84,9 +91,15 @@ class PolylineFit:
     ----------
     offset_vu : tuple of float
         Fitted translation ``(dv, du)`` in pixels: add it to the model
-        vertices (after the rotation) to land them on the image edges.
+        vertices (after the rotation) to land them on the image edges. The
+        accepted profile refinement's when there is one; otherwise the
+        DT-LM's (:attr:`dt_offset_vu`) less the pull of second edges of the
+        opposite polarity near the polyline (a thin crescent's other edge,
+        :func:`~dtalign.pipeline.uncertainty.second_edge_pull`), which is
+        zero where there are none.
     rotation_rad : float
-        Fitted rotation about ``pivot_vu`` (0.0 when not fitted).
+        Fitted rotation about ``pivot_vu`` (0.0 when not fitted): the
+        DT-LM's (``lm.rotation_rad``) less the second edges' pull.
     coarse_offset_vu : tuple of int
         The integer seed of the coarse search.
     at_window_edge : bool
@@ -182,7 +195,8 @@ class PolylineFit:
 
     @property
     def dt_offset_vu(self) -> tuple[float, float]:
-        """The DT-LM offset (equal to :attr:`offset_vu` unless a profile refinement was accepted)."""
+        """The DT-LM offset: :attr:`offset_vu` before the profile refinement or
+        the second edges' correction moved it (equal to it when neither did)."""
         return self.lm.offset_vu
 
     def __post_init__(self) -> None:
@@ -594,6 +608,7 @@ class PolylineFit:
             "timings_s": dict(self.timings_s),
             **extra,
             "dt_offset_vu": [num(x) for x in self.dt_offset_vu],
+            "dt_rotation_rad": num(self.lm.rotation_rad),
             "profile": None if self.profile is None else self.profile.to_dict(),
             "edge_kind": self.edge_kind,
         }
@@ -641,11 +656,14 @@ class PolylineFit:
             lm_cov = d.get("covariance_mestimator", d["covariance"])
             cov = np.array([[inf(x) for x in row] for row in lm_cov], dtype=np.float64)
             found = d.get("evidence")
-            # the LM's own offset: the DT-LM one when a profile refinement moved the fit's
+            # the LM's own pose: the DT-LM one when a profile refinement or the
+            # second edges' correction moved the fit's (a dict written before
+            # "dt_rotation_rad" has the LM's rotation as the fit's)
             dt = d.get("dt_offset_vu", d["offset_vu"])
             lm = LMRefineResult(
                 offset_vu=(float(dt[0]), float(dt[1])),
-                rotation_rad=float(d["rotation_rad"]), covariance=_readonly(cov),
+                rotation_rad=float(d.get("dt_rotation_rad", d["rotation_rad"])),
+                covariance=_readonly(cov),
                 residuals_px=_readonly(np.asarray(d["residuals_px"], dtype=np.float64)),
                 weights=_readonly(np.asarray(d["weights"], dtype=np.float64)),
                 rms_px=inf(d["rms_px"]), raw_rms_px=inf(d["raw_rms_px"]),
@@ -656,7 +674,7 @@ class PolylineFit:
             prof = d.get("profile")
             return cls(
                 offset_vu=(float(d["offset_vu"][0]), float(d["offset_vu"][1])),
-                rotation_rad=lm.rotation_rad,
+                rotation_rad=float(d["rotation_rad"]),
                 coarse_offset_vu=(int(d["coarse_offset_vu"][0]), int(d["coarse_offset_vu"][1])),
                 at_window_edge=bool(d["at_window_edge"]), lm=lm,
                 search_window_vu=(int(d["search_window_vu"][0]), int(d["search_window_vu"][1])),
@@ -919,7 +937,19 @@ def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
     threshold = edge_threshold(products.config, products.noise_sigma)
     found = None if fit.lm.degenerate else evidence(
         fit, products.edge_dt, (products.gradient_magnitude, products.gradient_vu), threshold)
-    return dataclasses.replace(fit, edge_kind=kind, evidence=found)
+    fit = dataclasses.replace(fit, edge_kind=kind, evidence=found)
+    if found is None or (fit.profile is not None and fit.profile.accepted):
+        return fit
+    # the DT-LM pose less the second edges' pull (uncertainty.second_edge_pull):
+    # a thin crescent's other edge pushes the detected edge away from it
+    beta = second_edge_pull(fit, found)
+    if not beta.any():
+        return fit
+    lm = fit.lm
+    return dataclasses.replace(
+        fit, offset_vu=(lm.offset_vu[0] - float(beta[0]), lm.offset_vu[1] - float(beta[1])),
+        rotation_rad=lm.rotation_rad - float(beta[2]) if beta.shape[0] == 3 else fit.rotation_rad,
+    )
 
 
 def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any,

@@ -47,8 +47,10 @@ measures how often it covers the truth:
    edges overlaps and its ridge moves (:data:`SECOND_EDGE_SHIFT_PX`). Each
    vertex's shift is measured from the gradient along its normal
    (:func:`evidence`) and ``beta`` is the pose shift they make together,
-   propagated through the same ``H``: a bias, which more vertices do not
-   average away, added to the covariance as a mean squared error.
+   propagated through the same ``H`` (:func:`second_edge_pull`). The fit's
+   pose is the DT-LM's less ``beta`` (``PolylineFit.offset_vu``);
+   ``beta beta^T`` stays in the covariance, the error a modelled
+   correction may leave, which more vertices do not average away.
 
 Directions the geometry does not observe (a straight edge's along-edge
 shift) get zero here, as in the drop-in's pseudoinverse; the fit's
@@ -86,6 +88,7 @@ __all__ = [
     "information",
     "pose_uncertainty",
     "sandwich_covariance",
+    "second_edge_pull",
     "second_edge_shift",
     "source_of",
 ]
@@ -543,6 +546,65 @@ def floor_px(source: str, profile: Any = None) -> float:
     return math.hypot(base, PROFILE_FLOOR_PER_PSF * psf) if math.isfinite(psf) else base
 
 
+class _Bread(NamedTuple):
+    """What the noise and the second edges' pull are formed from."""
+
+    jac: FloatArray
+    weights: FloatArray  # the inliers' robust weights, zero elsewhere
+    residuals: FloatArray  # the inliers' residuals, zero elsewhere
+    info: FloatArray  # the bread H of the sandwich (:func:`information`)
+
+
+def _bread(fit: Any, found: Evidence) -> _Bread:
+    """The inliers and the bread ``H`` of a non-degenerate ``fit``."""
+    w = np.asarray(fit.lm.weights, dtype=np.float64)
+    jac = np.asarray(found.jacobian)
+    inlier = w >= INLIER_WEIGHT_FRACTION * float(w.max())
+    w_in = np.where(inlier, w, 0.0)
+    res = np.where(inlier, found.residuals, 0.0)
+    lever = None
+    if jac.shape[1] == 3:
+        lever = (np.asarray(found.points_vu) - np.asarray(fit.lm.offset_vu)
+                 - np.asarray(fit.pivot_vu))
+    bend = None if found.curvature is None else np.asarray(found.curvature)
+    return _Bread(jac, w_in, res, information(jac, res, w_in, bend, lever))
+
+
+def _pull(b: _Bread, found: Evidence) -> FloatArray:
+    """``beta``: the vertices' second-edge shifts propagated to the pose
+    through the same bread, ``H^+ sum w_i J_i (J_i . s_i)``."""
+    p = b.jac.shape[1]
+    keep = b.weights > 0.0
+    if found.second_edge_vu is None or not keep.any():
+        return np.zeros(p)
+    a = b.jac[keep]
+    moved = np.einsum("nk,nk->n", a[:, :2], np.asarray(found.second_edge_vu)[keep])
+    return np.asarray(_pinv_psd(b.info) @ ((a * b.weights[keep, None]).T @ moved))
+
+
+def second_edge_pull(fit: Any, found: Evidence) -> FloatArray:
+    """The DT-LM pose's shift by second edges of the opposite polarity (part 4).
+
+    Parameters
+    ----------
+    fit : PolylineFit
+        The fit (its DT-LM pose, weights and pivot are read).
+    found : Evidence
+        Its :func:`evidence`.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+        ``beta``, pixels (and radians for a fitted rotation): the DT-LM
+        pose minus ``beta`` is the pose the second edges did not push.
+        Zero for a degenerate fit and where no vertex has a second edge.
+    """
+    p = 3 if fit.fit_rotation else 2
+    if fit.lm.degenerate:
+        return np.zeros(p)
+    return _pull(_bread(fit, found), found)
+
+
 def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
     """The covariance of ``fit``'s pose (a :class:`~dtalign.pipeline.PolylineFit`).
 
@@ -565,17 +627,10 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
     if fit.lm.degenerate:
         full = np.full((p, p), np.inf)
         return PoseUncertainty(_readonly(full), _readonly(full), floor, source)
-    jac = np.asarray(found.jacobian)
-    inlier = w >= INLIER_WEIGHT_FRACTION * float(w.max())
-    w_in = np.where(inlier, w, 0.0)
-    res = np.where(inlier, found.residuals, 0.0)
-    lever = None
-    if p == 3:
-        lever = (np.asarray(found.points_vu) - np.asarray(fit.lm.offset_vu)
-                 - np.asarray(fit.pivot_vu))
-    bend = None if found.curvature is None else np.asarray(found.curvature)
-    info = information(jac, res, w_in, bend, lever)
-    noise = sandwich_covariance(jac, res, w_in, np.asarray(found.points_vu), information=info)
+    b = _bread(fit, found)
+    jac = b.jac
+    noise = sandwich_covariance(jac, b.residuals, b.weights, np.asarray(found.points_vu),
+                                information=b.info)
     bias = np.zeros((p, p))
     if fit.profile is not None and fit.profile.accepted:
         # the translation is the profile's: its pixels' covariance replaces
@@ -585,12 +640,11 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
         noise[:2, :] = 0.0
         noise[:, :2] = 0.0
         noise[:2, :2] = prof if np.isfinite(prof).all() else np.inf
-    elif found.second_edge_vu is not None and w_in.any():
-        # the DT-LM pose's shift by the second edges, through the same bread
-        keep = w_in > 0.0
-        a = jac[keep]
-        moved = np.einsum("nk,nk->n", a[:, :2], np.asarray(found.second_edge_vu)[keep])
-        beta = _pinv_psd(info) @ ((a * w_in[keep, None]).T @ moved)
+    else:
+        # the pose is corrected by beta (:func:`dtalign.pipeline.fit.conclude`),
+        # but beta is a modelled shift: its size stays in the covariance as
+        # the error the correction may leave
+        beta = _pull(b, found)
         bias = np.outer(beta, beta)
     if not np.isfinite(noise).all():
         full = np.full((p, p), np.inf)
