@@ -600,7 +600,8 @@ def second_edge_pull(fit: Any, found: Evidence) -> FloatArray:
         Zero for a degenerate fit and where no vertex has a second edge.
     """
     p = 3 if fit.fit_rotation else 2
-    if fit.lm.degenerate:
+    # most polylines have no second edge: no bread to form for them
+    if fit.lm.degenerate or found.second_edge_vu is None or not np.any(found.second_edge_vu):
         return np.zeros(p)
     return _pull(_bread(fit, found), found)
 
