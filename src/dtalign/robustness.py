@@ -303,7 +303,8 @@ def crater_rim(seed: int) -> HardScene:
     )
 
 
-def terminator_limb(seed: int) -> HardScene:
+def terminator_limb(seed: int, *, rotation_rad: float = 0.0,
+                    centre_shift_vu: tuple[float, float] = (0.0, 0.0)) -> HardScene:
     """A thin crescent: the terminator runs 3-8 px inside the limb.
 
     A body lit from +u, of which only a crescent is lit: between the right
@@ -313,6 +314,20 @@ def terminator_limb(seed: int) -> HardScene:
     terminator, odd seeds the limb, over the 72 degrees about the equator
     (clear of the cusps, where the two edges meet); the other edge is the
     decoy.
+
+    Parameters
+    ----------
+    seed : int
+        The scene's seed.
+    rotation_rad : float, optional
+        Turns the whole scene (light, crescent and polyline) by this angle
+        about the body's centre, from +u toward -v.
+    centre_shift_vu : tuple of float, optional
+        Moves the body's centre by this much, px. With the defaults the
+        crescent is mirror-symmetric about a line between pixel rows, so
+        the pixel quantisation of its edges cancels between its halves:
+        the docs' uncertainty page measures what a turned, shifted
+        crescent changes.
     """
     rng = np.random.default_rng(seed)
     radius = rng.uniform(85.0, 100.0)
@@ -321,9 +336,14 @@ def terminator_limb(seed: int) -> HardScene:
     offset = _random_offset(rng, 2.0, 8.0)
     model_terminator = seed % 2 == 0
 
+    # the crescent's own frame: e_u toward the light, e_v across it
+    s, c = math.sin(rotation_rad), math.cos(rotation_rad)
+    e_v, e_u = np.array([c, -s]), np.array([s, c])
+    centre = (np.array([(_SHAPE[0] - 1) / 2.0, (_SHAPE[1] - 1) / 2.0])
+              + np.asarray(centre_shift_vu, dtype=np.float64) - 20.0 * e_u)
     vv, uu = _grid()
-    cv, cu = (_SHAPE[0] - 1) / 2.0, (_SHAPE[1] - 1) / 2.0 - 20.0
-    dv, du = vv - cv, uu - cu
+    dv = (vv - centre[0]) * c - (uu - centre[1]) * s
+    du = (vv - centre[0]) * s + (uu - centre[1]) * c
     disc = _coverage(radius - np.hypot(dv, du))
     # First-order signed distance outside the ellipse: f / |grad f|.
     f = (dv / radius) ** 2 + (du / b) ** 2 - 1.0
@@ -332,18 +352,21 @@ def terminator_limb(seed: int) -> HardScene:
     clean = 100.0 * disc * outside * (du >= 0.0)
     image = _noisy(clean, _NOISE_DN, seed)
 
+    def frame(a: FloatArray, b_: FloatArray) -> FloatArray:  # (v, u) of frame vectors
+        return a[:, None] * e_v + b_[:, None] * e_u
+
     ang = np.linspace(-0.2 * math.pi, 0.2 * math.pi, _N_VERTICES)
     sin, cos = np.sin(ang), np.cos(ang)
-    limb = np.stack([cv + radius * sin, cu + radius * cos], axis=1)
-    limb_n = -np.stack([sin, cos], axis=1)
-    term = np.stack([cv + radius * sin, cu + b * cos], axis=1)
-    term_n = np.stack([sin / radius, cos / b], axis=1)
+    limb = centre + frame(radius * sin, radius * cos)
+    limb_n = frame(-sin, -cos)
+    term = centre + frame(radius * sin, b * cos)
+    term_n = frame(sin / radius, cos / b)
     if model_terminator:
         name, true_vu, normals, decoy = "terminator", term, term_n, limb
-        decoy_shift = np.array([0.0, width])
+        decoy_shift = width * e_u
     else:
         name, true_vu, normals, decoy = "limb", limb, limb_n, term
-        decoy_shift = np.array([0.0, -width])
+        decoy_shift = -width * e_u
     return _scene(
         "terminator_limb", seed, image, clean, _NOISE_DN,
         _polyline(name, true_vu, normals, offset), 20, offset,
