@@ -321,7 +321,8 @@ def terminator_limb(seed: int, *, rotation_rad: float = 0.0,
         The scene's seed.
     rotation_rad : float, optional
         Turns the whole scene (light, crescent and polyline) by this angle
-        about the body's centre, from +u toward -v.
+        about the image's centre, from +u toward +v (the body's centre, 20
+        px from the image's away from the light, turns with it).
     centre_shift_vu : tuple of float, optional
         Moves the body's centre by this much, px. With the defaults the
         crescent is mirror-symmetric about a line between pixel rows, so
