@@ -28,12 +28,13 @@ The wait is on a :class:`queue.SimpleQueue`, whose ``get`` is C code.
 The executor's own waits and ``submit`` go through
 :class:`threading.Condition` and ``Semaphore``, which are Python code in
 CPython: an exception raised inside them can leave a lock held or release
-one that is not. When the calling thread itself waited on ``as_completed``
-and submitted, the interrupt test (``tests/test_batch_interrupts.py``, 256
-interrupts a run) failed in 2 of 7 runs beside a busy core: a batch that
-never returned (the pool's workers blocked on the semaphore's lock the
-interrupt had left held) and a ``RuntimeError: release unlocked lock`` in
-the place of the interrupt.
+one that is not. Beside a busy core, the script of
+``tests/test_batch_interrupts.py`` (256 interrupts a run) failed in 2 of
+8 runs when the calling thread itself submitted and waited on
+``as_completed``: a batch that never returned (the pool's workers blocked
+on the semaphore's lock the interrupt had left held) and a
+``RuntimeError: release unlocked lock`` in the place of the interrupt. It
+passed in each of the 8 runs alternated with those on this design.
 
 Errors
 ------
