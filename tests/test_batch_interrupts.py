@@ -22,11 +22,16 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numba
 import pytest
 
 import dtalign
+from dtalign import scenes
+from dtalign.pipeline import prepare_image
+from dtalign.pipeline.batch import fit_images, fit_many, map_ordered
 
 PYTHON_KERNELS = bool(numba.config.DISABLE_JIT)
 
@@ -215,3 +220,46 @@ def test_interrupted_batches_leave_nothing_behind(tmp_path):
             # typically none starts after the handler ran (each finishes the one
             # it holds); a few may while the calling thread gets its CPU back
             assert row["median_fits_started_after_handler"] <= row["workers"], (name, row)
+
+
+def test_the_calling_thread_never_touches_the_executor(monkeypatch):
+    """Every submit to the call's pool, wait on a future and shutdown happens in
+    the batch's driver thread; the calling thread waits on the driver's queue
+    and runs the callbacks. The executor's waits are ``threading.Condition``,
+    Python code that a signal handler's exception can leave with a lock held
+    (the module docstring of ``dtalign.pipeline.batch``): the run above caught
+    that as a hang and as a ``RuntimeError`` in the place of the interrupt."""
+    seen: dict[str, set[int]] = {}
+
+    def spy(cls, name):
+        real = getattr(cls, name)
+
+        def spied(*args, **kwargs):
+            seen.setdefault(name, set()).add(threading.get_ident())
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(cls, name, spied)
+
+    for name in ("submit", "shutdown"):
+        spy(ThreadPoolExecutor, name)
+    for name in ("result", "exception", "cancel", "cancelled", "add_done_callback"):
+        spy(Future, name)
+    scene = scenes.navigation_scene(shape=(128, 128), radius=30.0, n_vertices=40,
+                                    offset_vu=(1.5, -1.0), search_window=6)
+    products = prepare_image(scene.image, scene.noise_sigma)
+    polylines = list(scene.polylines) * 4
+    me, callbacks = threading.get_ident(), []
+    fit_many(products, polylines, search_window_vu=(6, 6), workers=2,
+             progress=lambda done, total: callbacks.append(threading.get_ident()))
+    fit_images([scene] * 3, search_window_vu=(6, 6), workers=2,
+               on_image=lambda i, result: callbacks.append(threading.get_ident()))
+    assert map_ordered(len, [[1], [2, 3]], workers=2) == [1, 2]
+
+    def stop(done, total):
+        raise RuntimeError("stop")
+
+    with pytest.raises(RuntimeError, match="stop"):  # the way out on an exception
+        fit_many(products, polylines, search_window_vu=(6, 6), workers=2, progress=stop)
+    assert {"submit", "shutdown", "result", "add_done_callback"} <= set(seen)  # the spies saw the pool
+    assert not any(me in threads for threads in seen.values()), seen
+    assert set(callbacks) == {me}

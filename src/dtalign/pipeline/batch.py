@@ -13,13 +13,28 @@ Nothing global is configured: no Numba threading layer, no thread count.
 Threads and interrupts
 ----------------------
 Each call makes its own :class:`~concurrent.futures.ThreadPoolExecutor`
-and shuts it down before it returns. The calling thread only submits and
-waits (``as_completed``, ``Future.result``), so an exception a signal
-handler raises (KeyboardInterrupt, a ``SIGALRM`` timeout's) arrives in that
-wait, never inside an item, where it would pass for the item's error or
-break Numba's boxing of a kernel's result. The call then sets its stop
-event, which every item looks at before it starts, waits for the workers to
-finish what they hold (a chunk is a few milliseconds) and propagates.
+and shuts it down before it returns. One more thread of the call's, its
+driver, submits the items to the pool and collects them as they complete;
+the calling thread only waits on the driver's reports, runs the progress
+callback and ``on_image``, and raises what the driver hands it. So an
+exception a signal handler raises (KeyboardInterrupt, a ``SIGALRM``
+timeout's) arrives in that wait, never inside an item, where it would pass
+for the item's error or break Numba's boxing of a kernel's result. The call
+then sets its stop event, which every item looks at before it starts,
+waits for the workers to finish what they hold (a chunk is a few
+milliseconds) and propagates.
+
+The wait is on a :class:`queue.SimpleQueue`, whose ``get`` is C code.
+The executor's own waits and ``submit`` go through
+:class:`threading.Condition` and ``Semaphore``, which are Python code in
+CPython: an exception raised inside them can leave a lock held or release
+one that is not. Beside a busy core, the script of
+``tests/test_batch_interrupts.py`` (256 interrupts a run) failed in 2 of
+8 runs when the calling thread itself submitted and waited on
+``as_completed``: a batch that never returned (the pool's workers blocked
+on the semaphore's lock the interrupt had left held) and a
+``RuntimeError: release unlocked lock`` in the place of the interrupt. It
+passed in each of the 8 runs alternated with those on this design.
 
 Errors
 ------
@@ -74,6 +89,7 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import signal
@@ -86,9 +102,9 @@ from concurrent.futures import (
     Future,
     ProcessPoolExecutor,
     ThreadPoolExecutor,
-    as_completed,
 )
 from contextlib import contextmanager, nullcontext
+from queue import SimpleQueue
 from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
@@ -169,8 +185,32 @@ def _named(exc: Exception, label: str, index: int) -> Exception:
     return named
 
 
-#: when an exception landed in its start: it starts within milliseconds.
-_POOL_START_WAIT_S = 5.0
+#: How long :func:`_once_started` waits for a thread whose start an exception
+#: interrupted: a thread starts within milliseconds.
+_THREAD_START_WAIT_S = 5.0
+
+
+def _once_started(finish: Callable[[], Any], thread: threading.Thread | None = None) -> None:
+    """``finish()`` (a thread's join, a pool's shutdown), tried again while a
+    thread is still starting.
+
+    An exception raised in ``Thread.start``'s wait for the new thread (a
+    signal handler's, in the calling thread) leaves the thread starting
+    behind it, and ``finish()`` raises "cannot join thread before it is
+    started" until it has. Not tried again once ``thread`` is known to no
+    one (it never started) or after :data:`_THREAD_START_WAIT_S`: the
+    interrupt matters more than a stray thread or process.
+    """
+    deadline = time.monotonic() + _THREAD_START_WAIT_S
+    while True:
+        try:
+            finish()
+            return
+        except RuntimeError:
+            gone = thread is not None and thread not in threading.enumerate()
+            if gone or time.monotonic() > deadline:
+                return
+            time.sleep(0.01)
 
 
 def _ignore_sigint() -> None:
@@ -189,26 +229,18 @@ def _ignore_sigint() -> None:
 def _process_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     """A ``ProcessPoolExecutor`` shut down at the end, whose exceptions are the caller's.
 
-    An exception a signal handler raises (Ctrl-C, a timeout) while the pool
-    starts its manager thread, in ``Thread.start``'s wait for the new thread,
-    leaves that thread starting behind it; the pool's ``shutdown(wait=True)``
-    then raises "cannot join thread before it is started" in the place of the
-    interrupt. Here the shutdown is tried again until the thread has started
-    (it then stops the worker processes), and the interrupt propagates.
+    An exception raised while the pool starts its manager thread (at the
+    first submit) leaves that thread starting behind it; the pool's
+    ``shutdown(wait=True)`` then raises "cannot join thread before it is
+    started" in the place of the exception. Here the shutdown is tried again
+    until the thread has started (it then stops the worker processes), and
+    the exception propagates.
     """
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_sigint)
     try:
         yield pool
     except BaseException:
-        deadline = time.monotonic() + _POOL_START_WAIT_S
-        while True:
-            try:
-                pool.shutdown(wait=True, cancel_futures=True)
-                break
-            except RuntimeError:  # the manager thread has not started yet
-                if time.monotonic() > deadline:
-                    break  # the interrupt matters more than the stray processes
-                time.sleep(0.01)
+        _once_started(functools.partial(pool.shutdown, wait=True, cancel_futures=True))
         raise
     pool.shutdown(wait=True)
 
@@ -228,15 +260,24 @@ def _chunks(k: int, workers: int) -> list[int]:
     return [*range(0, k, size), k]
 
 
+def _put_done(done: SimpleQueue[Any], token: object, i: int, future: Future[Any]) -> None:
+    """A future's done callback: item ``i`` of the call ``token`` has completed."""
+    done.put((token, i))
+
+
 class _Runner:
-    """Where one call's work runs; the calling thread only submits, waits and reports.
+    """Where one call's work runs; the calling thread only hands it on, waits and reports.
 
     ``_Runner(workers)``: a thread pool of the call's own, shut down on the
     way out. ``_Runner(pool=...)``: an executor of the caller's or a process
-    pool; what was not started is cancelled on the way out.
-    ``_Runner(stop=...)``: no pool, the calling thread runs everything (an
-    image's task inside a batch) and looks at the batch's ``stop`` before
-    each item. Leaving with an exception sets :attr:`stop`.
+    pool; what was not started is cancelled on the way out. With a pool, a
+    thread of the call's, the driver, runs :meth:`call`'s functions,
+    submits :meth:`each`'s items and collects them; the calling thread only
+    hands it work and waits on its reports (see "Threads and interrupts"
+    in the module docstring). ``_Runner(stop=...)``: no pool, the calling
+    thread runs everything (an image's task inside a batch) and looks at the
+    batch's ``stop`` before each item. Leaving with an exception sets
+    :attr:`stop`.
     """
 
     def __init__(self, workers: int = 1, *, report: Progress | None = None,
@@ -246,33 +287,68 @@ class _Runner:
         self.own = pool is None and stop is None
         self.pool = (ThreadPoolExecutor(workers, thread_name_prefix="dtalign-batch")
                      if self.own else pool)
+        self._driver: threading.Thread | None = None
+        # queue.SimpleQueue is C code: put and get hold no lock a signal
+        # handler's exception could leave behind
+        self._tasks: SimpleQueue[Any] = SimpleQueue()  # to the driver; None: leave
+        self._reports: SimpleQueue[tuple[str, Any]] = SimpleQueue()  # to the calling thread
+        self._done: SimpleQueue[Any] = SimpleQueue()  # items completed; None: stop
 
     def __enter__(self) -> _Runner:
+        if self.pool is not None:
+            self._driver = threading.Thread(target=self._drive, name="dtalign-batch-driver")
+            try:
+                self._driver.start()
+            except BaseException:  # a signal handler's, while the driver started
+                self._leave()
+                raise
         return self
 
     def __exit__(self, kind: Any, exc: BaseException | None, tb: Any) -> None:
         if exc is not None:
             self.stop.set()
+            self._done.put(None)  # wakes the driver if it waits on items
+        if self._driver is not None:
+            self._leave()
+
+    def _leave(self) -> None:
+        """Let the driver finish its task and go (it shuts the call's own pool down)."""
+        assert self._driver is not None
+        self._tasks.put(None)
+        _once_started(self._driver.join, self._driver)
+
+    def _drive(self) -> None:
+        """The driver thread: run each task handed to it, report how it ended."""
+        while (task := self._tasks.get()) is not None:
+            try:
+                self._reports.put(("returned", task()))
+            except BaseException as exc:  # the calling thread's to raise
+                self._reports.put(("raised", exc))
         if self.own:
             assert self.pool is not None
             self.pool.shutdown(wait=True, cancel_futures=True)
 
-    def _submit(self, fn: Callable[..., _R], *args: Any, **kwargs: Any) -> Future[_R]:
-        assert self.pool is not None
-        try:
-            return self.pool.submit(fn, *args, **kwargs)
-        except KeyError as exc:
-            # CPython's Thread.start hides an exception a signal handler raises
-            # while the new thread starts behind a KeyError of its clean-up
-            if exc.__context__ is None:
-                raise
-            raise exc.__context__ from None
+    def _ask(self, task: Callable[[], _R], ordered: _Hand | None = None) -> _R:
+        """``task()`` run by the driver, while the calling thread reports the
+        progress and hands on the items the driver sends it."""
+        self._tasks.put(task)
+        while True:
+            kind, value = self._reports.get()  # the wait an interrupt lands in
+            if kind == "advance":
+                self.advance(value)
+            elif kind == "hand":
+                assert ordered is not None
+                ordered(*value)
+            elif kind == "returned":
+                return value  # type: ignore[no-any-return]
+            else:
+                raise value
 
     def call(self, fn: Callable[..., _R], *args: Any, **kwargs: Any) -> _R:
-        """``fn(*args, **kwargs)`` in a worker while the calling thread waits."""
+        """``fn(*args, **kwargs)`` in another thread while the calling thread waits."""
         if self.pool is None:
             return fn(*args, **kwargs)
-        return self._submit(fn, *args, **kwargs).result()
+        return self._ask(functools.partial(fn, *args, **kwargs))
 
     def advance(self, k: int) -> None:
         """Report ``k`` more items done (the calling thread)."""
@@ -298,11 +374,22 @@ class _Runner:
         """
         if self.pool is None:
             return self._each_here(fn, items, stop_early, sizes, ordered)
+        return self._ask(functools.partial(self._each_on_pool, fn, items, stop_early, sizes,
+                                           ordered is not None), ordered)
+
+    def _each_on_pool(self, fn: Callable[[_T], _R], items: Sequence[_T], stop_early: bool,
+                      sizes: Sequence[int] | None, hand: bool,
+                      ) -> tuple[list[_R | None], dict[int, Exception]]:
+        """:meth:`each` on the pool, run by the driver: it submits the items,
+        takes them as they complete and sends the calling thread the
+        progress and the items to hand on."""
+        assert self.pool is not None
         n = len(items)
         results: list[_R | None] = [None] * n
         errors: dict[int, Exception] = {}
         first, lock = [n], threading.Lock()  # the first failed item
         settled, after = [False] * n, 0  # the items returned or failed; the next to hand on
+        token = object()  # this call's completions (a cancelled earlier one's may linger)
 
         def guarded(i: int) -> Any:
             if self.stop.is_set() or i > first[0]:
@@ -315,14 +402,22 @@ class _Runner:
                         first[0] = min(first[0], i)
                 raise
 
-        # On a pool of the caller's (perhaps another process) ``fn`` runs as
-        # it is; what must not start is cancelled.
-        futures = [self._submit(guarded, i) if self.own else self._submit(fn, x)
-                   for i, x in enumerate(items)]
-        index = {future: i for i, future in enumerate(futures)}
+        futures: list[Future[Any]] = []
+        for i, x in enumerate(items):
+            if self.stop.is_set():
+                break  # the wait below ends at once
+            # On a pool of the caller's (perhaps another process) ``fn`` runs
+            # as it is; what must not start is cancelled.
+            future = self.pool.submit(guarded, i) if self.own else self.pool.submit(fn, x)
+            future.add_done_callback(functools.partial(_put_done, self._done, token, i))
+            futures.append(future)
         try:
-            for future in as_completed(futures):  # the wait an interrupt lands in
-                i = index[future]
+            for _ in range(n):
+                while (got := self._done.get()) is not None and got[0] is not token:
+                    pass  # an earlier call's cancelled item
+                if got is None:  # the calling thread has left with an exception
+                    raise CancelledError("the batch was stopped")
+                future = futures[i := got[1]]
                 if future.cancelled():
                     if stop_early and errors and i > min(errors):
                         continue  # cancelled here, after a failure
@@ -342,11 +437,11 @@ class _Runner:
                 else:
                     raise error
                 if not (stop_early and errors):
-                    self.advance(1 if sizes is None else sizes[i])
+                    self._reports.put(("advance", 1 if sizes is None else sizes[i]))
                 settled[i] = True
-                while (ordered is not None and after < n and settled[after]
+                while (hand and after < n and settled[after]
                        and not (stop_early and errors and after > min(errors))):
-                    ordered(after, results[after], errors.get(after))
+                    self._reports.put(("hand", (after, results[after], errors.get(after))))
                     after += 1
         finally:
             for future in futures:  # a no-op for those done
