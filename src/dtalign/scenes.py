@@ -97,15 +97,18 @@ def _noisy(clean: FloatArray, noise_sigma: float, seed: int) -> FloatArray:
 
 
 def _displace(
-    true_vu: FloatArray, offset_vu: tuple[float, float], rotation_rad: float
+    true_vu: FloatArray, offset_vu: tuple[float, float], rotation_rad: float,
+    centroid: FloatArray | None = None,
 ) -> tuple[FloatArray, tuple[float, float]]:
     """Model vertices that the pose (offset, rotation about their centroid) maps onto ``true_vu``.
 
     With pivot ``p = mean(true) - offset`` the model is
     ``p + R(-theta) (true - mean(true))``; its centroid is ``p``, so the
-    default pivot of the fitters is exactly ``p``.
+    default pivot of the fitters is exactly ``p``. A given ``centroid``
+    replaces ``mean(true)``: polylines that move as one rigid body are all
+    displaced about the same point.
     """
-    mean = true_vu.mean(axis=0)
+    mean = true_vu.mean(axis=0) if centroid is None else centroid
     pivot = mean - np.asarray(offset_vu)
     c, s = math.cos(-rotation_rad), math.sin(-rotation_rad)
     d = true_vu - mean
@@ -118,6 +121,25 @@ def _displace(
 def _rotate_vectors(vec: FloatArray, theta: float) -> FloatArray:
     c, s = math.cos(theta), math.sin(theta)
     return np.stack([c * vec[:, 0] - s * vec[:, 1], s * vec[:, 0] + c * vec[:, 1]], axis=1)
+
+
+def _scene(
+    image: FloatArray, noise_sigma: float, polylines: tuple[Polyline, ...],
+    offset_vu: tuple[float, float], rotation_rad: float, pivot: tuple[float, float],
+    centre: tuple[float, float], search_window: int, outliers: tuple[int, ...] = (),
+) -> Scene:
+    """The :class:`Scene` of a displaced pose; the pivot's distance is from the image centre."""
+    return Scene(
+        image=image,
+        noise_sigma=noise_sigma,
+        polylines=polylines,
+        true_offset_vu=(float(offset_vu[0]), float(offset_vu[1])),
+        true_rotation_rad=float(rotation_rad),
+        pivot_vu=pivot,
+        pivot_distance_px=max(math.hypot(pivot[0] - centre[0], pivot[1] - centre[1]), 1.0),
+        search_window_vu=(search_window, search_window),
+        outlier_indices=outliers,
+    )
 
 
 def disc_scene(
@@ -179,19 +201,9 @@ def disc_scene(
         model[idx] -= outlier_shift_px * normals[idx]
         outliers = tuple(int(i) for i in idx)
 
-    distance = max(math.hypot(pivot[0] - cv, pivot[1] - cu), 1.0)
     poly = Polyline("limb", model, normals, np.ones(n_vertices))
-    return Scene(
-        image=image,
-        noise_sigma=noise_sigma,
-        polylines=(poly,),
-        true_offset_vu=(float(offset_vu[0]), float(offset_vu[1])),
-        true_rotation_rad=float(rotation_rad),
-        pivot_vu=pivot,
-        pivot_distance_px=distance,
-        search_window_vu=(search_window, search_window),
-        outlier_indices=outliers,
-    )
+    return _scene(image, noise_sigma, (poly,), offset_vu, rotation_rad, pivot, (cv, cu),
+                  search_window, outliers)
 
 
 def navigation_scene(
@@ -247,30 +259,13 @@ def navigation_scene(
 
     # One rigid pose for every polyline: displace all about the limb centroid.
     mean = limb.mean(axis=0)
-    pivot = mean - np.asarray(offset_vu)
-    c, s = math.cos(-rotation_rad), math.sin(-rotation_rad)
-
-    def place(pts: FloatArray) -> FloatArray:
-        d = pts - mean
-        return np.stack(
-            [pivot[0] + c * d[:, 0] - s * d[:, 1], pivot[1] + s * d[:, 0] + c * d[:, 1]], axis=1
-        )
-
+    moved = [_displace(p, offset_vu, rotation_rad, mean) for p in (limb, term, ring_pts)]
     polys = tuple(
-        Polyline(name, place(p), _rotate_vectors(n, -rotation_rad), np.ones(n_vertices))
-        for name, p, n in (("limb", limb, limb_n), ("terminator", term, term_n), ("ring", ring_pts, ring_n))
+        Polyline(name, m[0], _rotate_vectors(n, -rotation_rad), np.ones(n_vertices))
+        for name, m, n in zip(("limb", "terminator", "ring"), moved, (limb_n, term_n, ring_n), strict=True)
     )
-    piv = (float(pivot[0]), float(pivot[1]))
-    return Scene(
-        image=image,
-        noise_sigma=noise_sigma,
-        polylines=polys,
-        true_offset_vu=(float(offset_vu[0]), float(offset_vu[1])),
-        true_rotation_rad=float(rotation_rad),
-        pivot_vu=piv,
-        pivot_distance_px=max(math.hypot(piv[0] - cv, piv[1] - cu), 1.0),
-        search_window_vu=(search_window, search_window),
-    )
+    pivot = moved[0][1]  # the limb's, the same for all three
+    return _scene(image, noise_sigma, polys, offset_vu, rotation_rad, pivot, (cv, cu), search_window)
 
 
 # ---------------------------------------------------------------------------
