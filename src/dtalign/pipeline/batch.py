@@ -24,9 +24,9 @@ then sets its stop event, which every item looks at before it starts,
 waits for the workers to finish what they hold (a chunk is a few
 milliseconds) and propagates.
 
-The wait is on a :class:`queue.SimpleQueue`, whose ``get`` is C code.
+The wait is on a ``queue.SimpleQueue``, whose ``get`` is C code.
 The executor's own waits and ``submit`` go through
-:class:`threading.Condition` and ``Semaphore``, which are Python code in
+``threading.Condition`` and ``Semaphore``, which are Python code in
 CPython: an exception raised inside them can leave a lock held or release
 one that is not. Beside a busy core, the script of
 ``tests/test_batch_interrupts.py`` (256 interrupts a run) failed in 2 of
@@ -402,15 +402,10 @@ class _Runner:
                         first[0] = min(first[0], i)
                 raise
 
-        futures: list[Future[Any]] = []
-        for i, x in enumerate(items):
-            if self.stop.is_set():
-                break  # the wait below ends at once
-            # On a pool of the caller's (perhaps another process) ``fn`` runs
-            # as it is; what must not start is cancelled.
-            future = self.pool.submit(guarded, i) if self.own else self.pool.submit(fn, x)
-            future.add_done_callback(functools.partial(_put_done, self._done, token, i))
-            futures.append(future)
+        # On a pool of the caller's (perhaps another process) ``fn`` runs as
+        # it is; what must not start is cancelled.
+        futures = self._submit_each(guarded if self.own else fn,
+                                    range(n) if self.own else items, token)
         try:
             for _ in range(n):
                 while (got := self._done.get()) is not None and got[0] is not token:
@@ -447,6 +442,21 @@ class _Runner:
             for future in futures:  # a no-op for those done
                 future.cancel()
         return results, errors
+
+    def _submit_each(self, fn: Callable[[Any], Any], args: Iterable[Any],
+                     token: object) -> list[Future[Any]]:
+        """``fn(x)`` submitted for each of ``args`` (the driver), each telling
+        :attr:`_done` when it completes; none once the call is stopped (the
+        wait on :attr:`_done` then ends at once)."""
+        assert self.pool is not None
+        futures: list[Future[Any]] = []
+        for i, x in enumerate(args):
+            if self.stop.is_set():
+                break
+            future = self.pool.submit(fn, x)
+            future.add_done_callback(functools.partial(_put_done, self._done, token, i))
+            futures.append(future)
+        return futures
 
     def _each_here(self, fn: Callable[[_T], _R], items: Sequence[_T], stop_early: bool,
                    sizes: Sequence[int] | None, ordered: _Hand | None,
