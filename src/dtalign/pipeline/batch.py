@@ -407,7 +407,7 @@ class _Runner:
         futures = self._submit_each(guarded if self.own else fn,
                                     range(n) if self.own else items, token)
         try:
-            for _ in range(n):
+            for _ in futures:  # each submitted item completes once (none after a stop)
                 while (got := self._done.get()) is not None and got[0] is not token:
                     pass  # an earlier call's cancelled item
                 if got is None:  # the calling thread has left with an exception
@@ -446,8 +446,7 @@ class _Runner:
     def _submit_each(self, fn: Callable[[Any], Any], args: Iterable[Any],
                      token: object) -> list[Future[Any]]:
         """``fn(x)`` submitted for each of ``args`` (the driver), each telling
-        :attr:`_done` when it completes; none once the call is stopped (the
-        wait on :attr:`_done` then ends at once)."""
+        :attr:`_done` when it completes; none once the call is stopped."""
         assert self.pool is not None
         futures: list[Future[Any]] = []
         for i, x in enumerate(args):
