@@ -11,10 +11,13 @@ import numpy as np
 import pytest
 
 from dtalign import robustness, scenes
+from dtalign.api.image import edge_threshold
+from dtalign.api.loop import second_edge_search
 from dtalign.benchmarking import coverage as cov
 from dtalign.pipeline import PolylineFit, fit_polyline, fit_polyline_products, prepare_image
 from dtalign.pipeline import uncertainty as unc
 from dtalign.pipeline.batch import fit_many
+from dtalign.reference.evidence import second_edge_search as reference_search
 
 
 @pytest.fixture(scope="module")
@@ -119,6 +122,38 @@ def test_the_second_edge_shift_is_the_measured_curve() -> None:
     half = unc.second_edge_shift(np.array([3.5]), np.array([0.5]))
     assert half[0] == pytest.approx(0.5 * unc.second_edge_shift(np.array([3.5]),
                                                                 np.array([1.0]))[0])
+
+
+def _search_inputs(products, pts: np.ndarray, normals: np.ndarray) -> tuple:
+    unit = normals / np.hypot(normals[:, 0], normals[:, 1])[:, None]
+    threshold = edge_threshold(products.config, products.noise_sigma)
+    return (products.gradient_magnitude, np.asarray(products.gradient_vu),
+            np.ascontiguousarray(pts, dtype=np.float64), np.ascontiguousarray(unit),
+            unc._PROFILE_STEPS, unc._PROFILE_STEP_PX, threshold, unc._OWN_EDGE_PX)
+
+
+@pytest.mark.parametrize("family", ["terminator_limb", "crater_rim", "outliers"])
+def test_the_compiled_second_edge_search_is_its_specification_bit_for_bit(family: str) -> None:
+    # on each scene's polyline at the truth, where second edges are, and at
+    # random places and directions, the image's borders included (clamped reads)
+    draw = np.random.default_rng(7)
+    found = 0
+    for seed in range(6):
+        sc = cov.FAMILIES[family](seed)
+        products = prepare_image(sc.image, sc.noise_sigma)
+        p = sc.polyline
+        h, w = sc.image.shape
+        k = 300
+        anywhere = np.column_stack([draw.uniform(-3.0, h + 2.0, k), draw.uniform(-3.0, w + 2.0, k)])
+        for pts, normals in [(p.vertices_vu + sc.true_offset_vu, p.normals_vu),
+                             (anywhere, draw.normal(size=(k, 2)))]:
+            args = _search_inputs(products, pts, normals)
+            got = second_edge_search(*args)
+            want = reference_search(*args)
+            for a, b in zip(got, want, strict=True):
+                assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+            found += int(np.isfinite(got[0]).sum())
+    assert found > 0  # the scenes do have second edges to find
 
 
 @pytest.mark.parametrize(("seed", "near"), [(25, True), (55, False)])

@@ -6,8 +6,9 @@
 :mod:`dtalign.api.coarse`, ...); what the pipeline needs besides them is
 here: the polylines' value checks in one compiled pass, the pipeline's
 integer seed, the compiled loop of many polylines with its input and output
-records, the coarse score surfaces and their peaks, the noise statistics
-and the profile refinement's kernels. Inputs reach these already checked
+records, the coarse score surfaces and their peaks, the noise statistics,
+the profile refinement's kernels and the second-edge search of the
+pose uncertainty. Inputs reach these already checked
 (by :mod:`dtalign.api.checks`, called from :mod:`dtalign.pipeline.jobs`):
 like every kernel they do not validate.
 """
@@ -19,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .._kernels import coarse as _coarse
+from .._kernels import evidence as _evidence
 from .._kernels import polarity_search as _ps
 from .._kernels import profile as profile_kernels
 from .._kernels.checks import OK, polyline_status, polylines_status
@@ -31,12 +33,13 @@ from .._kernels.seeds import top_k
 __all__ = [
     "FP_LANES", "OK", "LoopInputs", "LoopOutputs", "fit_polylines", "fp_throughput",
     "noise_statistics", "overlap_surface", "pipeline_seed", "polarity_surface",
-    "polyline_status", "polylines_status", "profile_kernels", "top_k",
+    "polyline_status", "polylines_status", "profile_kernels", "second_edge_search", "top_k",
 ]
 
 overlap_surface = _coarse.overlap_surface
 polarity_surface = _ps.polarity_surface
 support_of_vertices = _coarse.support_of_vertices
+second_edge_search = _evidence.second_edge_search
 
 
 def pipeline_seed(edge: np.ndarray, gradient: Any, vertices: np.ndarray, normals: np.ndarray,

@@ -67,6 +67,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..api.constants import JACOBIAN_TRANSLATION_EPS_PX
+from ..api.loop import second_edge_search
 from ..api.sampling import sample_dt_bilinear
 from .products import _readonly
 
@@ -193,6 +194,10 @@ SECOND_EDGE_MAX_SHIFT_PX: float = 0.5
 #: normal, px: a peak's place is refined between the samples by a
 #: parabola, so half a pixel is enough.
 _PROFILE_STEP_PX: float = 0.5
+
+#: The offsets along each normal at which that profile is read, px.
+_PROFILE_STEPS = np.arange(-SECOND_EDGE_REACH_PX, SECOND_EDGE_REACH_PX + 0.5 * _PROFILE_STEP_PX,
+                           _PROFILE_STEP_PX)
 
 #: Where along the normal, px either side of the vertex, its own edge's
 #: gradient peak is looked for.
@@ -428,21 +433,6 @@ class Evidence(NamedTuple):
     second_edge_vu: FloatArray | None = None
 
 
-def _sample_vectors(grid: FloatArray, pts: FloatArray) -> FloatArray:
-    """Bilinear samples of an ``(H, W, 2)`` grid at ``pts`` (``(M, 2)``), edge-clamped."""
-    h, w = grid.shape[:2]
-    v = np.clip(pts[:, 0], 0.0, h - 1.0)
-    u = np.clip(pts[:, 1], 0.0, w - 1.0)
-    v0 = np.minimum(np.floor(v).astype(np.intp), max(h - 2, 0))
-    u0 = np.minimum(np.floor(u).astype(np.intp), max(w - 2, 0))
-    fv = (v - v0)[:, None]
-    fu = (u - u0)[:, None]
-    v1 = np.minimum(v0 + 1, h - 1)
-    u1 = np.minimum(u0 + 1, w - 1)
-    return np.asarray((1 - fv) * ((1 - fu) * grid[v0, u0] + fu * grid[v0, u1])
-                      + fv * ((1 - fu) * grid[v1, u0] + fu * grid[v1, u1]))
-
-
 def _second_edges(magnitude: FloatArray, gradient_vu: FloatArray, pts: FloatArray,
                   normals: FloatArray, threshold: float) -> FloatArray:
     """Each vertex's ``second_edge_vu`` (:class:`Evidence`).
@@ -452,39 +442,14 @@ def _second_edges(magnitude: FloatArray, gradient_vu: FloatArray, pts: FloatArra
     peak within :data:`_OWN_EDGE_PX`, which must pass ``threshold`` (the
     detector's edge threshold); the second edge is the nearest other local
     peak above ``threshold`` whose gradient points against the normal: an
-    edge the detector keeps, of the opposite polarity.
+    edge the detector keeps, of the opposite polarity
+    (:func:`dtalign.api.loop.second_edge_search`, compiled: it releases the
+    GIL, so a threaded batch concludes its fits in parallel).
     """
-    n = pts.shape[0]
-    s = np.arange(-SECOND_EDGE_REACH_PX, SECOND_EDGE_REACH_PX + 0.5 * _PROFILE_STEP_PX,
-                  _PROFILE_STEP_PX)
-    at = pts[:, None, :] + s[None, :, None] * normals[:, None, :]
-    prof = sample_dt_bilinear(magnitude, at.reshape(-1, 2)).reshape(n, s.size)
-    near = np.abs(s) <= _OWN_EDGE_PX
-    own_at = np.flatnonzero(near)[np.argmax(prof[:, near], axis=1)]
-    rows = np.arange(n)
-    own = prof[rows, own_at]
-    mid = prof[:, 1:-1]
-    peak = (mid > threshold) & (mid >= prof[:, :-2]) & (mid > prof[:, 2:])
-    peak[rows, own_at - 1] = False  # the vertex's own edge (never at the ends)
-    vi, si = np.nonzero(peak)
-    # the polarity of each candidate: its gradient along the vertex's normal
-    g = _sample_vectors(gradient_vu, at[vi, si + 1])
-    opposite = np.einsum("nk,nk->n", g, normals[vi]) < 0.0
-    # each peak's place refined by the parabola through its three samples
-    vo, so = vi[opposite], si[opposite] + 1
-    lo, top, hi = prof[vo, so - 1], prof[vo, so], prof[vo, so + 1]
-    bend = lo - 2.0 * top + hi
-    shift_at = np.where(bend < 0.0, 0.5 * (lo - hi) / np.where(bend < 0.0, bend, -1.0), 0.0)
-    dist = np.full((n, s.size - 2), np.inf)
-    dist[vo, so - 1] = np.abs(s[so] + _PROFILE_STEP_PX * shift_at)
-    j = np.argmin(dist, axis=1)
-    d = dist[rows, j]
-    found = np.isfinite(d) & (own > threshold)
-    ratio = np.where(found, np.minimum(mid[rows, j] / np.where(own > 0.0, own, 1.0), 1.0), 0.0)
-    shift = second_edge_shift(np.where(found, d, np.inf), ratio)
+    dist, ratio, side = second_edge_search(magnitude, gradient_vu, pts, normals, _PROFILE_STEPS,
+                                           _PROFILE_STEP_PX, threshold, _OWN_EDGE_PX)
     # the ridge moves away from the other edge
-    side = np.sign(s[1:-1][j])
-    return np.asarray(-(shift * side)[:, None] * normals)
+    return np.asarray(-(second_edge_shift(dist, ratio) * side)[:, None] * normals)
 
 
 def evidence(fit: Any, edge_dt: FloatArray, gradient: tuple[FloatArray, FloatArray] | None = None,
