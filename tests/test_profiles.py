@@ -210,6 +210,49 @@ def test_batch_paths_refine_like_the_one_call_fit():
                  search_window_vu=(6, 6), workers=1)
 
 
+def test_threaded_batches_refine_in_parallel_with_the_serial_results_and_errors(monkeypatch):
+    # the refinements run on the batch's threads: the same fits, and the
+    # first bad profile in input order is the one raised
+    import threading
+
+    import dtalign.pipeline.batch as batch
+    from dtalign.pipeline import prepare_image
+    from dtalign.pipeline.batch import fit_many, results_equal
+
+    where = []
+
+    def spy(*args, **kwargs):
+        where.append(threading.current_thread().name)
+        return conclude(*args, **kwargs)
+
+    conclude = batch.conclude
+    monkeypatch.setattr(batch, "conclude", spy)
+    sc = _scene(psf=0.7)
+    L = sc.limb
+    good = (L.vertices_vu, L.normals_vu, L.sigmas, _profile(sc, psf_sigma_px=0.7))
+    short = (L.vertices_vu, L.normals_vu, L.sigmas, sphere_edge_profile(
+        L.vertices_vu[:-1], center_vu=sc.model_center_vu, radius_px=sc.radius_px,
+        phase_deg=sc.phase_deg, illumination_deg=sc.illumination_deg, psf_sigma_px=0.7))
+    wrong = (L.vertices_vu, L.normals_vu, L.sigmas, "nope")
+    products = prepare_image(sc.image)
+    polys = [good, L, good, wrong, good, short, good, L]
+    serial = fit_many(products, polys, search_window_vu=(6, 6), workers=1, errors="collect")
+    where.clear()
+    threaded = fit_many(products, polys, search_window_vu=(6, 6), workers=2, errors="collect")
+    # on the pool's workers ("dtalign-batch_0", ...), not its driver
+    assert len(where) == 6 and all(name.startswith("dtalign-batch_") for name in where)
+    assert [type(f).__name__ for f in serial] == [type(f).__name__ for f in threaded]
+    assert isinstance(threaded[3], TypeError) and "polylines[3]" in str(threaded[3])
+    assert isinstance(threaded[5], ValueError) and "polylines[5]" in str(threaded[5])
+    assert str(serial[3]) == str(threaded[3]) and str(serial[5]) == str(threaded[5])
+    kept = [i for i in range(len(polys)) if i not in (3, 5)]
+    assert results_equal([serial[i] for i in kept], [threaded[i] for i in kept])
+    assert all(threaded[i].profile.accepted for i in (0, 2, 4, 6))
+    for workers in (1, 2):
+        with pytest.raises(TypeError, match=r"polylines\[3\]"):
+            fit_many(products, polys, search_window_vu=(6, 6), workers=workers)
+
+
 def test_profile_with_wrong_vertex_count_is_refused():
     sc = _scene()
     L = sc.limb

@@ -4,8 +4,10 @@ The compiled kernels release the GIL (``nogil=True``), so threads fit truly
 in parallel. :func:`fit_many` checks its polylines (the first one and the
 shared options as :func:`~dtalign.pipeline.fit_polyline_products` does,
 the others in bulk), then fits them in chunks, one call of the compiled
-loop (``dtalign._kernels.pipeline``) per chunk of at most a few polylines.
-:func:`fit_images` fits one image per task, on threads, a process pool or an
+loop (``dtalign._kernels.pipeline``) per chunk of at most a few polylines;
+each fit's examination of rival basins and its conclusion (the edge
+profile's refinement, the evidence of its covariance) run one fit a task on
+the same threads. :func:`fit_images` fits one image per task, on threads, a process pool or an
 executor of the caller's; :func:`map_ordered` is ``[fn(x) for x in items]``
 on threads. Results come in input order, equal to the serial calls'.
 Nothing global is configured: no Numba threading layer, no thread count.
@@ -531,31 +533,40 @@ def _fit_and_conclude(products: ImageProducts, polylines: list[tuple[Any, ...]],
     """The fits of one image's checked polylines (:func:`_polyline`'s tuples),
     each concluded (:func:`_concluded`), their steps run by ``runner``."""
     fits = _fit_parts(products, [p[:3] for p in polylines], window, options, collect, runner)
-    return runner.call(_concluded, products, fits, polylines, options, collect)
+    return _concluded(products, fits, polylines, options, collect, runner)
 
 
 def _concluded(products: ImageProducts, fits: list[Any], polylines: list[tuple[Any, ...]],
-               options: FitOptions, collect: bool) -> list[Any]:
+               options: FitOptions, collect: bool, runner: _Runner) -> list[Any]:
     """``fits`` concluded as :func:`~dtalign.pipeline.fit_polyline_products`
     concludes one (:func:`dtalign.pipeline.fit.conclude`): refined with their
     polylines' edge profiles, marked with their edge kinds (each polyline's,
     else the options', else each profile's ``edge``), their evidence for the
     covariance sampled; a bad profile or kind is the polyline's error
-    (raised, or collected in its place)."""
+    (raised, or collected in its place). The fits are concluded on
+    ``runner``'s threads: a profile refinement is compiled work that
+    releases the GIL, several times a fit's own time."""
     from .profile_fit import check_edge_profile, edge_kind_of
 
+    def one(i: int) -> Any:
+        *_, profile, kind = polylines[i]
+        checked = None if profile is None else check_edge_profile(profile, fits[i].normals_vu)
+        kind = options.edge_kind if kind is None else kind
+        return conclude(fits[i], products, checked, edge_kind_of(kind, checked))
+
+    todo = [i for i, fit in enumerate(fits) if not isinstance(fit, Exception)]
+    done, failed = runner.each(one, todo, stop_early=not collect, sizes=[0] * len(todo))
     out = list(fits)
-    for i, (fit, (*_, profile, kind)) in enumerate(zip(fits, polylines, strict=True)):
-        if isinstance(fit, Exception):
+    for k, i in enumerate(todo):  # in input order: the first bad polyline's error is raised
+        exc = failed.get(k)
+        if exc is None:
+            out[i] = done[k]
             continue
-        try:
-            checked = None if profile is None else check_edge_profile(profile, fit.normals_vu)
-            kind = options.edge_kind if kind is None else kind
-            out[i] = conclude(fit, products, checked, edge_kind_of(kind, checked))
-        except (TypeError, ValueError) as exc:
-            out[i] = _named(exc, f"polylines[{i}]", i)
-            if not collect:
-                raise out[i] from exc
+        if not isinstance(exc, (TypeError, ValueError)):
+            raise exc
+        out[i] = _named(exc, f"polylines[{i}]", i)
+        if not collect:
+            raise out[i] from exc
     return out
 
 
@@ -601,13 +612,18 @@ def map_ordered(
     return results  # type: ignore[return-value]
 
 
+#: The fields of a result that hold wall times, which :func:`results_equal` skips.
+_WALL_TIMES = frozenset({"timings_s", "time_s"})
+
+
 def results_equal(a: Any, b: Any) -> bool:
     """Whether two fit results are equal field by field (arrays bitwise, NaN == NaN).
 
     :class:`~dtalign.pipeline.PolylineFit` and
     :class:`~dtalign.LMRefineResult` compare by identity; this compares
     their contents, recursing into nested results and lists. ``timings_s``
-    is ignored (wall times differ between runs).
+    and a profile refinement's ``time_s`` are ignored (wall times differ
+    between runs).
 
     Parameters
     ----------
@@ -631,7 +647,7 @@ def results_equal(a: Any, b: Any) -> bool:
         return all(
             results_equal(getattr(a, f.name), getattr(b, f.name))
             for f in dataclasses.fields(a)
-            if f.name != "timings_s"
+            if f.name not in _WALL_TIMES
         )
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
