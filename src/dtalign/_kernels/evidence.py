@@ -1,9 +1,9 @@
 """The search for a second edge along each vertex's normal, compiled.
 
-Its specification is the NumPy code it replaced in
-:mod:`dtalign.pipeline.uncertainty` (the second edges of ``evidence``):
-the same samples in the same order, so the distances, ratios and sides are
-bit-identical to it. It runs once per fit, after the LM, and releases the
+Its specification is :mod:`dtalign.reference.evidence`, the NumPy code it
+replaced in :mod:`dtalign.pipeline.uncertainty` (the second edges of
+``evidence``): the same samples in the same order, so the distances, ratios
+and sides are bit-identical to it (``tests/test_pose_uncertainty.py``). It runs once per fit, after the LM, and releases the
 GIL, so a threaded batch concludes its fits in parallel. Kernels assume
 valid C-contiguous float64 input and never validate.
 """
