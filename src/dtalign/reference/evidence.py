@@ -16,21 +16,6 @@ from ..api.sampling import sample_dt_bilinear
 FloatArray = np.ndarray
 
 
-def _sample_vectors(grid: FloatArray, pts: FloatArray) -> FloatArray:
-    """Bilinear samples of an ``(H, W, 2)`` grid at ``pts`` (``(M, 2)``), edge-clamped."""
-    h, w = grid.shape[:2]
-    v = np.clip(pts[:, 0], 0.0, h - 1.0)
-    u = np.clip(pts[:, 1], 0.0, w - 1.0)
-    v0 = np.minimum(np.floor(v).astype(np.intp), max(h - 2, 0))
-    u0 = np.minimum(np.floor(u).astype(np.intp), max(w - 2, 0))
-    fv = (v - v0)[:, None]
-    fu = (u - u0)[:, None]
-    v1 = np.minimum(v0 + 1, h - 1)
-    u1 = np.minimum(u0 + 1, w - 1)
-    return np.asarray((1 - fv) * ((1 - fu) * grid[v0, u0] + fu * grid[v0, u1])
-                      + fv * ((1 - fu) * grid[v1, u0] + fu * grid[v1, u1]))
-
-
 def second_edge_search(magnitude: FloatArray, gradient_vu: FloatArray, pts: FloatArray,
                        normals: FloatArray, steps: FloatArray, step: float, threshold: float,
                        own_px: float) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -66,8 +51,9 @@ def second_edge_search(magnitude: FloatArray, gradient_vu: FloatArray, pts: Floa
     peak[rows, own_at - 1] = False  # the vertex's own edge (never at the ends)
     vi, si = np.nonzero(peak)
     # the polarity of each candidate: its gradient along the vertex's normal
-    g = _sample_vectors(gradient_vu, at[vi, si + 1])
-    opposite = np.einsum("nk,nk->n", g, normals[vi]) < 0.0
+    on = at[vi, si + 1]
+    opposite = (sample_dt_bilinear(gradient_vu[..., 0], on) * normals[vi, 0]
+                + sample_dt_bilinear(gradient_vu[..., 1], on) * normals[vi, 1]) < 0.0
     # each peak's place refined by the parabola through its three samples
     vo, so = vi[opposite], si[opposite] + 1
     lo, top, hi = prof[vo, so - 1], prof[vo, so], prof[vo, so + 1]
