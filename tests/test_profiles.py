@@ -253,6 +253,55 @@ def test_threaded_batches_refine_in_parallel_with_the_serial_results_and_errors(
             fit_many(products, polys, search_window_vu=(6, 6), workers=workers)
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_progress_counts_a_polyline_with_a_profile_once_it_is_refined(monkeypatch, workers):
+    # the refinement is most of such a polyline's time: a bar that reached its
+    # total at the fits would then wait with nothing left to show
+    import threading
+
+    import dtalign.pipeline.batch as batch
+    from dtalign.pipeline import prepare_image
+    from dtalign.pipeline.batch import fit_many
+
+    lock, refined = threading.Lock(), [0]
+
+    def spy(*args, **kwargs):
+        try:
+            return conclude(*args, **kwargs)
+        finally:
+            if args[2] is not None:  # a refinement (a polyline with a profile)
+                with lock:
+                    refined[0] += 1
+
+    conclude = batch.conclude
+    monkeypatch.setattr(batch, "conclude", spy)
+    sc = _scene(psf=0.7)
+    L = sc.limb
+    prof = _profile(sc, psf_sigma_px=0.7)
+    good = (L.vertices_vu, L.normals_vu, L.sigmas, prof)
+    wrong = (L.vertices_vu, L.normals_vu, L.sigmas, "nope")  # fails before its refinement
+    bad_vertex = L.vertices_vu.copy()
+    bad_vertex[2, 1] = np.nan
+    unfit = (bad_vertex, L.normals_vu, L.sigmas, prof)  # fails before its fit
+    polys = [good, L, good, wrong, good, unfit, good, L]
+    # at each call, at most the plain polylines, the failed ones and those refined are done
+    calls = []
+
+    def progress(done, total):
+        with lock:
+            calls.append((done, total, refined[0]))
+
+    out = fit_many(prepare_image(sc.image), polys, search_window_vu=(6, 6), workers=workers,
+                   errors="collect", progress=progress)
+    assert [type(f).__name__ for f in out] == ["PolylineFit", "PolylineFit", "PolylineFit",
+                                               "TypeError", "PolylineFit", "ValueError",
+                                               "PolylineFit", "PolylineFit"]
+    n = len(polys)
+    assert [(d, t) for d, t, _ in calls] == [(i, n) for i in range(1, n + 1)]
+    assert all(done <= 2 + 2 + seen for done, _, seen in calls), calls
+    assert calls[-1][2] == 4  # the total is reached once the four refinements are done
+
+
 def test_profile_with_wrong_vertex_count_is_refused():
     sc = _scene()
     L = sc.limb

@@ -64,7 +64,8 @@ Progress
 ``progress=callback`` calls ``callback(done, total)`` once per completed
 item (a polyline of :func:`fit_many`, an image of :func:`fit_images`),
 ``done`` = 1, 2, ..., ``total``, from the calling thread as it sees the
-items complete: the callback needs no lock. A failed item collected counts
+items complete (a polyline with an edge profile once it is refined): the
+callback needs no lock. A failed item collected counts
 as completed; with ``errors="raise"`` the calls stop at the first failure.
 If the callback raises, the batch stops as on an interrupt and its
 exception propagates unchanged (it is not collected). ``progress=True``
@@ -531,13 +532,20 @@ def _polyline(item: Any, index: int) -> tuple[Any, Any, Any, Any, str | None]:
 def _fit_and_conclude(products: ImageProducts, polylines: list[tuple[Any, ...]], window: Any,
                       options: FitOptions, collect: bool, runner: _Runner) -> list[Any]:
     """The fits of one image's checked polylines (:func:`_polyline`'s tuples),
-    each concluded (:func:`_concluded`), their steps run by ``runner``."""
-    fits = _fit_parts(products, [p[:3] for p in polylines], window, options, collect, runner)
-    return _concluded(products, fits, polylines, options, collect, runner)
+    each concluded (:func:`_concluded`), their steps run by ``runner``.
+
+    A polyline with an edge profile is reported done when it is concluded
+    (its refinement is most of its time), the others when they are fitted
+    (or examined)."""
+    late = [p[3] is not None for p in polylines]
+    fits = _fit_parts(products, [p[:3] for p in polylines], window, options, collect, runner,
+                      late)
+    return _concluded(products, fits, polylines, options, collect, runner, late)
 
 
 def _concluded(products: ImageProducts, fits: list[Any], polylines: list[tuple[Any, ...]],
-               options: FitOptions, collect: bool, runner: _Runner) -> list[Any]:
+               options: FitOptions, collect: bool, runner: _Runner,
+               late: Sequence[bool]) -> list[Any]:
     """``fits`` concluded as :func:`~dtalign.pipeline.fit_polyline_products`
     concludes one (:func:`dtalign.pipeline.fit.conclude`): refined with their
     polylines' edge profiles, marked with their edge kinds (each polyline's,
@@ -545,7 +553,8 @@ def _concluded(products: ImageProducts, fits: list[Any], polylines: list[tuple[A
     covariance sampled; a bad profile or kind is the polyline's error
     (raised, or collected in its place). The fits are concluded on
     ``runner``'s threads: a profile refinement is compiled work that
-    releases the GIL, several times a fit's own time."""
+    releases the GIL, several times a fit's own time. The polylines marked
+    ``late`` are reported done here: concluded, or failed before it."""
     from .profile_fit import check_edge_profile, edge_kind_of
 
     def one(i: int) -> Any:
@@ -555,7 +564,9 @@ def _concluded(products: ImageProducts, fits: list[Any], polylines: list[tuple[A
         return conclude(fits[i], products, checked, edge_kind_of(kind, checked))
 
     todo = [i for i, fit in enumerate(fits) if not isinstance(fit, Exception)]
-    done, failed = runner.each(one, todo, stop_early=not collect, sizes=[0] * len(todo))
+    runner.advance(sum(late[i] for i, fit in enumerate(fits) if isinstance(fit, Exception)))
+    done, failed = runner.each(one, todo, stop_early=not collect,
+                               sizes=[int(late[i]) for i in todo])
     out = list(fits)
     for k, i in enumerate(todo):  # in input order: the first bad polyline's error is raised
         exc = failed.get(k)
@@ -710,7 +721,8 @@ def fit_many(
     progress : callable or bool, optional
         ``progress(done, total)`` is called once per completed polyline,
         ``done`` = 1, 2, ..., ``total``, from the calling thread (a chunk's
-        polylines together); if it raises, the batch stops and its exception
+        polylines together; one with an edge profile once it is refined,
+        most of its time); if it raises, the batch stops and its exception
         propagates unchanged. ``True`` shows a tqdm bar (tqdm is needed);
         None or False (default): no report. See the module docstring's
         "Progress" section.
@@ -772,10 +784,11 @@ def _log(results: list[Any], label: str) -> None:
 
 def _fit_parts(
     products: ImageProducts, parts: list[tuple[Any, Any, Any]], window: Any,
-    options: FitOptions, collect: bool, runner: _Runner,
+    options: FitOptions, collect: bool, runner: _Runner, late: Sequence[bool],
 ) -> list[Any]:
     """:func:`fit_many` of checked arguments, its steps run by ``runner``, which
-    reports the polylines complete (fitted, or failed and collected).
+    reports the polylines complete (fitted, or failed and collected) but
+    those marked ``late`` (:func:`_concluded` reports them).
 
     Raising: the first polyline is checked with everything the polylines
     share (:func:`dtalign.pipeline.jobs.plan`), which fixes which error a bad
@@ -797,7 +810,7 @@ def _fit_parts(
                 raise
             raise _named(exc, "polylines[0]", 0) from exc
         batch, error = runner.call(_jobs.prepare, shared, parts, first)
-        fits, fit_errors = _fit_batch(shared, batch, runner, True)
+        fits, fit_errors = _fit_batch(shared, batch, runner, True, late)
         if fit_errors:  # a kernel error, before the first bad polyline
             j = min(fit_errors)
             raise _named(fit_errors[j], f"polylines[{j}]", j)
@@ -809,13 +822,13 @@ def _fit_parts(
     while len(out) < len(parts):
         s = len(out)
         batch, error = runner.call(_jobs.prepare, shared, parts[s:])
-        fits, fit_errors = _fit_batch(shared, batch, runner, False)
+        fits, fit_errors = _fit_batch(shared, batch, runner, False, late[s:])
         for j, fit_error in fit_errors.items():
             fits[j] = _named(fit_error, f"polylines[{s + j}]", s + j)
         out += fits
         if error is not None:
             out.append(_named(error, f"polylines[{len(out)}]", len(out)))
-            runner.advance(1)
+            runner.advance(int(not late[len(out) - 1]))
     return out
 
 
@@ -839,7 +852,7 @@ def _call_error(products: ImageProducts, window: Any, options: FitOptions,
 
 
 def _fit_batch(
-    shared: Any, batch: Any, runner: _Runner, stop_early: bool,
+    shared: Any, batch: Any, runner: _Runner, stop_early: bool, late: Sequence[bool],
 ) -> tuple[list[Any], dict[int, Exception]]:
     """Fit the checked polylines of ``batch``, one call of the compiled loop per
     chunk (:func:`_chunks`) on ``runner``'s threads, then make their result objects.
@@ -852,7 +865,9 @@ def _fit_batch(
     is then examined against rival basins as
     :func:`~dtalign.pipeline.fit_polyline_products` does
     (:func:`dtalign.pipeline.hypotheses.examine`), on the same threads; the
-    polylines are reported done after it, else after their chunk.
+    polylines are reported done after it, else after their chunk, but those
+    marked ``late`` (``late[j]`` for the batch's polyline ``j``), which are
+    reported when concluded.
     """
     k = batch.n
     if k == 0:
@@ -872,7 +887,9 @@ def _fit_batch(
 
     chunks = range(len(bounds) - 1)
     _, failed = runner.each(fit, chunks, stop_early=stop_early,
-                            sizes=[0 if examine else bounds[c + 1] - bounds[c] for c in chunks])
+                            sizes=[0 if examine else sum(not late[j] for j in
+                                                         range(bounds[c], bounds[c + 1]))
+                                   for c in chunks])
     errors: dict[int, Exception] = {}
     for c, exc in failed.items():  # each failed polyline's own error
         bad = [j for j in range(bounds[c], bounds[c + 1]) if codes[j] != _jobs.OK] or [bounds[c]]
@@ -882,7 +899,7 @@ def _fit_batch(
         return [], errors
     fits: list[Any] = runner.call(_results, shared, batch, out, sum(busy) / k, errors)
     if examine:  # failed fits are not examined
-        runner.advance(len(errors))
+        runner.advance(sum(not late[j] for j in errors))
     # Without the examination only the unconverged fits have work left: their
     # settling (dtalign.pipeline.fit.settle), one more LM each.
     good = [j for j, f in enumerate(fits) if f is not None and (examine or needs_settling(f))]
@@ -896,7 +913,7 @@ def _fit_batch(
         return finish(fits[j], shared, item)
 
     examined, failures = runner.each(one, good, stop_early=stop_early,
-                                     sizes=[int(examine)] * len(good))
+                                     sizes=[int(examine and not late[j]) for j in good])
     for i, j in enumerate(good):
         fits[j] = examined[i]
         if i in failures:
