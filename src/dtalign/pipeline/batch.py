@@ -65,8 +65,8 @@ Progress
 item (a polyline of :func:`fit_many`, an image of :func:`fit_images`),
 ``done`` = 1, 2, ..., ``total``, from the calling thread as it sees the
 items complete (a polyline with an edge profile once it is refined): the
-callback needs no lock. A failed item collected counts
-as completed; with ``errors="raise"`` the calls stop at the first failure.
+callback needs no lock. A failed item collected counts as completed; with
+``errors="raise"`` the calls stop at the first failure.
 If the callback raises, the batch stops as on an interrupt and its
 exception propagates unchanged (it is not collected). ``progress=True``
 shows a tqdm bar on standard error (tqdm comes with the ``cli`` extra); for
