@@ -306,9 +306,10 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     code that keeps the FP pipes busy does not. A third control runs
     ``fit_many``'s compiled loop alone on the same 64 fits
     (``loop_control_ratio``: no Python at all while the threads fit). That
-    loop's scaling follows the FP-throughput control, not the SHA-256 one,
-    so a batch ratio below target with a low FP control is the machine's
-    (docs/benchmarks.rst, "What was tried").
+    loop's scaling follows the FP-throughput control, not the SHA-256 one:
+    it is what the machine allows the compiled fits. A batch ratio below
+    the loop's is the Python each fit needs under the GIL (the settling
+    and the conclusions: docs/benchmarks.rst, "What was tried").
     """
     import dtalign.scenes as scenes
 
