@@ -224,9 +224,9 @@ TERMINATOR_PLAIN_P90_PX = 13.8
 #: square root of its covariance's largest eigenvalue) exceeds this, px, is
 #: suspect (:attr:`FitReason.TERMINATOR_IMPRECISE`): an ``ok`` terminator
 #: more than 1 px off is then more than three of its sigmas off (0.3 % of a
-#: Gaussian's draws along that direction). At two sigmas (0.5 px, before)
-#: one ``ok`` terminator of 488 on the coverage harness was 1.25 px off, 3.6
-#: of its 0.35 px (docs/profiles.rst, "A barely measured terminator").
+#: Gaussian's draws along that direction), which is what ``ok`` promises
+#: for a terminator (the measurements: docs/profiles.rst, "A barely
+#: measured terminator").
 TERMINATOR_SIGMA_LIMIT_PX = 1.0 / 3.0
 
 #: The status each reason implies (a fit's status is the worst of them).
