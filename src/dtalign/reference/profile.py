@@ -96,17 +96,13 @@ def _antiderivs(b: FloatArray, c: FloatArray, d: FloatArray, k: FloatArray, x: F
 
 def _box_model(b: FloatArray, c: FloatArray, d: FloatArray, k: FloatArray, x: FloatArray,
                h: float, wa: FloatArray, wb: FloatArray) -> tuple[FloatArray, ...]:
+    wa, wb = np.maximum(wa, MIN_BOX_WIDTH), np.maximum(wb, MIN_BOX_WIDTH)
     c1, c2 = 0.5 * (wa + wb), 0.5 * (wa - wb)
     p1 = _antiderivs(b, c, d, k, x + c1, h)
     p2 = _antiderivs(b, c, d, k, x + c2, h)
     p3 = _antiderivs(b, c, d, k, x - c2, h)
     p4 = _antiderivs(b, c, d, k, x - c1, h)
-    two = [(p1[i] - p2[i] - p3[i] + p4[i]) / (wa * wb) for i in range(3)]
-    q1 = _antiderivs(b, c, d, k, x + 0.5 * wa, h)
-    q2 = _antiderivs(b, c, d, k, x - 0.5 * wa, h)
-    one = [(q1[i + 1] - q2[i + 1]) / wa for i in range(3)]
-    use = wb >= MIN_BOX_WIDTH
-    return tuple(np.where(use, two[i], one[i]) for i in range(3))
+    return tuple((p1[i] - p2[i] - p3[i] + p4[i]) / (wa * wb) for i in range(3))
 
 
 def select_pixels(shape_h: int, shape_w: int, verts: FloatArray, normals: FloatArray,
