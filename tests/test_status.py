@@ -166,7 +166,7 @@ def test_status_values_are_documented_strings():
         "degenerate", "all_polarity_rejected", "at_window_edge", "most_polarity_rejected",
         "ambiguous", "not_converged", "ambiguous_along_edge", "rank_deficient",
         # the profile refinement's (issue 27)
-        "profile_rejected", "soft_edge",
+        "profile_rejected", "soft_edge", "flat_profile_vertices",
         # a declared terminator's (issue 28)
         "terminator_without_profile", "terminator_imprecise",
     }

@@ -163,7 +163,7 @@ def antiderivs(b: np.ndarray, c: np.ndarray, d: np.ndarray, k: int, x: float, h:
     """``(D, C, B, B')`` of row ``k`` at ``x`` samples from its start (held flat beyond)."""
     nb = b.shape[1]
     end = (nb - 1) * h
-    if x <= 0.0:
+    if not x > 0.0:  # NaN too: no index is formed from it
         v = b[k, 0]
         return v * x * x * 0.5, v * x, v, 0.0
     if x >= end:
@@ -336,7 +336,8 @@ def robust_cost(r: np.ndarray, cs: float) -> float:
 
 @kernel
 def solve_small(a: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Gaussian elimination with partial pivoting of a small system; False when singular."""
+    """Gaussian elimination with partial pivoting of a small system; False when
+    singular or when the solution is not finite."""
     n = rhs.shape[0]
     m = a.copy()
     x = rhs.copy()
@@ -360,12 +361,16 @@ def solve_small(a: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, bool]:
             for j in range(col, n):
                 m[row, j] -= f * m[col, j]
             x[row] -= f * x[col]
+    finite = True
     for col in range(n - 1, -1, -1):
         acc = x[col]
         for j in range(col + 1, n):
             acc -= m[col, j] * x[j]
         x[col] = acc / m[col, col]
-    return x, True
+        finite = finite and math.isfinite(x[col])
+    # a solution that overflowed (or a non-finite system) is no step: every
+    # later table read and tap count assumes finite parameters
+    return x, finite
 
 
 @kernel

@@ -24,6 +24,7 @@ it says when the profile has no usable edge (``soft_edge``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -50,6 +51,7 @@ __all__ = [
     "RIVAL_AGREEMENT_SIGMAS",
     "SOFT_EDGE_STEP_JUMP",
     "FIT_WINGS",
+    "FLAT_CONTRAST",
     "MIN_WING_FRACTION",
     "ProfileRefinement",
     "refine_with_profile",
@@ -180,6 +182,16 @@ MIN_WING_FRACTION = 0.005
 #: cost is then independent of the polyline's length.
 SIGMA_VERTICES = 48
 
+#: A limb's vertex whose profile's contrast across its strip (the table's
+#: range) is at most this fraction of the polyline's largest is left out of
+#: the refinement (counted in ``ProfileRefinement.n_flat_vertices``): its
+#: pixels say nothing of the edge, only of the background, which an unlit
+#: part of a limb would then set (and bias, where the night side is not at
+#: the sky's level; the lit vertices' sky side measures it). Not a
+#: terminator's: its dark horns are the dark side that fixes its background
+#: against its gain.
+FLAT_CONTRAST = 1e-3
+
 #: A limb profile whose contrast-weighted median ``EdgeProfile.step_jump``
 #: is below this has no usable edge: its brightness rolls off to the edge
 #: (a Lambert limb below ~10-15 deg phase), so the edge's position rests on
@@ -239,6 +251,9 @@ class ProfileRefinement:
         :data:`SOFT_EDGE_STEP_JUMP`); never set for other edge kinds.
     time_s : float
         Wall time of the refinement.
+    n_flat_vertices : int
+        Vertices left out because their profile has no contrast across the
+        strip (:data:`FLAT_CONTRAST`: an unlit part of a limb).
     start_offset_vu : tuple of float or None
         Where the Gauss-Newton started when not at the DT-LM offset: a
         terminator's scan (:data:`SCAN_DARK_PX`); None otherwise. A
@@ -281,6 +296,7 @@ class ProfileRefinement:
     rival_agrees: bool | None = None
     wing_fraction: float = 0.0
     wing_sigma_px: float = math.nan
+    n_flat_vertices: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (a value that is not finite is ``None``, as in
@@ -307,6 +323,7 @@ class ProfileRefinement:
                                 else [num(x) for x in self.rival_offset_vu]),
             "rival_agrees": self.rival_agrees,
             "wing_fraction": num(self.wing_fraction), "wing_sigma_px": num(self.wing_sigma_px),
+            "n_flat_vertices": self.n_flat_vertices,
         }
 
     @classmethod
@@ -337,6 +354,7 @@ class ProfileRefinement:
             # absent from a dict written before the wings were fitted
             wing_fraction=num(d.get("wing_fraction", 0.0)),
             wing_sigma_px=num(d.get("wing_sigma_px")),
+            n_flat_vertices=int(d.get("n_flat_vertices", 0)),
         )
 
 
@@ -440,6 +458,56 @@ def refine_with_profile(
         kernels = loop.profile_kernels
     t_start = time.perf_counter()
     pb = _problem(image, profile, vertices_vu, dt_offset_vu, rotation_rad, pivot_vu, kernels)
+    # contrast-weighted step fraction: is there an edge at all?
+    contrast = np.ptp(pb.values[:, pb.j0 : pb.j0 + pb.nb], axis=1)
+    step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
+    # only a limb is meant to step: a terminator is a kink (cos i through 0), a ring's
+    # profile whatever its model says, and neither is soft for lacking a step
+    soft = profile.edge == "limb" and step_jump < SOFT_EDGE_STEP_JUMP
+    flat = contrast <= FLAT_CONTRAST * contrast.max(initial=0.0)
+    if profile.edge != "limb":
+        # a terminator's dark horns are its dark side, which fixes the
+        # background against the gain (its slope is not fitted)
+        flat[:] = flat.all()
+    try:
+        if flat.all():
+            raise _Unusable("no vertex's profile has any contrast across its strip", 0)
+        if flat.any():
+            pb = _kept(pb, ~flat)
+        ref = _refine(pb, profile, dt_offset_vu, step_jump, soft, t_start)
+        return dataclasses.replace(ref, n_flat_vertices=int(flat.sum()))
+    except _Unusable as exc:
+        dt = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
+        nan = math.nan
+        return ProfileRefinement(
+            offset_vu=dt, dt_offset_vu=dt, accepted=False, reason=str(exc), gain=nan,
+            background=nan, background_slope=nan, shape_amplitude=nan, psf_sigma_px=nan,
+            psf_estimated=profile.psf_sigma_px is None, iterations=0, converged=False,
+            walk_px=0.0, n_pixels=exc.n_pixels, residual_scale=nan,
+            covariance=((nan, nan), (nan, nan)), step_jump=float(step_jump), soft_edge=bool(soft),
+            time_s=time.perf_counter() - t_start, n_flat_vertices=int(flat.sum()),
+        )
+
+
+def _kept(pb: _Problem, keep: NDArray[np.bool_]) -> _Problem:
+    """``pb`` over the vertices ``keep`` only (each keeps its strip's length)."""
+    return pb._replace(**{name: np.ascontiguousarray(getattr(pb, name)[keep])
+                          for name in ("verts", "normals", "curv", "values", "shape", "tau")})
+
+
+class _Unusable(Exception):
+    """A refinement that cannot be computed (too few pixels, a model or a
+    system that is not finite or not solvable): :func:`refine_with_profile`
+    returns it as a rejected refinement whose reason is this message."""
+
+    def __init__(self, reason: str, n_pixels: int) -> None:
+        super().__init__(reason)
+        self.n_pixels = n_pixels
+
+
+def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float],
+            step_jump: float, soft: bool, t_start: float) -> ProfileRefinement:
+    """The body of :func:`refine_with_profile`; raises :class:`_Unusable`."""
     known = profile.psf_sigma_px is not None
     sigma = SIGMA_START_PX if profile.psf_sigma_px is None else float(profile.psf_sigma_px)
     start = None
@@ -447,13 +515,6 @@ def refine_with_profile(
         start = _scan_start(pb, sigma)
         pb = pb._replace(d0=start)
     d0 = pb.d0
-    # contrast-weighted step fraction: is there an edge at all?
-    contrast = np.ptp(pb.values[:, pb.j0 : pb.j0 + pb.nb], axis=1)
-    step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
-    # only a limb is meant to step: a terminator is a kink (cos i through 0), a ring's
-    # profile whatever its model says, and neither is soft for lacking a step
-    soft = profile.edge == "limb" and step_jump < SOFT_EDGE_STEP_JUMP
-
     params = _start(d0, sigma, wings := FIT_WINGS and start is None)
     iterations = 0
     if start is not None and not known:
@@ -479,7 +540,7 @@ def refine_with_profile(
     off = (float(p[0]), float(p[1]))
     walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
     cov = np.asarray(inv)[:2, :2] * float(scale) ** 2
-    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]),
+    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]), cov,
                         "the DT lock" if start is None else "where its last run started")
     dt = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
     if start is not None:
@@ -737,29 +798,42 @@ def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_si
     params = params.copy()
     if not wings:
         params[7] = 0.0
-    if params[2] == 0.0:  # the linear gain and background at the start
+    active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if pb.use_shape else [])
+              + ([6] if pb.fit_slope else [])
+              + ([7] + ([8] if FIT_WING_SIGMA else []) if wings and fit_wings else []))
+    npx = obs.shape[0]
+    if 0 < npx <= len(active):
+        raise _Unusable(f"too few pixels in the strips ({npx} for {len(active)} parameters)", npx)
+    if params[2] == 0.0 and npx > 0:  # the linear gain and background at the start
         b, c, d, t0, ht = k.tables(val, pb.o0, pb.h, pb.j0, pb.nb, params[4])
         r, _ = k.evaluate(obs, kk, pv, pu, v, nrm, cv, b, c, d, b, c, d, False, t0, ht,
                           b, c, d, b, c, d, False, t0, ht,
                           np.array([pb.d0[0], pb.d0[1], 1.0, 0.0, params[4], 0.0, 0.0, 0.0, 0.0]))
         model = obs - r
+        bad = int(np.count_nonzero(~np.isfinite(model)))
+        if bad:
+            raise _Unusable(f"the profile's model is not finite at {bad} of {npx} pixels", npx)
+        if not np.ptp(model) > 0.0:
+            raise _Unusable("the profile's model has no contrast across the strips' pixels", npx)
         a = np.stack([model, np.ones_like(model)], axis=1)
         sol = np.linalg.lstsq(a, obs, rcond=None)[0]
         params[2], params[3] = float(sol[0]), float(sol[1])
-    active = ([0, 1, 2, 3] + ([4] if fit_sigma else []) + ([5] if pb.use_shape else [])
-              + ([6] if pb.fit_slope else [])
-              + ([7] + ([8] if FIT_WING_SIGMA else []) if wings and fit_wings else []))
     out = k.refine(obs, kk, pv, pu, v, nrm, cv, val, shp, pb.o0, pb.h, pb.j0, pb.nb, params,
                    np.asarray(active, dtype=np.int64), bool(wings), MAX_ITERATIONS, tolerance,
                    TUKEY_C)
-    return (*out, obs.shape[0])
+    if npx > 0 and not np.isfinite(out[0]).all():
+        raise _Unusable("the Gauss-Newton reached a value that is not finite", npx)
+    return (*out, npx)
 
 
 def _rejection(n_pixels: int, converged: bool, iterations: int, walk: float, gain: float,
-               start: str = "the DT lock") -> str:
-    """Why a refinement is discarded ("" when it is accepted); ``walk`` is from ``start``."""
+               cov: FloatArray, start: str = "the DT lock") -> str:
+    """Why a refinement is discarded ("" when it is accepted); ``walk`` is from
+    ``start``, ``cov`` the offset's covariance."""
     if n_pixels == 0:
         return "no pixels in the strips along the normals (is the polyline in the image?)"
+    if not np.isfinite(cov).all():
+        return "its information matrix is singular: the strips' pixels do not fix the offset"
     if not converged:
         return f"did not converge in {iterations} Gauss-Newton iterations"
     if not walk <= MAX_WALK_PX:

@@ -161,6 +161,11 @@ class FitReason(_Text):
         :ref:`profiles-terminator`, 2.40 px off at phase 91 deg with a
         reported one-sigma of 1.56 px; on the coverage harness, 1.25 px off
         at phase 86 deg with 0.35 px).
+    ``FLAT_PROFILE_VERTICES`` (note: the status stays ``OK``)
+        Some of a limb's vertices have edge profiles with no contrast across
+        their strips (an unlit part of the limb): they were left out of the
+        profile refinement, which fitted the others
+        (``PolylineFit.profile.n_flat_vertices`` counts them).
     ``NOT_CONVERGED`` (note: the status stays ``OK``)
         The pose has not settled: the LM stopped (iteration cap or damping
         bound) before an accepted step fell below ``step_tolerance_px``,
@@ -205,6 +210,7 @@ class FitReason(_Text):
     SOFT_EDGE = "soft_edge"
     TERMINATOR_WITHOUT_PROFILE = "terminator_without_profile"
     TERMINATOR_IMPRECISE = "terminator_imprecise"
+    FLAT_PROFILE_VERTICES = "flat_profile_vertices"
     NOT_CONVERGED = "not_converged"
     AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
     RANK_DEFICIENT = "rank_deficient"
@@ -243,6 +249,7 @@ SEVERITY: dict[FitReason, FitStatus] = {
     FitReason.SOFT_EDGE: FitStatus.SUSPECT,
     FitReason.TERMINATOR_WITHOUT_PROFILE: FitStatus.SUSPECT,
     FitReason.TERMINATOR_IMPRECISE: FitStatus.SUSPECT,
+    FitReason.FLAT_PROFILE_VERTICES: FitStatus.OK,
 }
 
 _ORDER = (FitStatus.OK, FitStatus.SUSPECT, FitStatus.AMBIGUOUS, FitStatus.FAILED)
@@ -280,8 +287,9 @@ REASON_MEANING: dict[FitReason, str] = {
     "one polarity, a decoy edge (an accepted edge-profile refinement that reaches the same "
     "pose from the rival's start clears it). See :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.",
     FitReason.PROFILE_REJECTED: "an edge profile was given but its refinement was "
-    "discarded (it did not converge, walked more than 2 px from the DT lock, or fitted a "
-    "non-positive gain): the pose is the DT-LM's, with the edge DT's photometric bias "
+    "discarded (it could not be computed: too few pixels, a singular or non-finite system; "
+    "or it did not converge, walked more than 2 px from the DT lock, or fitted a "
+    "non-positive gain; the reason says which): the pose is the DT-LM's, with the edge DT's photometric bias "
     "(tenths of a pixel on a limb). See :attr:`~dtalign.pipeline.PolylineFit.profile`.",
     FitReason.SOFT_EDGE: "the limb profile has no usable edge (its brightness rolls off to "
     "the limb, as a Lambert limb at low phase): the position rests on the modelled roll-off "
@@ -296,6 +304,9 @@ REASON_MEANING: dict[FitReason, str] = {
     f"above {TERMINATOR_SIGMA_LIMIT_PX:.2f} px along some direction: the pose is barely measured "
     "there (a terminator near phase 90 deg is nearly straight). See "
     ":attr:`~dtalign.pipeline.PolylineFit.profile`.",
+    FitReason.FLAT_PROFILE_VERTICES: "some of a limb's vertices have edge profiles with no "
+    "contrast across their strips (an unlit part of the limb): they were left out of "
+    "the profile refinement, which fitted the others. Pass the sunlit part of a limb.",
     FitReason.NOT_CONVERGED: "the pose has not settled: the LM stopped before its step "
     "tolerance and its pose still moved more than 0.25 sigma over its last 5 iterations. "
     "Raise ``max_iterations``. See `Converged, settled, and the iteration cap`_.",
@@ -458,6 +469,8 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
         if (profile.accepted and getattr(fit, "edge_kind", None) == "terminator"
                 and _profile_sigma(profile) > TERMINATOR_SIGMA_LIMIT_PX):
             out.append(FitReason.TERMINATOR_IMPRECISE)
+        if getattr(profile, "n_flat_vertices", 0) > 0:
+            out.append(FitReason.FLAT_PROFILE_VERTICES)
     elif getattr(fit, "edge_kind", None) == "terminator":
         out.append(FitReason.TERMINATOR_WITHOUT_PROFILE)
     if not settled(fit):
@@ -548,7 +561,8 @@ def _explain(fit: Any, reason: FitReason) -> str:
 
 #: The reasons about an edge's photometric profile (:func:`_explain_profile`).
 _PROFILE_REASONS = frozenset({FitReason.PROFILE_REJECTED, FitReason.TERMINATOR_WITHOUT_PROFILE,
-                              FitReason.TERMINATOR_IMPRECISE, FitReason.SOFT_EDGE})
+                              FitReason.TERMINATOR_IMPRECISE, FitReason.SOFT_EDGE,
+                              FitReason.FLAT_PROFILE_VERTICES})
 
 
 def _explain_profile(fit: Any, reason: FitReason) -> str:
@@ -570,6 +584,12 @@ def _explain_profile(fit: Any, reason: FitReason) -> str:
             f"terminator imprecise: the profile refinement's one-sigma is "
             f"{_profile_sigma(fit.profile):.3g} px along some direction (above "
             f"{TERMINATOR_SIGMA_LIMIT_PX:.2f} px): the pose is barely measured there"
+        )
+    if reason is FitReason.FLAT_PROFILE_VERTICES:
+        n = len(fit.vertices_vu)
+        return (
+            f"{fit.profile.n_flat_vertices} of {n} vertices' profiles have no contrast (an unlit "
+            "part of a limb?): left out of the profile refinement"
         )
     assert reason is FitReason.SOFT_EDGE
     return (

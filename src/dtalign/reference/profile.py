@@ -249,6 +249,8 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
                     step = np.linalg.solve(info, grad)
         except np.linalg.LinAlgError:
             break
+        if not np.isfinite(step).all():
+            break
         full = float(np.abs(step[np.isin(active, (0, 1, 4))]).max())
         accepted = False
         for _ in range(MAX_HALVINGS):
@@ -277,5 +279,7 @@ def refine(obs: FloatArray, pix_k: np.ndarray, pix_v: FloatArray, pix_u: FloatAr
     try:
         inv = np.linalg.inv(info)
     except np.linalg.LinAlgError:
+        inv = np.full((n_act, n_act), np.inf)
+    if not np.isfinite(inv).all():
         inv = np.full((n_act, n_act), np.inf)
     return params, iterations, converged, inv, scale, cost
