@@ -43,7 +43,8 @@ from .._jit import inline_kernel, kernel
 #: cancellation. Floored, the model is one formula, continuous in both
 #: widths, in either order; the box it adds has a variance of at most
 #: ``MIN_BOX_WIDTH**2 / 12`` (3e-5 px^2), which moves no edge measurably,
-#: and the cancellation costs at most ~1e-12 of the contrast.
+#: and the cancellation costs ~1e-11 of the contrast (both widths floored,
+#: a 12 px table; tests/test_profile_numerics.py bounds it).
 MIN_BOX_WIDTH = 0.02
 
 #: Gaussian taps reach this many sigmas (the mass beyond is < 7e-5 of the
