@@ -383,3 +383,15 @@ def test_the_reference_refines_axis_normals_as_the_kernels_do():
     assert a.accepted and b.accepted
     np.testing.assert_allclose(a.offset_vu, b.offset_vu, atol=1e-9)
     assert a.iterations == b.iterations and a.n_pixels == b.n_pixels
+
+
+def test_a_vertex_where_the_sphere_defines_no_normal_is_refused():
+    """The two points where a sphere's profile has no normal: a limb vertex
+    at the centre, a terminator vertex at the sub-solar point (where
+    ``grad cos i`` is exactly 0); a ValueError each, not NaN normals."""
+    kw = dict(center_vu=(100.0, 100.0), radius_px=50.0, phase_deg=60.0, illumination_deg=0.0)
+    with pytest.raises(ValueError, match="lies at center_vu"):
+        sphere_edge_profile(np.array([[100.0, 100.0], [60.0, 100.0]]), edge="limb", **kw)
+    sub_solar = 100.0 - 50.0 * math.sin(math.radians(60.0))  # the light along -v at 0 deg
+    with pytest.raises(ValueError, match="sub-solar point"):
+        sphere_edge_profile(np.array([[sub_solar, 100.0]]), edge="terminator", **kw)

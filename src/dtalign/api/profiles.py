@@ -312,7 +312,11 @@ def sphere_edge_profile(
         rho2 = np.clip((rel**2).sum(axis=1), 0.0, 1.0 - 1e-12)
         grad = (math.sin(phase) * np.asarray(sun)[None, :]
                 - math.cos(phase) * rel / np.sqrt(1.0 - rho2)[:, None])
-        normals = grad / np.hypot(grad[:, 0], grad[:, 1])[:, None]
+        size = np.hypot(grad[:, 0], grad[:, 1])
+        if not (size > 0.0).all():
+            raise ValueError("a terminator vertex lies at the sub-solar point: cos i has no "
+                             "gradient there, so no normal")
+        normals = grad / size[:, None]
         perp = np.array([-sun[1], sun[0]])
         cos_t = np.clip(rel @ perp, -1.0, 1.0)
         sin_t2 = 1.0 - cos_t**2
