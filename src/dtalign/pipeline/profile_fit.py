@@ -491,8 +491,11 @@ def refine_with_profile(
 
 def _kept(pb: _Problem, keep: NDArray[np.bool_]) -> _Problem:
     """``pb`` over the vertices ``keep`` only (each keeps its strip's length)."""
-    return pb._replace(**{name: np.ascontiguousarray(getattr(pb, name)[keep])
-                          for name in ("verts", "normals", "curv", "values", "shape", "tau")})
+    def sub(a: FloatArray) -> FloatArray:
+        return np.ascontiguousarray(a[keep])
+
+    return pb._replace(verts=sub(pb.verts), normals=sub(pb.normals), curv=sub(pb.curv),
+                       values=sub(pb.values), shape=sub(pb.shape), tau=sub(pb.tau))
 
 
 class _Unusable(Exception):
