@@ -162,6 +162,7 @@ def test_noise_is_seeded_and_reported() -> None:
         ({"psf": "airy"}, "psf"),
         ({"oversample": 0}, "oversample"),
         ({"n_vertices": 1}, "n_vertices"),
+        ({"illumination_deg": math.nan}, "illumination_deg"),
     ],
 )
 def test_bad_arguments_are_named(kwargs: dict, match: str) -> None:

@@ -489,10 +489,7 @@ def render_sphere(
     k = float(minnaert_k) if minnaert_k is not None else 1.0
     psf_sigma = float(psf_sigma_px) if psf_sigma_px is not None else 0.0
     blur = psf_sigma > 0.0
-    signal = _sphere_signal((h, w), c, radius_px, phase, sun, law, k, albedo_dn,
-                            psf if blur else "none", psf_sigma, int(oversample))
-    image, noise_sigma, peak_snr = _camera(signal, background_dn, poisson_gain, read_noise_dn,
-                                           seed)
+    # The model polylines first: the builders check the light direction too.
     model_c = c - off
     n = int(n_vertices)
     limb = sphere_limb_polyline(model_c, radius_px, illumination_deg=illumination_deg,
@@ -500,6 +497,10 @@ def render_sphere(
     term = (sphere_terminator_polyline(model_c, radius_px, illumination_deg=illumination_deg,
                                        phase_deg=phase_deg, n_vertices=n)
             if phase_deg > 0.0 else None)
+    signal = _sphere_signal((h, w), c, radius_px, phase, sun, law, k, albedo_dn,
+                            psf if blur else "none", psf_sigma, int(oversample))
+    image, noise_sigma, peak_snr = _camera(signal, background_dn, poisson_gain, read_noise_dn,
+                                           seed)
     return SphereScene(
         image=np.ascontiguousarray(image, dtype=np.float64),
         noise_sigma=float(noise_sigma),
