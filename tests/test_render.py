@@ -2,7 +2,7 @@
 
 The renderer is the ground truth of the accuracy tables, so it is checked
 against closed forms, not against the profile model the fit uses (which
-it must not share code with: see ``test_renderer_is_independent``).
+it must not share code with: see ``test_renderer_is_independent_of_the_fit``).
 """
 
 from __future__ import annotations
@@ -162,6 +162,7 @@ def test_noise_is_seeded_and_reported() -> None:
         ({"psf": "airy"}, "psf"),
         ({"oversample": 0}, "oversample"),
         ({"n_vertices": 1}, "n_vertices"),
+        ({"illumination_deg": math.nan}, "illumination_deg"),
     ],
 )
 def test_bad_arguments_are_named(kwargs: dict, match: str) -> None:
@@ -169,12 +170,40 @@ def test_bad_arguments_are_named(kwargs: dict, match: str) -> None:
         render_sphere(**kwargs)
 
 
+#: What scenes.py may import of dtalign: the model polylines' record and
+#: builders (geometry, the model's own input: the scenes' polylines are the
+#: ones a user builds), nothing that computes a brightness.
+POLYLINE_NAMES = {"Polyline", "sphere_limb_polyline", "sphere_terminator_polyline",
+                  "sun_direction_vu"}
+
+
 def test_renderer_is_independent_of_the_fit() -> None:
-    """The renderer imports nothing of dtalign: a renderer that shared the
-    profile fit's model would only show that the model agrees with itself."""
-    src = Path(__file__).parents[1] / "src" / "dtalign" / "scenes.py"
-    for node in ast.walk(ast.parse(src.read_text())):
+    """The renderer shares no code with the fit's model: a renderer that
+    shared the profile fit's model would only show that the model agrees
+    with itself. scenes.py imports of dtalign only the polyline builders
+    (``dtalign.api.polylines``), which compute no radiance, and its
+    shading uses none of them."""
+    src = Path(__file__).parents[1] / "src" / "dtalign"
+    tree = ast.parse((src / "scenes.py").read_text())
+    imported = set()
+    for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
-            assert not (node.module or "").startswith("dtalign") and node.level == 0, node.module
+            if node.level == 0 and not (node.module or "").startswith("dtalign"):
+                continue
+            assert node.level == 1 and node.module == "api.polylines", node.module
+            imported |= {a.asname or a.name for a in node.names}
         elif isinstance(node, ast.Import):
             assert all(not a.name.startswith("dtalign") for a in node.names)
+    assert imported <= POLYLINE_NAMES
+    shading = {"_shade", "_sphere_signal", "_blur_fine", "_gaussian_kernel_1d", "_camera"}
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef) and node.name in shading:
+            used = {n.id for n in ast.walk(node) if isinstance(n, ast.Name)}
+            assert not used & imported, node.name
+    # the builders take of the profile module only its record and edge kinds
+    builders = ast.parse((src / "api" / "polylines.py").read_text())
+    for node in ast.walk(builders):
+        if isinstance(node, ast.ImportFrom) and node.level == 1:
+            names = frozenset(a.name for a in node.names)
+            assert (node.module, names) in {("profiles", frozenset({"EDGE_KINDS", "EdgeProfile"})),
+                                            (None, frozenset({"checks"}))}, (node.module, names)

@@ -78,6 +78,10 @@ _LAZY: dict[str, str] = {
     "EdgeProfile": ".api.profiles",
     "sphere_edge_profile": ".api.profiles",
     "ProfileRefinement": ".pipeline.profile_fit",
+    # model polylines: the record and a sphere's limb and terminator
+    "Polyline": ".api.polylines",
+    "sphere_limb_polyline": ".api.polylines",
+    "sphere_terminator_polyline": ".api.polylines",
 }
 
 #: Private names today's techniques import (:ref:`contract-private`): importable,
@@ -134,6 +138,7 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
     )
     from .api.lm import lm_subpixel_refine
     from .api.options import FitOptions
+    from .api.polylines import Polyline, sphere_limb_polyline, sphere_terminator_polyline
     from .api.profiles import EdgeProfile, sphere_edge_profile
     from .api.results import (
         CoarseSearchResult,

@@ -14,8 +14,12 @@ polylines against one image's products.
 :func:`render_sphere` is the ground truth of the accuracy measurements: a
 shaded sphere (Lambert, Minnaert or Lommel-Seeliger) at any phase and light
 direction, integrated over each pixel's area, blurred, with noise, and a
-planted sub-pixel offset. It shares no code with the edge-profile model the
-fit uses.
+planted sub-pixel offset. Its shading shares no code with the edge-profile
+model the fit uses; its model polylines are the public builders'
+(:func:`dtalign.sphere_limb_polyline`, :func:`dtalign.sphere_terminator_polyline`),
+so a user who builds them for the same sphere gets the same polylines.
+:class:`Polyline` and :func:`sun_direction_vu` are
+:mod:`dtalign.api.polylines`'s, re-exported here.
 """
 
 from __future__ import annotations
@@ -26,25 +30,22 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+# The model polylines' record and the sphere's limb and terminator are the
+# public builders' (one implementation: a user's builder output is the
+# scene's polyline); the shading below shares nothing with the fit's model.
+from .api.polylines import (
+    Polyline,
+    sphere_limb_polyline,
+    sphere_terminator_polyline,
+    sun_direction_vu,
+)
+
 __all__ = [
     "Polyline", "Scene", "SphereScene", "disc_scene", "navigation_scene", "render_sphere",
     "sun_direction_vu",
 ]
 
 FloatArray = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class Polyline:
-    """A model polyline: vertices, normals (to the bright side) and per-vertex sigmas."""
-
-    name: str
-    vertices_vu: FloatArray
-    normals_vu: FloatArray
-    sigmas: FloatArray
-
-    def __len__(self) -> int:
-        return int(self.vertices_vu.shape[0])
 
 
 @dataclass(frozen=True)
@@ -331,11 +332,14 @@ class SphereScene:
         The PSF's (core) sigma, None when no blur.
     limb : Polyline
         The sunlit half of the geometric limb around the model centre,
-        normals into the disc (the bright side), sigmas 1 px.
+        normals into the disc (the bright side), sigmas 1 px:
+        :func:`~dtalign.sphere_limb_polyline` of the model centre, radius,
+        light direction and ``n_vertices``.
     terminator : Polyline or None
         The visible half of the geometric terminator (``cos i = 0``) around
-        the model centre, normals toward the lit side, sigmas 1 px; None at
-        phase 0, where it lies behind the limb.
+        the model centre, normals toward the lit side, sigmas 1 px
+        (:func:`~dtalign.sphere_terminator_polyline`); None at phase 0,
+        where it lies behind the limb.
     """
 
     image: FloatArray
@@ -353,12 +357,6 @@ class SphereScene:
     psf_sigma_px: float | None
     limb: Polyline
     terminator: Polyline | None
-
-
-def sun_direction_vu(illumination_deg: float) -> tuple[float, float]:
-    """Unit in-image direction toward the Sun: 0 deg is -v (up), 90 deg is +u."""
-    a = math.radians(illumination_deg)
-    return -math.cos(a), math.sin(a)
 
 
 def _shade(
@@ -402,26 +400,6 @@ def _blur_fine(fine: FloatArray, sigma_fine: float) -> FloatArray:
     g = _gaussian_kernel_1d(sigma_fine)
     out = convolve1d(fine, g, axis=0, mode="constant", cval=0.0)
     return convolve1d(out, g, axis=1, mode="constant", cval=0.0)
-
-
-def _terminator_polyline(
-    model_center: FloatArray, radius: float, phase: float, sun: tuple[float, float], n: int
-) -> Polyline:
-    """The visible half of the great circle ``N . L = 0``, normals up ``grad(cos i)``."""
-    s = np.asarray(sun)
-    perp = np.array([-s[1], s[0]])
-    sin_p, cos_p = math.sin(phase), math.cos(phase)
-    # N(t) = cos t * (perp, 0) + sin t * (cos(p) s, -sin(p)): both are unit
-    # vectors perpendicular to L and to each other; N_z = -sin t sin p >= 0
-    # for t in (-pi, 0), the visible half.
-    t = -math.pi + math.pi * (np.arange(n) + 0.5) / n
-    nv = np.cos(t)[:, None] * perp[None, :] + (np.sin(t) * cos_p)[:, None] * s[None, :]
-    nz = -np.sin(t) * sin_p
-    pts = model_center[None, :] + radius * nv
-    # d(cos i)/dp = sin(p) s / R - cos(p) (p - c) / (R^2 N_z): toward the lit side.
-    grad = sin_p * s[None, :] / radius - cos_p * nv / (radius * np.maximum(nz, 1e-12))[:, None]
-    grad /= np.hypot(grad[:, 0], grad[:, 1])[:, None]
-    return Polyline("terminator", pts, grad, np.ones(n))
 
 
 def render_sphere(
@@ -511,13 +489,18 @@ def render_sphere(
     k = float(minnaert_k) if minnaert_k is not None else 1.0
     psf_sigma = float(psf_sigma_px) if psf_sigma_px is not None else 0.0
     blur = psf_sigma > 0.0
+    # The model polylines first: the builders check the light direction too.
+    model_c = c - off
+    n = int(n_vertices)
+    limb = sphere_limb_polyline(model_c, radius_px, illumination_deg=illumination_deg,
+                                n_vertices=n)
+    term = (sphere_terminator_polyline(model_c, radius_px, illumination_deg=illumination_deg,
+                                       phase_deg=phase_deg, n_vertices=n)
+            if phase_deg > 0.0 else None)
     signal = _sphere_signal((h, w), c, radius_px, phase, sun, law, k, albedo_dn,
                             psf if blur else "none", psf_sigma, int(oversample))
     image, noise_sigma, peak_snr = _camera(signal, background_dn, poisson_gain, read_noise_dn,
                                            seed)
-    model_c = c - off
-    term = (_terminator_polyline(model_c, radius_px, phase, sun, n_vertices)
-            if phase_deg > 0.0 else None)
     return SphereScene(
         image=np.ascontiguousarray(image, dtype=np.float64),
         noise_sigma=float(noise_sigma),
@@ -532,7 +515,7 @@ def render_sphere(
         minnaert_k=None if minnaert_k is None else float(minnaert_k),
         psf=psf if blur else "none",
         psf_sigma_px=psf_sigma if blur else None,
-        limb=_limb_polyline(model_c, radius_px, sun, n_vertices),
+        limb=limb,
         terminator=term,
     )
 
@@ -605,14 +588,3 @@ def _camera(signal: FloatArray, background_dn: float, poisson_gain: float | None
     peak_noise = math.sqrt(read_noise_dn**2 + max(shot_peak, 0.0))
     peak_snr = peak / peak_noise if peak_noise > 0.0 else math.inf
     return image, noise_sigma, peak_snr
-
-
-def _limb_polyline(model_c: FloatArray, radius_px: float, sun: tuple[float, float],
-                   n_vertices: int) -> Polyline:
-    """The lit half of the limb around the model centre, normals inward, sigmas 1 px."""
-    s = np.asarray(sun)
-    perp = np.array([-s[1], s[0]])
-    theta = -0.5 * math.pi + math.pi * (np.arange(n_vertices) + 0.5) / n_vertices
-    radial = np.cos(theta)[:, None] * s[None, :] + np.sin(theta)[:, None] * perp[None, :]
-    return Polyline("limb", model_c[None, :] + radius_px * radial, -radial,
-                    np.ones(n_vertices))
