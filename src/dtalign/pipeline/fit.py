@@ -731,8 +731,20 @@ class PolylineFit:
     def summary(self) -> str:
         """A short text summary: one line per field, the LM result nested,
         arrays as their shape and min / median / max, then the one-sigma,
-        the observable rank and the status (``repr`` gives the same)."""
-        return summary_text(self, extra=self._SUMMARY_EXTRA)
+        the observable rank and the status (``repr`` gives the same). A
+        failed fit's sigmas read ``not measured (failed)``: its ``inf`` (or a
+        finite sigma from a few stray inliers) is no measurement; the
+        fields themselves keep their values."""
+        return summary_text(self, extra=self._SUMMARY_EXTRA, text=self._unmeasured_text())
+
+    def _unmeasured_text(self) -> dict[str, str]:
+        """What :meth:`summary` prints for the sigmas of a failed fit (empty otherwise)."""
+        if not self.failed:
+            return {}
+        out = {"sigma_vu": _status.UNMEASURED_TEXT}
+        if self.fit_rotation:
+            out["sigma_rotation_rad"] = _status.UNMEASURED_TEXT
+        return out
 
     def __repr__(self) -> str:
         return self.summary()

@@ -41,23 +41,27 @@ import numpy as np
 from ..api.constants import POLARITY_PENALTY_RESIDUAL
 
 __all__ = [
+    "NO_EDGE_GAP",
+    "NO_EDGE_MIN_FRACTION",
     "SETTLE_ITERATIONS",
     "SETTLE_SIGMAS",
     "TERMINATOR_PLAIN_MEDIAN_PX",
     "TERMINATOR_PLAIN_P90_PX",
     "TERMINATOR_SIGMA_LIMIT_PX",
+    "UNMEASURED_TEXT",
     "FitReason",
     "FitStatus",
+    "NoEdgeRun",
     "Settling",
     "describe",
     "fit_problems",
     "fit_reasons",
     "fit_status",
-    "no_edge_run",
-    "outside_mask",
     "log_fit",
     "log_fits",
     "logger",
+    "no_edge_run",
+    "outside_mask",
     "settled",
 ]
 
@@ -271,6 +275,12 @@ TERMINATOR_PLAIN_P90_PX = 13.8
 #: for a terminator (the measurements: docs/profiles.rst, "A barely
 #: measured terminator").
 TERMINATOR_SIGMA_LIMIT_PX = 1.0 / 3.0
+
+#: What a failed fit's printed summary (:meth:`PolylineFit.summary
+#: <dtalign.pipeline.PolylineFit.summary>`) and the command line show for its
+#: sigmas: its covariance (``inf``, or finite from a few stray inliers) is no
+#: measurement. The numeric fields (``sigma_vu``, ``to_dict``) keep their values.
+UNMEASURED_TEXT = "not measured (failed)"
 
 #: The status each reason implies (a fit's status is the worst of them).
 SEVERITY: dict[FitReason, FitStatus] = {
@@ -800,9 +810,11 @@ def _explain(fit: Any, reason: FitReason) -> str:
         "(" + ", ".join(f"{round(float(x), 4) + 0.0:g}" for x in e) + ")"
         for e in fit.unobservable_directions
     )
+    # a failed fit's sigmas are no measurement anywhere: no "inf" to read there
+    there = "" if fit_status(fit_problems(fit)) is FitStatus.FAILED else " (sigma inf there)"
     return (
         f"rank deficient: observable rank {fit.observable_rank} of {p}; the pose is not "
-        f"measured along {dirs} (sigma inf there)"
+        f"measured along {dirs}{there}"
     )
 
 
