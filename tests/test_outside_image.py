@@ -123,6 +123,20 @@ def test_a_fit_partly_outside_that_measures_the_inside_is_ok_with_a_note():
     assert not fit.outside_image[fit.lm.weights > 0].any()
 
 
+def test_outside_vertices_that_kept_weight_without_the_polarity_test_are_suspect():
+    sc = render(center_vu=(160.0, 260.0), illumination_deg=0.0)
+    p = sc.limb
+    fit = fit_polyline(sc.image, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=WINDOW,
+                       use_polarity=False)
+    assert fit.status is FitStatus.SUSPECT
+    assert fit.reasons == (FitReason.OUTSIDE_IMAGE_WEIGHTED,)
+    assert fit.status_message == (
+        "suspect: 55 of 200 vertices lie outside the 320 x 320 image, and 55 of them kept "
+        "weight beside the 145 inliers inside: without the polarity test they sample the "
+        "distance transform clamped to the image border, the border's distance to an edge, "
+        "not theirs (pass only the vertices inside, or use the polarity test)")
+
+
 def test_to_dict_carries_the_shape_and_the_count(fits):
     fit = fits[110]
     d = fit.to_dict(arrays=True)

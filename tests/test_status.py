@@ -173,7 +173,7 @@ def test_status_values_are_documented_strings():
         # a declared terminator's (issue 28)
         "terminator_without_profile", "terminator_imprecise",
         # vertices outside the image (issue 43.4)
-        "outside_image", "partly_outside_image",
+        "outside_image", "outside_image_weighted", "partly_outside_image",
     }
     assert str(FitReason.DEGENERATE) == "degenerate" and FitStatus.FAILED == "failed"
 

@@ -88,9 +88,10 @@ class FitStatus(_Text):
     ``SUSPECT``
         The pose is a measurement but should be checked: an edge profile's
         refinement was discarded (:attr:`FitReason.PROFILE_REJECTED`), a
-        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`), or a
+        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`), a
         terminator was fitted without a profile
-        (:attr:`FitReason.TERMINATOR_WITHOUT_PROFILE`).
+        (:attr:`FitReason.TERMINATOR_WITHOUT_PROFILE`), or vertices outside
+        the image kept weight (:attr:`FitReason.OUTSIDE_IMAGE_WEIGHTED`).
     ``AMBIGUOUS``
         Another basin, across the edge, fits the image about as well
         (:attr:`FitReason.AMBIGUOUS`): the pose may be the wrong one of two.
@@ -129,18 +130,24 @@ class FitReason(_Text):
 
     ``OUTSIDE_IMAGE`` (failed)
         Some vertices lie outside the image, and fewer than half of those
-        inside kept any weight (none at all when every vertex is outside):
+        inside kept any weight (inliers outside, which ``use_polarity=False``
+        leaves, do not count) (none at all when every vertex is outside):
         too few inside to fit. The polyline is most likely not where the
         image has it (a pose prediction off by more than the polyline's
         overlap with the frame, or vertices not in this image's pixel frame).
+    ``OUTSIDE_IMAGE_WEIGHTED`` (suspect)
+        As ``PARTLY_OUTSIDE_IMAGE``, but some vertices outside kept weight:
+        with ``use_polarity=False`` nothing rejects them, and they sample
+        the distance transform clamped to the image border, whose value is
+        the border's distance to an edge, not theirs. The pose is a
+        measurement with residuals that are not; pass only the vertices
+        inside, or keep the polarity test.
     ``PARTLY_OUTSIDE_IMAGE`` (note: the status stays ``OK``)
         Some vertices lie outside the image, but at least half of those
-        inside kept their weight: the pose is measured by the inside ones
-        alone, and its covariance and observable rank are formed from them
-        (an outside vertex has zero weight), so its sigmas already say what
-        the shorter polyline measures. With ``use_polarity=False`` the
-        outside vertices are not rejected: they sample the distance
-        transform clamped to the image border and may keep weight.
+        inside kept their weight and none outside did: the pose is measured
+        by the inside ones alone, and its covariance and observable rank
+        are formed from them (an outside vertex has zero weight), so its
+        sigmas already say what the shorter polyline measures.
     ``ALL_POLARITY_REJECTED`` (failed; with ``DEGENERATE``)
         No vertex inside the image has a normal that points up the image
         gradient: the normals point the wrong way (they must point up the
@@ -241,6 +248,7 @@ class FitReason(_Text):
     # wrong way make the fit degenerate and can put the seed on the window
     # edge, not the other way round).
     OUTSIDE_IMAGE = "outside_image"
+    OUTSIDE_IMAGE_WEIGHTED = "outside_image_weighted"
     PARTLY_OUTSIDE_IMAGE = "partly_outside_image"
     ALL_POLARITY_REJECTED = "all_polarity_rejected"
     MOST_POLARITY_REJECTED = "most_polarity_rejected"
@@ -285,6 +293,7 @@ UNMEASURED_TEXT = "not measured (failed)"
 #: The status each reason implies (a fit's status is the worst of them).
 SEVERITY: dict[FitReason, FitStatus] = {
     FitReason.OUTSIDE_IMAGE: FitStatus.FAILED,
+    FitReason.OUTSIDE_IMAGE_WEIGHTED: FitStatus.SUSPECT,
     FitReason.PARTLY_OUTSIDE_IMAGE: FitStatus.OK,
     FitReason.DEGENERATE: FitStatus.FAILED,
     FitReason.ALL_POLARITY_REJECTED: FitStatus.FAILED,
@@ -309,8 +318,8 @@ STATUS_MEANING: dict[FitStatus, str] = {
     FitStatus.OK: "the pose is a measurement; the fit may carry notes (reasons whose "
     "status is ``ok``).",
     FitStatus.SUSPECT: "the pose is a measurement that should be checked: an edge "
-    "profile's refinement was discarded, a limb has no usable edge, or a terminator was "
-    "fitted without a profile.",
+    "profile's refinement was discarded, a limb has no usable edge, a terminator was "
+    "fitted without a profile, or vertices outside the image kept weight.",
     FitStatus.AMBIGUOUS: "another basin across the edge fits the image about as well: "
     "the pose may be the wrong one of two.",
     FitStatus.FAILED: "the pose is not a measurement of the image: do not use it.",
@@ -325,9 +334,13 @@ REASON_MEANING: dict[FitReason, str] = {
     "0..H-1 and columns 0..W-1) and fewer than half of those inside kept any weight: too "
     "few inside to fit. Is the polyline in this image's pixel frame, and the predicted "
     "pose within the search window of the truth?",
+    FitReason.OUTSIDE_IMAGE_WEIGHTED: "some vertices lie outside the image and kept weight "
+    "(``use_polarity=False``: nothing rejected them): they sample the distance transform "
+    "clamped to the image border, the border's distance to an edge, not theirs. Pass only "
+    "the vertices inside, or keep the polarity test.",
     FitReason.PARTLY_OUTSIDE_IMAGE: "some vertices lie outside the image, but at least half "
-    "of those inside kept their weight: the pose is measured by the inside ones alone, and "
-    "its sigmas and observable rank are formed from them.",
+    "of those inside kept their weight and none outside did: the pose is measured by the "
+    "inside ones alone, and its sigmas and observable rank are formed from them.",
     FitReason.ALL_POLARITY_REJECTED: "no vertex inside the image has a normal that points "
     "up the image gradient: the normals point the wrong way (flip them), or there is no "
     "gradient under the polyline at all. Comes with ``degenerate``.",
@@ -657,8 +670,13 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
     out: list[FitReason] = []
     if n_out:
         # too few inside to fit: fewer than half of them kept any weight
-        too_few = lm.degenerate or 2 * lm.inlier_count < n_in
-        out.append(FitReason.OUTSIDE_IMAGE if too_few else FitReason.PARTLY_OUTSIDE_IMAGE)
+        inliers_in = _inside_inliers(fit)
+        if lm.degenerate or 2 * inliers_in < n_in:
+            out.append(FitReason.OUTSIDE_IMAGE)
+        elif lm.inlier_count > inliers_in:  # use_polarity=False: nothing rejected them
+            out.append(FitReason.OUTSIDE_IMAGE_WEIGHTED)
+        else:
+            out.append(FitReason.PARTLY_OUTSIDE_IMAGE)
     if n_in > 0 and rejected == n_in:
         out.append(FitReason.ALL_POLARITY_REJECTED)
     elif 2 * rejected > n_in:
@@ -729,6 +747,12 @@ def fit_status(reasons: Iterable[FitReason]) -> FitStatus:
     return max((SEVERITY[r] for r in reasons), key=_ORDER.index, default=FitStatus.OK)
 
 
+def _inside_inliers(fit: Any) -> int:
+    """Inliers among the vertices inside the image (with ``use_polarity=False``
+    an outside vertex, on the border's clamped distance transform, may be one)."""
+    return int(np.count_nonzero((np.asarray(fit.lm.weights) > 0.0) & ~_outside(fit)))
+
+
 def _outside_text(fit: Any, reason: FitReason) -> str:
     """:func:`_explain` of the two outside reasons: ``"140 of 200 vertices lie
     outside the 320 x 320 image"`` and what the ones inside did."""
@@ -736,10 +760,16 @@ def _outside_text(fit: Any, reason: FitReason) -> str:
     k = int(np.count_nonzero(_outside(fit)))
     h, w = fit.image_shape
     head = f"{k} of {n} vertices lie outside the {h} x {w} image"
-    inside, inliers = n - k, fit.lm.inlier_count
+    inside, inliers = n - k, _inside_inliers(fit)
     if reason is FitReason.PARTLY_OUTSIDE_IMAGE:
-        return (f"{head}: the pose is measured by the {inside} inside ({inliers} inliers), "
+        text = (f"{head}: the pose is measured by the {inside} inside ({inliers} inliers), "
                 "its sigmas by their geometry")
+        return text
+    if reason is FitReason.OUTSIDE_IMAGE_WEIGHTED:
+        return (f"{head}, and {fit.lm.inlier_count - inliers} of them kept weight beside the "
+                f"{inliers} inliers inside: without the polarity test they sample the distance "
+                "transform clamped to the image border, the border's distance to an edge, not "
+                "theirs (pass only the vertices inside, or use the polarity test)")
     if inside == 0:
         return (f"{head}: nothing inside to fit (is the polyline in this image's pixel frame, "
                 "(v, u) = (row, column)? is the predicted pose this far off?)")
@@ -777,7 +807,8 @@ def _polarity_text(fit: Any, reason: FitReason) -> str:
 
 def _explain(fit: Any, reason: FitReason) -> str:
     n = _n_vertices(fit)
-    if reason in (FitReason.OUTSIDE_IMAGE, FitReason.PARTLY_OUTSIDE_IMAGE):
+    if reason in (FitReason.OUTSIDE_IMAGE, FitReason.PARTLY_OUTSIDE_IMAGE,
+                  FitReason.OUTSIDE_IMAGE_WEIGHTED):
         return _outside_text(fit, reason)
     if reason in (FitReason.ALL_POLARITY_REJECTED, FitReason.MOST_POLARITY_REJECTED):
         return _polarity_text(fit, reason)
@@ -927,5 +958,6 @@ def log_fits(fits: Sequence[Any], label: str = "polylines") -> None:
         if (info or lm.degenerate or fit.at_window_edge
                 or 2 * lm.inlier_count < lm.residuals_px.shape[0]
                 or getattr(fit, "profile", None) is not None
-                or getattr(fit, "edge_kind", None) == "terminator"):
+                or getattr(fit, "edge_kind", None) == "terminator"
+                or _outside(fit).any()):
             log_fit(fit, f"{label}[{i}]")
