@@ -78,7 +78,10 @@ def test_polyline_outside_the_image_fails_with_a_warning(products, scene, caplog
     (record,) = _warnings(caplog)
     assert "failed" in record.getMessage() and "degenerate" in record.getMessage()
     assert "inside the image" in fit.status_message
-    assert "outside the image" in fit.status_message  # no gradient there: polarity-rejected
+    # named as outside first, not blamed on the normals (tests/test_outside_image.py)
+    assert fit.reasons == (FitReason.OUTSIDE_IMAGE, FitReason.DEGENERATE)
+    assert "100 of 100 vertices lie outside the 200 x 200 image" in fit.status_message
+    assert "polarity" not in fit.status_message
 
 
 def test_flipped_normals_fail_every_vertex_polarity_rejected(products, scene, caplog):
@@ -169,6 +172,8 @@ def test_status_values_are_documented_strings():
         "profile_rejected", "soft_edge", "flat_profile_vertices",
         # a declared terminator's (issue 28)
         "terminator_without_profile", "terminator_imprecise",
+        # vertices outside the image (issue 43.4)
+        "outside_image", "outside_image_weighted", "partly_outside_image",
     }
     assert str(FitReason.DEGENERATE) == "degenerate" and FitStatus.FAILED == "failed"
 

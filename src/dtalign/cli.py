@@ -531,24 +531,33 @@ def _demo_fit(scene: Any, args: argparse.Namespace) -> Any:
 def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace) -> str:
     """The demo's report: the scene, the truth, the fit against it, and the stage times."""
     from .api.constants import DEFAULT_LM_MAX_ITERATIONS
+    from .pipeline.status import UNMEASURED_TEXT
 
     poly, t = scene.polyline, fit.timings_s
     h, w = scene.image.shape
     tv, tu = scene.true_offset_vu
     (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
     (sv2, su2) = fit.sigma_vu_scaled
+    # a failed fit's sigmas are no measurement: words, not inf (status.UNMEASURED_TEXT)
+    fitted = (f"dv = {_fmt(dv, 4)}   du = {_fmt(du, 4)} px, sigma {UNMEASURED_TEXT}"
+              if fit.failed else
+              f"dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)")
+    scaled = (f"sigma {UNMEASURED_TEXT}" if fit.failed else
+              f"± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (the M-estimator's 1 sigma scaled by the "
+              f"residuals, variance factor {_fmt(fit.variance_factor, 4)})")
     lines = [
         f"scene     : {h} x {w} disc, radius 150 px, {len(poly)} limb vertices, seed {args.seed}",
         f"noise     : sigma {scene.noise_sigma:g} DN (estimated from the image: {noise_est:.3f})",
         f"true      : offset (dv, du) = ({tv:.3f}, {tu:.3f}) px"
         + (f", rotation {scene.true_rotation_rad:.5f} rad" if args.rotation is not None else ""),
         f"coarse    : offset (dv, du) = {fit.coarse_offset_vu} (window ±{args.window})",
-        f"fitted    : dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)",
-        f"scaled    : ± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (the M-estimator's 1 sigma scaled by the residuals, "
-        f"variance factor {_fmt(fit.variance_factor, 4)})",
+        f"fitted    : {fitted}",
+        f"scaled    : {scaled}",
     ]
     if fit.fit_rotation:
-        lines.append(f"rotation  : {fit.rotation_rad:.6f} ± {_fmt(fit.sigma_rotation_rad or 0.0, 6)} rad")
+        lines.append(f"rotation  : {fit.rotation_rad:.6f} "
+                     + (f"sigma {UNMEASURED_TEXT}" if fit.failed
+                        else f"± {_fmt(fit.sigma_rotation_rad or 0.0, 6)}") + " rad")
     lines.append(f"error     : dv {dv - tv:+.4f}, du {du - tu:+.4f} px")
     if fit.observable_rank < (3 if fit.fit_rotation else 2):
         lines.append(
@@ -775,6 +784,8 @@ def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
 
 
 def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str:
+    from .pipeline.status import UNMEASURED_TEXT
+
     d = fit.to_dict()
     p = 3 if fit.fit_rotation else 2
     lines = [
@@ -785,17 +796,23 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
         _offset_line(fit),
     ]
     if fit.fit_rotation:
+        # a failed fit's rotation is where the LM stopped: no sigma (status.UNMEASURED_TEXT)
+        sigma = (f"sigma {UNMEASURED_TEXT}" if fit.failed
+                 else f"± {_fmt(fit.sigma_rotation_rad, 6)}")
         lines.append(
-            f"rotation     : {fit.rotation_rad:.6f} ± {_fmt(fit.sigma_rotation_rad, 6)} rad"
+            f"rotation     : {fit.rotation_rad:.6f} {sigma} rad"
             f" about {tuple(round(x, 2) for x in fit.pivot_vu)}"
         )
     rank = fit.observable_rank
     obs = f"rank {rank} of {p}"
     for e in fit.unobservable_directions:
         obs += f"; unobservable along {tuple(round(float(x), 4) for x in e)} (sigma inf)"
+    if fit.failed:  # no direction of a failed fit is a measurement: no "inf" to read
+        obs = f"rank {rank} of {p}, sigma {UNMEASURED_TEXT}"
+    rms = f"{_fmt(fit.rms_px)} px" if math.isfinite(fit.rms_px) else "not measured"
     lines += [
         f"observable   : {obs}",
-        f"fit quality  : rms {_fmt(fit.rms_px)} px, inliers {fit.inlier_count}/{len(poly)}, "
+        f"fit quality  : rms {rms}, inliers {fit.inlier_count}/{len(poly)}, "
         f"polarity-rejected {d['polarity_rejected']}, Tukey-rejected {d['tukey_rejected']}",
         f"LM           : {fit.lm.iterations} iterations, {_settled_text(fit)}, "
         f"degenerate={fit.degenerate}",

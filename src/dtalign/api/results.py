@@ -71,23 +71,27 @@ def _format_value(value: object, indent: str) -> str:
     return repr(value)
 
 
-def summary_text(obj: object, indent: str = "", extra: tuple[str, ...] = ()) -> str:
+def summary_text(obj: object, indent: str = "", extra: tuple[str, ...] = (),
+                 text: dict[str, str] | None = None) -> str:
     """``Type`` then one ``name: value`` line per field, arrays summarised.
 
     Generic over the dataclass's fields (those with ``repr=True``), so a new
     field shows up without touching this; in the manner of SciPy's
     ``OptimizeResult``, but an array of more than a few elements is shown
     as its shape and min / median / max rather than in full. ``extra``
-    names properties to print after the fields.
+    names properties to print after the fields; ``text`` gives, by name,
+    what to print instead of a value (a failed fit's sigmas, which are no
+    measurement, as words rather than ``inf``).
     """
+    text = text or {}
     assert dataclasses.is_dataclass(obj)
     names = [f.name for f in dataclasses.fields(obj) if f.repr]
     names += [n for n in extra if n not in names]  # derived readings worth a line
     width = max((len(n) for n in names), default=0)
     lines = [f"{indent}{type(obj).__name__}"]
     for name in names:
-        text = _format_value(getattr(obj, name), indent)
-        lines.append(f"{indent}  {name:>{width}}: {text}")
+        shown = text[name] if name in text else _format_value(getattr(obj, name), indent)
+        lines.append(f"{indent}  {name:>{width}}: {shown}")
     return "\n".join(lines)
 
 

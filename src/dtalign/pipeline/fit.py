@@ -166,6 +166,10 @@ class PolylineFit:
         (:class:`~dtalign.pipeline.uncertainty.Evidence`), sampled when the
         fit is concluded: what :attr:`covariance` is formed from; None for a
         fit built without it.
+    image_shape : tuple of int or None
+        ``(H, W)`` of the image fitted against: what :attr:`outside_image`
+        is read against; None for a fit built without it (a dict written
+        before it was recorded), which then counts no vertex outside.
 
     Instances compare by identity; compare fields to compare fits.
     """
@@ -192,6 +196,7 @@ class PolylineFit:
     profile: ProfileRefinement | None = field(default=None, repr=False)
     edge_kind: str | None = None
     evidence: Evidence | None = field(default=None, repr=False)
+    image_shape: tuple[int, int] | None = field(default=None, repr=False)
 
     @property
     def dt_offset_vu(self) -> tuple[float, float]:
@@ -294,6 +299,26 @@ class PolylineFit:
     def polarity_rejected(self) -> NDArray[np.bool_]:
         """Vertices whose normal disagreed with the image gradient (residual 1e6)."""
         return np.asarray(self.lm.residuals_px) == POLARITY_PENALTY_RESIDUAL
+
+    @functools.cached_property
+    def outside_image(self) -> NDArray[np.bool_]:
+        """Vertices that lie outside the image, so that nothing measured them.
+
+        A vertex is outside when the pixel the polarity test reads for it
+        -- its position shifted by the coarse seed (:attr:`coarse_offset_vu`,
+        the LM's start), rounded to the nearest pixel -- is not in rows
+        ``0 .. H-1`` and columns ``0 .. W-1`` of :attr:`image_shape`: the
+        polarity test rejects it (there is no gradient to read), so it is
+        counted here and not as a normal pointing the wrong way
+        (:attr:`~dtalign.pipeline.status.FitReason.OUTSIDE_IMAGE`). All
+        False when :attr:`image_shape` is None.
+        """
+        return _readonly(_status.outside_mask(self))
+
+    @property
+    def outside_image_count(self) -> int:
+        """Number of vertices outside the image (see :attr:`outside_image`)."""
+        return int(np.count_nonzero(self.outside_image))
 
     @property
     def tukey_rejected(self) -> NDArray[np.bool_]:
@@ -602,6 +627,8 @@ class PolylineFit:
             "inlier_count": self.lm.inlier_count,
             "n_vertices": int(np.asarray(self.lm.residuals_px).shape[0]),
             "polarity_rejected": self.polarity_rejected_count,
+            "outside_image": self.outside_image_count,
+            "image_shape": None if self.image_shape is None else list(self.image_shape),
             "tukey_rejected": int(self.tukey_rejected.sum()),
             "pinvh_rcond": self.pinvh_rcond,
             "tukey_c": self.tukey_c,
@@ -690,6 +717,9 @@ class PolylineFit:
                 profile=None if prof is None else ProfileRefinement.from_dict(prof),
                 edge_kind=d.get("edge_kind"),
                 evidence=None if found is None else _evidence_from(found, len(vertices)),
+                # written before the image's shape was recorded: None (nothing outside)
+                image_shape=None if d.get("image_shape") is None
+                else (int(d["image_shape"][0]), int(d["image_shape"][1])),
             )
         except KeyError as exc:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
@@ -701,8 +731,20 @@ class PolylineFit:
     def summary(self) -> str:
         """A short text summary: one line per field, the LM result nested,
         arrays as their shape and min / median / max, then the one-sigma,
-        the observable rank and the status (``repr`` gives the same)."""
-        return summary_text(self, extra=self._SUMMARY_EXTRA)
+        the observable rank and the status (``repr`` gives the same). A
+        failed fit's sigmas read ``not measured (failed)``: its ``inf`` (or a
+        finite sigma from a few stray inliers) is no measurement; the
+        fields themselves keep their values."""
+        return summary_text(self, extra=self._SUMMARY_EXTRA, text=self._unmeasured_text())
+
+    def _unmeasured_text(self) -> dict[str, str]:
+        """What :meth:`summary` prints for the sigmas of a failed fit (empty otherwise)."""
+        if not self.failed:
+            return {}
+        out = {"sigma_vu": _status.UNMEASURED_TEXT}
+        if self.fit_rotation:
+            out["sigma_rotation_rad"] = _status.UNMEASURED_TEXT
+        return out
 
     def __repr__(self) -> str:
         return self.summary()
@@ -1003,6 +1045,12 @@ def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, pro
                                time_s=ref.time_s + rival.time_s)
 
 
+def _shape_of(products: ImageProducts) -> tuple[int, int]:
+    """``(H, W)`` of the image the products were made from (their edge DT's)."""
+    h, w = np.shape(products.edge_dt)[:2]
+    return int(h), int(w)
+
+
 def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],
              coarse_s: float = 0.0) -> PolylineFit:
     """The LM from the integer seed ``coarse`` (a multi-start's other starts
@@ -1021,6 +1069,7 @@ def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],
         pivot_vu=it.pivot, pivot_distance_px=float(it.distance), noise_sigma=p.noise_sigma,
         vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
         tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": coarse_s, "lm": t3 - t2},
+        image_shape=_shape_of(p),
     )
 
 
@@ -1102,6 +1151,7 @@ def wrap(shared: jobs.Plan, batch: jobs.Batch, out: tuple[Any, ...], lo: int,
     # slices each fit keeps.
     bounds = batch.starts[lo : hi + 1].tolist()
     timings = p.timings_s
+    shape = _shape_of(p)
     fits = []
     for j, (pose, (dv, du), n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
         poses[lo:hi].tolist(), coarse[lo:hi].tolist(), iterations[lo:hi].tolist(),
@@ -1127,6 +1177,6 @@ def wrap(shared: jobs.Plan, batch: jobs.Batch, out: tuple[Any, ...], lo: int,
             search_window_vu=shared.window, fit_rotation=a.fit_rotation,
             pivot_vu=(pv[0], pv[1]), pivot_distance_px=dist, noise_sigma=p.noise_sigma,
             vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], pinvh_rcond=a.pinvh_rcond,
-            tukey_c=a.tukey_c, timings_s=dict(timings),
+            tukey_c=a.tukey_c, timings_s=dict(timings), image_shape=shape,
         ))
     return fits

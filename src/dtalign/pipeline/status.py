@@ -41,13 +41,17 @@ import numpy as np
 from ..api.constants import POLARITY_PENALTY_RESIDUAL
 
 __all__ = [
+    "NO_EDGE_GAP",
+    "NO_EDGE_MIN_FRACTION",
     "SETTLE_ITERATIONS",
     "SETTLE_SIGMAS",
     "TERMINATOR_PLAIN_MEDIAN_PX",
     "TERMINATOR_PLAIN_P90_PX",
     "TERMINATOR_SIGMA_LIMIT_PX",
+    "UNMEASURED_TEXT",
     "FitReason",
     "FitStatus",
+    "NoEdgeRun",
     "Settling",
     "describe",
     "fit_problems",
@@ -56,6 +60,8 @@ __all__ = [
     "log_fit",
     "log_fits",
     "logger",
+    "no_edge_run",
+    "outside_mask",
     "settled",
 ]
 
@@ -82,17 +88,19 @@ class FitStatus(_Text):
     ``SUSPECT``
         The pose is a measurement but should be checked: an edge profile's
         refinement was discarded (:attr:`FitReason.PROFILE_REJECTED`), a
-        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`), or a
+        limb has no usable edge (:attr:`FitReason.SOFT_EDGE`), a
         terminator was fitted without a profile
-        (:attr:`FitReason.TERMINATOR_WITHOUT_PROFILE`).
+        (:attr:`FitReason.TERMINATOR_WITHOUT_PROFILE`), or vertices outside
+        the image kept weight (:attr:`FitReason.OUTSIDE_IMAGE_WEIGHTED`).
     ``AMBIGUOUS``
         Another basin, across the edge, fits the image about as well
         (:attr:`FitReason.AMBIGUOUS`): the pose may be the wrong one of two.
     ``FAILED``
-        The pose is not a measurement of the image: most vertices see the
-        gradient the wrong way (the normals point to the dark side), no
-        vertex kept any weight, or the coarse seed is on the search-window
-        edge (the true offset may lie outside the window).
+        The pose is not a measurement of the image: vertices lie outside the
+        image and too few inside it kept any weight, most vertices inside
+        the image see the gradient the wrong way (the normals point to the
+        dark side), no vertex kept any weight, or the coarse seed is on the
+        search-window edge (the true offset may lie outside the window).
     """
 
     OK = "ok"
@@ -105,21 +113,55 @@ class FitReason(_Text):
     """One condition found in a fit; compares equal to its string value.
 
     A fit lists its reasons in the order below: the likeliest cause first.
-    Normals that point the wrong way make a fit degenerate and can put the
-    coarse seed on the window edge, so the polarity reasons come before
-    ``DEGENERATE`` and ``AT_WINDOW_EDGE`` (whose advice, to widen the
-    window, would not help then).
+    Vertices outside the image measure nothing whatever their normals, so
+    the outside reasons come first; normals that point the wrong way make a
+    fit degenerate and can put the coarse seed on the window edge, so the
+    polarity reasons come before ``DEGENERATE`` and ``AT_WINDOW_EDGE``
+    (whose advice, to widen the window, would not help then).
 
+    *Outside the image* means, for a vertex: the pixel the polarity test
+    reads for it -- its position shifted by the coarse seed (the LM's
+    start, where the polarity mask is formed, :ref:`contract-lm`), rounded
+    to the nearest pixel -- is not within rows ``0 .. H-1`` and columns
+    ``0 .. W-1``. The polarity test rejects such a vertex (there is no
+    gradient to read), so the polarity reasons count only the vertices
+    inside: a rejection outside is never blamed on the normals
+    (:attr:`PolylineFit.outside_image <dtalign.pipeline.PolylineFit.outside_image>`).
+
+    ``OUTSIDE_IMAGE`` (failed)
+        Some vertices lie outside the image, and fewer than half of those
+        inside kept any weight (inliers outside, which ``use_polarity=False``
+        leaves, do not count) (none at all when every vertex is outside):
+        too few inside to fit. The polyline is most likely not where the
+        image has it (a pose prediction off by more than the polyline's
+        overlap with the frame, or vertices not in this image's pixel frame).
+    ``OUTSIDE_IMAGE_WEIGHTED`` (suspect)
+        As ``PARTLY_OUTSIDE_IMAGE``, but some vertices outside kept weight:
+        with ``use_polarity=False`` nothing rejects them, and they sample
+        the distance transform clamped to the image border, whose value is
+        the border's distance to an edge, not theirs. The pose is a
+        measurement with residuals that are not; pass only the vertices
+        inside, or keep the polarity test.
+    ``PARTLY_OUTSIDE_IMAGE`` (note: the status stays ``OK``)
+        Some vertices lie outside the image, but at least half of those
+        inside kept their weight and none outside did: the pose is measured
+        by the inside ones alone, and its covariance and observable rank
+        are formed from them (an outside vertex has zero weight), so its
+        sigmas already say what the shorter polyline measures.
     ``ALL_POLARITY_REJECTED`` (failed; with ``DEGENERATE``)
-        No vertex's normal points up the image gradient: the normals point
-        the wrong way (they must point up the gradient, toward the brighter
-        side of the edge), or there is no gradient under the polyline at
-        all (a polyline outside the image is rejected this way too).
+        No vertex inside the image has a normal that points up the image
+        gradient: the normals point the wrong way (they must point up the
+        gradient, toward the brighter side of the edge), or there is no
+        gradient under the polyline at all.
     ``MOST_POLARITY_REJECTED`` (failed)
-        More than half of the vertices (not all) see the gradient the wrong
-        way: the normals most likely point to the dark side, or the
-        polyline lies on the wrong edge. The pose rests on the minority of
-        vertices that happened to agree and is not a measurement.
+        More than half of the vertices inside the image (not all) see the
+        gradient the wrong way: the normals most likely point to the dark
+        side, or the polyline lies on the wrong edge. The pose rests on the
+        minority of vertices that happened to agree and is not a
+        measurement. When the vertices without an edge are one contiguous
+        stretch of the polyline and the rest fit (:func:`no_edge_run`), the
+        message names the stretch: part of a limb unlit (a whole circle
+        passed for a limb lit on one side) does this with right normals.
     ``DEGENERATE`` (failed)
         No vertex kept any weight: the covariance is ``inf`` and the pose is
         the coarse seed. The polyline may be outside the image, no edge may
@@ -186,7 +228,11 @@ class FitReason(_Text):
         :attr:`~dtalign.pipeline.PolylineFit.ambiguity`. Not raised when an
         accepted edge-profile refinement lands on the same pose from the
         rival's start too (``PolylineFit.profile.rival_agrees``): the
-        image's photometry has then decided between them.
+        image's photometry has then decided between them. When the
+        vertices without an edge at the pose are one contiguous stretch of
+        the polyline (:func:`no_edge_run`), the message names it: a whole
+        circle passed for a limb lit on one side puts its unlit half on the
+        terminator in the rival basin.
     ``AMBIGUOUS_ALONG_EDGE`` (note: the status stays ``OK``)
         The rival basin lies along a direction the fit cannot observe (a
         straight edge's along-edge shift): the pose is ambiguous along the
@@ -201,6 +247,9 @@ class FitReason(_Text):
     # In the order a fit lists them: the likeliest cause first (normals the
     # wrong way make the fit degenerate and can put the seed on the window
     # edge, not the other way round).
+    OUTSIDE_IMAGE = "outside_image"
+    OUTSIDE_IMAGE_WEIGHTED = "outside_image_weighted"
+    PARTLY_OUTSIDE_IMAGE = "partly_outside_image"
     ALL_POLARITY_REJECTED = "all_polarity_rejected"
     MOST_POLARITY_REJECTED = "most_polarity_rejected"
     DEGENERATE = "degenerate"
@@ -235,8 +284,17 @@ TERMINATOR_PLAIN_P90_PX = 13.8
 #: measured terminator").
 TERMINATOR_SIGMA_LIMIT_PX = 1.0 / 3.0
 
+#: What a failed fit's printed summary (:meth:`PolylineFit.summary
+#: <dtalign.pipeline.PolylineFit.summary>`) and the command line show for its
+#: sigmas: its covariance (``inf``, or finite from a few stray inliers) is no
+#: measurement. The numeric fields (``sigma_vu``, ``to_dict``) keep their values.
+UNMEASURED_TEXT = "not measured (failed)"
+
 #: The status each reason implies (a fit's status is the worst of them).
 SEVERITY: dict[FitReason, FitStatus] = {
+    FitReason.OUTSIDE_IMAGE: FitStatus.FAILED,
+    FitReason.OUTSIDE_IMAGE_WEIGHTED: FitStatus.SUSPECT,
+    FitReason.PARTLY_OUTSIDE_IMAGE: FitStatus.OK,
     FitReason.DEGENERATE: FitStatus.FAILED,
     FitReason.ALL_POLARITY_REJECTED: FitStatus.FAILED,
     FitReason.AT_WINDOW_EDGE: FitStatus.FAILED,
@@ -260,8 +318,8 @@ STATUS_MEANING: dict[FitStatus, str] = {
     FitStatus.OK: "the pose is a measurement; the fit may carry notes (reasons whose "
     "status is ``ok``).",
     FitStatus.SUSPECT: "the pose is a measurement that should be checked: an edge "
-    "profile's refinement was discarded, a limb has no usable edge, or a terminator was "
-    "fitted without a profile.",
+    "profile's refinement was discarded, a limb has no usable edge, a terminator was "
+    "fitted without a profile, or vertices outside the image kept weight.",
     FitStatus.AMBIGUOUS: "another basin across the edge fits the image about as well: "
     "the pose may be the wrong one of two.",
     FitStatus.FAILED: "the pose is not a measurement of the image: do not use it.",
@@ -271,12 +329,26 @@ STATUS_MEANING: dict[FitStatus, str] = {
 #: order a fit lists them: the documentation's reasons table is generated
 #: from this, :data:`SEVERITY` and the enum.
 REASON_MEANING: dict[FitReason, str] = {
-    FitReason.ALL_POLARITY_REJECTED: "no vertex's normal points up the image gradient: the "
-    "normals point the wrong way (flip them), or there is no gradient under the polyline "
-    "at all (outside the image). Comes with ``degenerate``.",
-    FitReason.MOST_POLARITY_REJECTED: "more than half of the vertices see the gradient the "
-    "wrong way: are the normals pointing to the bright side? (Or the polyline lies on the "
-    "wrong edge.) The pose rests on the few vertices that happened to agree.",
+    FitReason.OUTSIDE_IMAGE: "some vertices lie outside the image (the pixel the polarity "
+    "test reads, the vertex shifted by the coarse seed and rounded, is not within rows "
+    "0..H-1 and columns 0..W-1) and fewer than half of those inside kept any weight: too "
+    "few inside to fit. Is the polyline in this image's pixel frame, and the predicted "
+    "pose within the search window of the truth?",
+    FitReason.OUTSIDE_IMAGE_WEIGHTED: "some vertices lie outside the image and kept weight "
+    "(``use_polarity=False``: nothing rejected them): they sample the distance transform "
+    "clamped to the image border, the border's distance to an edge, not theirs. Pass only "
+    "the vertices inside, or keep the polarity test.",
+    FitReason.PARTLY_OUTSIDE_IMAGE: "some vertices lie outside the image, but at least half "
+    "of those inside kept their weight and none outside did: the pose is measured by the "
+    "inside ones alone, and its sigmas and observable rank are formed from them.",
+    FitReason.ALL_POLARITY_REJECTED: "no vertex inside the image has a normal that points "
+    "up the image gradient: the normals point the wrong way (flip them), or there is no "
+    "gradient under the polyline at all. Comes with ``degenerate``.",
+    FitReason.MOST_POLARITY_REJECTED: "more than half of the vertices inside the image see "
+    "the gradient the wrong way: are the normals pointing to the bright side? (Or the "
+    "polyline lies on the wrong edge, or part of a limb is unlit: the message names a "
+    "contiguous stretch of vertices that find no edge.) The pose rests on the few "
+    "vertices that happened to agree.",
     FitReason.DEGENERATE: "no vertex kept any weight; the pose is the coarse seed, the "
     "covariance ``inf``. The polyline may be outside the image, no edge may lie near it, "
     "or the noise sigma may be so high that no edge passed the threshold.",
@@ -285,7 +357,9 @@ REASON_MEANING: dict[FitReason, str] = {
     FitReason.AMBIGUOUS: "a rival basin across the edge (another coarse peak, or the DT "
     "cost's competing basin) costs less than 1.5 times this one: two parallel edges of "
     "one polarity, a decoy edge (an accepted edge-profile refinement that reaches the same "
-    "pose from the rival's start clears it). See :attr:`~dtalign.pipeline.PolylineFit.ambiguity`.",
+    "pose from the rival's start clears it; the message names a contiguous stretch of "
+    "vertices that find no edge, such as a limb's unlit half). See "
+    ":attr:`~dtalign.pipeline.PolylineFit.ambiguity`.",
     FitReason.PROFILE_REJECTED: "an edge profile was given but its refinement was "
     "discarded (it could not be computed: too few pixels, a singular or non-finite system; "
     "or it did not converge, walked more than 2 px from the DT lock, or fitted a "
@@ -345,7 +419,157 @@ def _n_vertices(fit: Any) -> int:
 
 
 def _polarity_rejected_count(fit: Any) -> int:
-    return int(np.count_nonzero(np.asarray(fit.lm.residuals_px) == POLARITY_PENALTY_RESIDUAL))
+    """Polarity-rejected vertices inside the image (:func:`outside_mask`): a
+    vertex outside is rejected for want of a gradient, not for its normal."""
+    rejected = np.asarray(fit.lm.residuals_px) == POLARITY_PENALTY_RESIDUAL
+    return int(np.count_nonzero(rejected & ~_outside(fit)))
+
+
+def outside_mask(fit: Any) -> np.ndarray:
+    """Which vertices of ``fit`` lie outside its image, shape (N,) bool.
+
+    A vertex is outside when the pixel the polarity test reads for it is
+    not in the image: its position plus the coarse seed
+    (``fit.coarse_offset_vu``, the LM's start, where the polarity mask is
+    formed), rounded to the nearest pixel as the test rounds it, is not
+    within rows ``0 .. H-1`` and columns ``0 .. W-1`` of
+    ``fit.image_shape``. All False when the fit records no image shape (one
+    built by hand, or read from a dict written before the shape was).
+    """
+    n = _n_vertices(fit)
+    shape = getattr(fit, "image_shape", None)
+    verts = getattr(fit, "vertices_vu", None)
+    if shape is None or verts is None or np.shape(verts) != (n, 2):
+        return np.zeros(n, dtype=bool)
+    return _outside_of(np.asarray(verts, dtype=np.float64), fit.coarse_offset_vu, shape)
+
+
+def _outside(fit: Any) -> np.ndarray:
+    """:func:`outside_mask`, read from a :class:`~dtalign.pipeline.PolylineFit`'s cache."""
+    cached = getattr(fit, "outside_image", None)
+    if cached is not None and np.shape(cached) == (_n_vertices(fit),):
+        return np.asarray(cached)
+    return outside_mask(fit)
+
+
+def _outside_of(verts: np.ndarray, seed: Any, shape: Any) -> np.ndarray:
+    """``verts`` shifted by ``seed`` and rounded (``np.rint``, the polarity
+    test's rounding), outside ``shape``'s rows and columns."""
+    h, w = int(shape[0]), int(shape[1])
+    iv = np.rint(verts[:, 0] + float(seed[0]))
+    iu = np.rint(verts[:, 1] + float(seed[1]))
+    return ~((iv >= 0) & (iv < h) & (iu >= 0) & (iu < w))
+
+
+#: Inliers at most this many in a row inside a stretch of vertices without an
+#: edge do not break it (noise lets a few unlit vertices keep weight).
+NO_EDGE_GAP = 3
+
+#: The shortest stretch :func:`no_edge_run` names, and the least of the rest,
+#: as fractions of the polyline's vertices.
+NO_EDGE_MIN_FRACTION = 0.25
+
+
+@dataclass(frozen=True)
+class NoEdgeRun:
+    """A contiguous stretch of a polyline's vertices that find no edge (:func:`no_edge_run`).
+
+    Attributes
+    ----------
+    first, last : int
+        Its first and last vertex; ``last < first`` when it wraps past the
+        end of a closed polyline to its start.
+    length : int
+        Vertices in the stretch.
+    zero_weight : int
+        Of them, those with zero weight.
+    rest_inliers : int
+        Inliers among the vertices inside the image and outside the stretch.
+    rest : int
+        Vertices inside the image and outside the stretch.
+    """
+
+    first: int
+    last: int
+    length: int
+    zero_weight: int
+    rest_inliers: int
+    rest: int
+
+    def span(self, n: int) -> str:
+        """``"vertices 112-188"``, or ``"vertices 190-199 and 0-8"`` when it wraps."""
+        if self.last >= self.first:
+            return f"vertices {self.first}-{self.last}"
+        return f"vertices {self.first}-{n - 1} and 0-{self.last}"
+
+
+def no_edge_run(fit: Any) -> NoEdgeRun | None:
+    """The contiguous stretch of vertices that find no edge while the rest fit, if any.
+
+    Read from the final weights: the vertices inside the image with zero
+    weight (polarity- or Tukey-rejected) are grouped into stretches of
+    consecutive vertices (:data:`NO_EDGE_GAP` inliers in a row do not break
+    one; a closed polyline, whose last vertex lies within two median
+    spacings of its first, wraps). The longest is returned when it holds at
+    least :data:`NO_EDGE_MIN_FRACTION` of the vertices, three quarters of
+    its own vertices and four fifths of all the zero-weight ones, and the
+    vertices outside it (at least that fraction of the polyline too) are
+    three-quarters inliers: one part of the polyline finds no edge, the
+    rest does, which is what a limb with an unlit part looks like with its
+    normals right. None otherwise.
+    """
+    w = np.asarray(fit.lm.weights)
+    n = w.shape[0]
+    if n < 8:
+        return None
+    outside = _outside(fit)
+    zero = (w == 0.0) & ~outside
+    idx = np.flatnonzero(zero)
+    if idx.size == 0:
+        return None
+    breaks = np.flatnonzero(np.diff(idx) > NO_EDGE_GAP + 1)
+    starts = [int(idx[0]), *(int(idx[b + 1]) for b in breaks)]
+    ends = [*(int(idx[b]) for b in breaks), int(idx[-1])]
+    runs = [(a, b) for a, b in zip(starts, ends, strict=True)]  # b >= a
+    if _closed(fit) and len(runs) > 1 and int(idx[0]) + n - int(idx[-1]) <= NO_EDGE_GAP + 1:
+        # the last stretch runs on past the end into the first
+        runs = [(runs[-1][0], runs[0][1] + n), *runs[1:-1]]
+    first, last = max(runs, key=lambda r: r[1] - r[0])
+    length = last - first + 1
+    members = np.arange(first, last + 1) % n
+    in_run = np.zeros(n, dtype=bool)
+    in_run[members] = True
+    n_zero = int(np.count_nonzero(zero[in_run]))
+    rest = ~in_run & ~outside
+    n_rest = int(np.count_nonzero(rest))
+    rest_inliers = int(np.count_nonzero(w[rest] > 0.0))
+    least = NO_EDGE_MIN_FRACTION * n
+    if not (length >= least and n_rest >= least and 4 * n_zero >= 3 * length
+            and 5 * n_zero >= 4 * idx.size and 4 * rest_inliers >= 3 * n_rest):
+        return None
+    return NoEdgeRun(first, last % n, length, n_zero, rest_inliers, n_rest)
+
+
+def _closed(fit: Any) -> bool:
+    """Whether the polyline closes on itself: its last vertex within two
+    median spacings of its first."""
+    verts = np.asarray(getattr(fit, "vertices_vu", np.zeros((0, 2))), dtype=np.float64)
+    if verts.ndim != 2 or verts.shape[0] < 3:
+        return False
+    steps = np.hypot(*np.diff(verts, axis=0).T)
+    gap = float(np.hypot(*(verts[0] - verts[-1])))
+    return gap <= 2.0 * float(np.median(steps))
+
+
+def _no_edge_hint(fit: Any) -> str:
+    """The clause naming :func:`no_edge_run`'s stretch, or "" when there is none."""
+    run = no_edge_run(fit)
+    if run is None:
+        return ""
+    n = _n_vertices(fit)
+    return (f"{run.span(n)} ({run.length} of {n}, one contiguous stretch of the polyline) "
+            f"find no edge while the rest fit ({run.rest_inliers} inliers of {run.rest}): "
+            "is that part of the limb unlit? pass only the sunlit part")
 
 
 #: Iterations over which an unconverged LM's pose movement is judged: enough
@@ -440,11 +664,22 @@ def fit_problems(fit: Any) -> tuple[FitReason, ...]:
     """
     lm = fit.lm
     n = _n_vertices(fit)
-    rejected = _polarity_rejected_count(fit) if 2 * lm.inlier_count < n else 0
+    n_out = int(np.count_nonzero(_outside(fit)))
+    n_in = n - n_out  # the polarity reasons count only these
+    rejected = _polarity_rejected_count(fit) if 2 * lm.inlier_count < n_in else 0
     out: list[FitReason] = []
-    if n > 0 and rejected == n:
+    if n_out:
+        # too few inside to fit: fewer than half of them kept any weight
+        inliers_in = _inside_inliers(fit)
+        if lm.degenerate or 2 * inliers_in < n_in:
+            out.append(FitReason.OUTSIDE_IMAGE)
+        elif lm.inlier_count > inliers_in:  # use_polarity=False: nothing rejected them
+            out.append(FitReason.OUTSIDE_IMAGE_WEIGHTED)
+        else:
+            out.append(FitReason.PARTLY_OUTSIDE_IMAGE)
+    if n_in > 0 and rejected == n_in:
         out.append(FitReason.ALL_POLARITY_REJECTED)
-    elif 2 * rejected > n:
+    elif 2 * rejected > n_in:
         out.append(FitReason.MOST_POLARITY_REJECTED)
     if lm.degenerate:
         out.append(FitReason.DEGENERATE)
@@ -512,20 +747,76 @@ def fit_status(reasons: Iterable[FitReason]) -> FitStatus:
     return max((SEVERITY[r] for r in reasons), key=_ORDER.index, default=FitStatus.OK)
 
 
-def _explain(fit: Any, reason: FitReason) -> str:
-    lm = fit.lm
+def _inside_inliers(fit: Any) -> int:
+    """Inliers among the vertices inside the image (with ``use_polarity=False``
+    an outside vertex, on the border's clamped distance transform, may be one)."""
+    return int(np.count_nonzero((np.asarray(fit.lm.weights) > 0.0) & ~_outside(fit)))
+
+
+def _outside_text(fit: Any, reason: FitReason) -> str:
+    """:func:`_explain` of the two outside reasons: ``"140 of 200 vertices lie
+    outside the 320 x 320 image"`` and what the ones inside did."""
     n = _n_vertices(fit)
+    k = int(np.count_nonzero(_outside(fit)))
+    h, w = fit.image_shape
+    head = f"{k} of {n} vertices lie outside the {h} x {w} image"
+    inside, inliers = n - k, _inside_inliers(fit)
+    if reason is FitReason.PARTLY_OUTSIDE_IMAGE:
+        text = (f"{head}: the pose is measured by the {inside} inside ({inliers} inliers), "
+                "its sigmas by their geometry")
+        return text
+    if reason is FitReason.OUTSIDE_IMAGE_WEIGHTED:
+        return (f"{head}, and {fit.lm.inlier_count - inliers} of them kept weight beside the "
+                f"{inliers} inliers inside: without the polarity test they sample the distance "
+                "transform clamped to the image border, the border's distance to an edge, not "
+                "theirs (pass only the vertices inside, or use the polarity test)")
+    if inside == 0:
+        return (f"{head}: nothing inside to fit (is the polyline in this image's pixel frame, "
+                "(v, u) = (row, column)? is the predicted pose this far off?)")
+    return (f"{head}, and only {inliers} of the {inside} inside kept any weight: too few to "
+            "fit (is the predicted pose off by more than the search window?)")
+
+
+def _polarity_text(fit: Any, reason: FitReason) -> str:
+    """:func:`_explain` of the polarity reasons, over the vertices inside the image."""
+    n = _n_vertices(fit)
+    n_in = n - int(np.count_nonzero(_outside(fit)))
+    if reason is FitReason.ALL_POLARITY_REJECTED:
+        # with vertices outside, those are named first and not counted here
+        who, where = ((f"all {n} vertices", "outside the image, or no edge there") if n_in == n
+                      else (f"all {n_in} vertices inside the image", "no edge there"))
+        return (
+            f"{who} polarity-rejected: the normals point the wrong way (they must "
+            "point up the image gradient, toward the brighter side: flip them), or there is "
+            f"no gradient under the polyline ({where})"
+        )
+    k = _polarity_rejected_count(fit)
+    counts = (f"{k} of {n} polarity-rejected, {fit.lm.inlier_count} inliers" if n_in == n
+              else f"{k} of the {n_in} inside polarity-rejected, {fit.lm.inlier_count} inliers")
+    who = "most vertices" if n_in == n else "most vertices inside the image"
+    hint = _no_edge_hint(fit)
+    question = ("are the normals pointing to the bright side? (they must point up the image "
+                "gradient; flip them if not)")
+    if n_in != n:  # a polyline partly off the image is most likely displaced
+        question = "is there an edge under them (is the polyline displaced)? " + question
+    if hint:
+        return (f"{who} see the gradient the wrong way ({counts}): {hint}; if not, "
+                + question)
+    return f"{who} see the gradient the wrong way ({counts}): {question}"
+
+
+def _explain(fit: Any, reason: FitReason) -> str:
+    n = _n_vertices(fit)
+    if reason in (FitReason.OUTSIDE_IMAGE, FitReason.PARTLY_OUTSIDE_IMAGE,
+                  FitReason.OUTSIDE_IMAGE_WEIGHTED):
+        return _outside_text(fit, reason)
+    if reason in (FitReason.ALL_POLARITY_REJECTED, FitReason.MOST_POLARITY_REJECTED):
+        return _polarity_text(fit, reason)
     if reason is FitReason.DEGENERATE:
         return (
             f"degenerate: no vertex of {n} kept any weight, the pose is the coarse seed "
             f"{tuple(fit.coarse_offset_vu)} (is the polyline inside the image? is there an "
             f"edge near it? noise sigma {fit.noise_sigma:.4g}: too high for any edge to pass?)"
-        )
-    if reason is FitReason.ALL_POLARITY_REJECTED:
-        return (
-            f"all {n} vertices polarity-rejected: the normals point the wrong way (they must "
-            "point up the image gradient, toward the brighter side: flip them), or there is "
-            "no gradient under the polyline (outside the image, or no edge there)"
         )
     if reason is FitReason.AT_WINDOW_EDGE:
         return (
@@ -533,16 +824,13 @@ def _explain(fit: Any, reason: FitReason) -> str:
             f"the search window ±{tuple(fit.search_window_vu)}; the true offset may lie outside "
             "it: widen search_window_vu"
         )
-    if reason is FitReason.MOST_POLARITY_REJECTED:
-        k = _polarity_rejected_count(fit)
-        return (
-            f"most vertices see the gradient the wrong way ({k} of {n} polarity-rejected, "
-            f"{lm.inlier_count} inliers): are the normals pointing to the bright side? "
-            "(they must point up the image gradient; flip them if not)"
-        )
-    if reason in (FitReason.AMBIGUOUS, FitReason.AMBIGUOUS_ALONG_EDGE):
-        # no label of its own: the status already says "ambiguous", and the
-        # along-edge text ends "ambiguous along the edge, not across it"
+    if reason is FitReason.AMBIGUOUS:
+        # no label of its own: the status already says "ambiguous"; the hint
+        # names the vertices without an edge when they are one stretch
+        hint = _no_edge_hint(fit)
+        return str(fit.ambiguity.reason) + (f"; at this pose {hint}" if hint else "")
+    if reason is FitReason.AMBIGUOUS_ALONG_EDGE:
+        # the along-edge text ends "ambiguous along the edge, not across it"
         return str(fit.ambiguity.reason)
     if reason is FitReason.NOT_CONVERGED:
         return _not_converged_text(fit)
@@ -553,9 +841,11 @@ def _explain(fit: Any, reason: FitReason) -> str:
         "(" + ", ".join(f"{round(float(x), 4) + 0.0:g}" for x in e) + ")"
         for e in fit.unobservable_directions
     )
+    # a failed fit's sigmas are no measurement anywhere: no "inf" to read there
+    there = "" if fit_status(fit_problems(fit)) is FitStatus.FAILED else " (sigma inf there)"
     return (
         f"rank deficient: observable rank {fit.observable_rank} of {p}; the pose is not "
-        f"measured along {dirs} (sigma inf there)"
+        f"measured along {dirs}{there}"
     )
 
 
@@ -668,5 +958,6 @@ def log_fits(fits: Sequence[Any], label: str = "polylines") -> None:
         if (info or lm.degenerate or fit.at_window_edge
                 or 2 * lm.inlier_count < lm.residuals_px.shape[0]
                 or getattr(fit, "profile", None) is not None
-                or getattr(fit, "edge_kind", None) == "terminator"):
+                or getattr(fit, "edge_kind", None) == "terminator"
+                or _outside(fit).any()):
             log_fit(fit, f"{label}[{i}]")
