@@ -246,7 +246,8 @@ def check_fit(fit: Any, sc: Any, case: Case, family: str) -> dict[str, Any]:
     elif rec["status"] == "ok":
         rec["bound_px"] = bound_px(fit, case)
         assert rec["error_px"] <= rec["bound_px"], (
-            f"accepted ok fit {rec['error_px']:.3f} px off, bound {rec['bound_px']:.3f} px")
+            f"accepted ok {family} fit {rec['error_px']:.3f} px off, sigma "
+            f"{rec['sigma_px']:.3f} px, bound {rec['bound_px']:.3f} px")
     return rec
 
 
@@ -355,3 +356,78 @@ def test_the_issues_limb_on_an_axis_normal_is_refined(n):
     for fit in (one, many):
         check_fit(fit, sc, ISSUE_CASE, "limb")
         assert fit.profile.accepted and fit.status == "ok"
+
+
+def _fit_one(case: Case, family: str) -> dict[str, Any]:
+    sc = render(case)
+    P = sc.limb if family == "limb" else sc.terminator
+    fit = fit_polyline(sc.image, P.vertices_vu, P.normals_vu, P.sigmas,
+                       search_window_vu=WINDOWS[family],
+                       edge_profile=profile_of(case, sc, family))
+    return check_fit(fit, sc, case, family)
+
+
+#: Confident wrong answers the long run found on the fixed tree (seed 2, 1193
+#: draws; the draw's number, the family whose fit fails, what it was). Not
+#: fixed: each fails :func:`check_fit` and is marked so (strict: a fix shows as
+#: XPASS). Sparse polylines (3-4 vertices: each strip reaches half the vertex
+#: spacing, tens of pixels, along the edge) and terminators whose blur the
+#: covariance does not carry (wings fitted with the core alone, a sigma
+#: estimated on heavy noise).
+FOUND = {
+    "967-limb-3-vertices": ("limb", Case(
+        family='terminator', shape=(216, 176), centre_shift_vu=(0.0, 0.0), radius_px=20.0,
+        phase_deg=135.0, illumination_deg=135.0, n_vertices=3, offset_vu=(1.5, -0.5),
+        law='lambert', minnaert_k=None, psf='none', psf_sigma_px=0.0, noise='light',
+        albedo_dn=675.8043838233363, background_dn=0.0, fit_law=False,
+        noise_seed=2198765)),
+    "9-terminator-4-vertices": ("terminator", Case(
+        family='terminator', shape=(200, 239), centre_shift_vu=(-6.656381525602429e-124,
+        0.4653497567954723), radius_px=84.0, phase_deg=135.0,
+        illumination_deg=280.846793756531, n_vertices=4, offset_vu=(-9.617578425308307e-61,
+        -0.30422321700518234), law='lambert', minnaert_k=None, psf='given',
+        psf_sigma_px=1.9087307872910073, noise='none', albedo_dn=1161.640714517534,
+        background_dn=5.5267489977502935, fit_law=True, noise_seed=2369646)),
+    "1080-terminator-3-vertices-psf-estimated": ("terminator", Case(
+        family='limb', shape=(185, 162), centre_shift_vu=(0.17546312737120207,
+        0.003936242295440651), radius_px=55.06857811996664, phase_deg=45.0,
+        illumination_deg=0.0, n_vertices=3, offset_vu=(2.5, 1.0), law='lommel-seeliger',
+        minnaert_k=None, psf='estimated', psf_sigma_px=1.457010265873738, noise='none',
+        albedo_dn=620.6666137181088, background_dn=4.878206061899989, fit_law=False,
+        noise_seed=29050264)),
+    "19-terminator-wings-estimated-heavy-noise": ("terminator", Case(
+        family='terminator', shape=(172, 197), centre_shift_vu=(-0.5,
+        -0.12668298752479984), radius_px=40.0, phase_deg=102.7662379648184,
+        illumination_deg=90.0, n_vertices=405, offset_vu=(-0.5, -0.5), law='minnaert',
+        minnaert_k=1.138253048520109, psf='wings-estimated',
+        psf_sigma_px=1.2365086851527416, noise='heavy', albedo_dn=637.7498137394699,
+        background_dn=8.275429857103449e-73, fit_law=False, noise_seed=562282)),
+    "938-terminator-wings-given": ("terminator", Case(
+        family='limb', shape=(210, 192), centre_shift_vu=(1.7781228460453248e-141,
+        -0.08744572723883326), radius_px=38.45965469732607, phase_deg=131.34316814432347,
+        illumination_deg=45.0, n_vertices=100, offset_vu=(1.5, 0.25), law='minnaert',
+        minnaert_k=1.4564183065121956, psf='wings-given', psf_sigma_px=1.2731333246652121,
+        noise='light', albedo_dn=100.0, background_dn=1.0429298141554299e-293,
+        fit_law=True, noise_seed=672)),
+    "ci93-terminator-wings-given-heavy-noise": ("terminator", Case(
+        family='terminator', shape=(172, 160), centre_shift_vu=(-0.4078554138972499, 0.0),
+        radius_px=26.052428729787366, phase_deg=120.059170324266,
+        illumination_deg=290.45616714591864, n_vertices=398,
+        offset_vu=(-1.7760136621198006, 1.362401048553832), law='minnaert',
+        minnaert_k=0.9333649134894088, psf='wings-given', psf_sigma_px=1.3, noise='heavy',
+        albedo_dn=180.0, background_dn=0.25439288856142556, fit_law=True, noise_seed=0)),
+    "904-terminator-heavy-noise": ("terminator", Case(
+        family='limb', shape=(171, 164), centre_shift_vu=(-0.3441501791092698, 0.2),
+        radius_px=35.18662047916236, phase_deg=85.0, illumination_deg=2.225073858507e-311,
+        n_vertices=294, offset_vu=(0.0, 0.5), law='minnaert', minnaert_k=0.5, psf='none',
+        psf_sigma_px=0.0, noise='heavy', albedo_dn=409.0119530834447,
+        background_dn=2.225073858507e-311, fit_law=True, noise_seed=123547)),
+}
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError,
+                   reason="confident wrong answers found by the sweeps, not fixed")
+@pytest.mark.parametrize("name", sorted(FOUND))
+def test_found_confident_wrong_answers(name):
+    family, case = FOUND[name]
+    _fit_one(case, family)
