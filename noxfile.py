@@ -1,5 +1,5 @@
 """Developer sessions: ``nox -s tests``, ``lint``, ``typecheck``, ``docs``, ``bench``,
-``boundscheck``, ``coverage`` and ``floors``.
+``boundscheck``, ``coverage``, ``floors`` and ``sweeps``.
 
 Every session installs the package from this checkout into its own virtual
 environment, so a session that passes here passes on a fresh machine.
@@ -7,6 +7,7 @@ environment, so a session that passes here passes on a fresh machine.
 
 from __future__ import annotations
 
+import os
 import tempfile
 from pathlib import Path
 
@@ -48,6 +49,22 @@ def floors(session: nox.Session) -> None:
     session.run(
         "python", "-m", "pytest", "-q", "-p", "no:cacheprovider",
         *(session.posargs or _listed(".ci/floor-tests.txt")),
+    )
+
+
+@nox.session(python=PYTHON)
+def sweeps(session: nox.Session) -> None:
+    """The profile refinement's property sweeps (``tests/test_profile_sweeps.py``) at
+    thousands of draws instead of the suite's few dozen: ``DTALIGN_SWEEP_EXAMPLES``
+    (default 3000; about 1 s a draw on one core), derandomized unless
+    ``DTALIGN_SWEEP_SEED`` names a seed; ``DTALIGN_SWEEP_LOG=path`` writes one JSON
+    line per draw. Arguments go to pytest.
+    """
+    session.install(".[test]")
+    env = {"DTALIGN_SWEEP_EXAMPLES": os.environ.get("DTALIGN_SWEEP_EXAMPLES", "3000")}
+    session.run(
+        "python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_profile_sweeps.py",
+        *session.posargs, env=env,
     )
 
 
