@@ -388,13 +388,15 @@ def _fit_one(case: Case, family: str) -> dict[str, Any]:
     return check_fit(fit, sc, case, family)
 
 
-#: Confident wrong answers the long runs found on the fixed tree (seed 2, 1200
-#: draws; the draw's number, the family whose fit fails, what it was). Not
-#: fixed: each fails :func:`check_fit` and is marked so (strict: a fix shows as
-#: XPASS). Sparse polylines (3-4 vertices: each strip reaches half the vertex
-#: spacing, tens of pixels, along the edge) and terminators whose blur the
-#: covariance does not carry (wings fitted with the core alone, a sigma
-#: estimated on heavy noise).
+#: Confident wrong answers the long runs found on the fixed tree (seeds 2 and
+#: 3; the draw's number, the family whose fit failed, what it was). Those of
+#: sparse polylines (3-4 vertices, whose strips reached half the vertex
+#: spacing, tens of pixels, along the edge, where the pixel model's circle
+#: of the vertex's curvature is off) are fixed by ``MAX_TAU_PX`` and listed
+#: in :data:`FIXED`; the others, terminators whose blur the covariance does
+#: not carry (wings fitted with the core alone, heavy noise), stay open:
+#: each fails :func:`check_fit` and is marked so (strict: a fix shows as
+#: XPASS).
 FOUND = {
     "967-limb-3-vertices": ("limb", Case(
         family='terminator', shape=(216, 176), centre_shift_vu=(0.0, 0.0), radius_px=20.0,
@@ -454,9 +456,21 @@ FOUND = {
 }
 
 
+#: The found draws the strip cap fixed: each passes :func:`check_fit` (an
+#: ``ok`` fit within its bound, or not ``ok``).
+FIXED = ("1080-terminator-3-vertices-psf-estimated", "9-terminator-4-vertices",
+         "967-limb-3-vertices")
+
+
+@pytest.mark.parametrize("name", FIXED)
+def test_sparse_polylines_found_by_the_sweeps_are_not_confidently_wrong(name):
+    family, case = FOUND[name]
+    _fit_one(case, family)
+
+
 @pytest.mark.xfail(strict=True, raises=AssertionError,
                    reason="confident wrong answers found by the sweeps, not fixed")
-@pytest.mark.parametrize("name", sorted(FOUND))
+@pytest.mark.parametrize("name", sorted(set(FOUND) - set(FIXED)))
 def test_found_confident_wrong_answers(name):
     family, case = FOUND[name]
     _fit_one(case, family)

@@ -64,6 +64,15 @@ FloatArray = NDArray[np.float64]
 #: and the far interior (where a wrong law would weigh most) stays out.
 HALF_WIDTH_PX = 3.5
 
+#: A strip reaches at most this far along the edge from its vertex (pixels;
+#: otherwise half the distance to each neighbour, so that strips tile the
+#: polyline). The pixel model reads the edge as a circle of the vertex's
+#: curvature, to second order in the distance along the edge; a sparse
+#: polyline's strips (3 vertices on a limb: tens of pixels) reach where that
+#: reading is off, and their many pixels then pin the offset along the edge
+#: to a wrong place with a tiny sigma.
+MAX_TAU_PX = HALF_WIDTH_PX
+
 #: A refinement that moves the offset farther than this from the DT-LM
 #: lock is discarded: the DT's photometric bias reaches ~0.75 px at
 #: moderate phase and ~1.2 px at low phase, so a longer walk means the
@@ -402,7 +411,7 @@ def _tau_max(verts: FloatArray) -> FloatArray:
     seg = np.hypot(*np.diff(verts, axis=0).T)
     left = np.concatenate(([seg[0]], seg))
     right = np.concatenate((seg, [seg[-1]]))
-    return np.asarray(0.25 * (left + right), dtype=np.float64)
+    return np.asarray(np.minimum(0.25 * (left + right), MAX_TAU_PX), dtype=np.float64)
 
 
 def _rotated(points: FloatArray, angle: float, pivot: tuple[float, float] | None) -> FloatArray:
