@@ -39,6 +39,7 @@ from ..api.profiles import EDGE_KINDS, EdgeProfile
 
 __all__ = [
     "HALF_WIDTH_PX",
+    "MAX_TAU_PX",
     "edge_kind_of",
     "profile_samples",
     "MAX_WALK_PX",
