@@ -40,6 +40,7 @@ from ..api.profiles import EDGE_KINDS, EdgeProfile
 __all__ = [
     "HALF_WIDTH_PX",
     "MAX_TAU_PX",
+    "MIN_VERTICES",
     "edge_kind_of",
     "profile_samples",
     "MAX_WALK_PX",
@@ -73,6 +74,13 @@ HALF_WIDTH_PX = 3.5
 #: reading is off, and their many pixels then pin the offset along the edge
 #: to a wrong place with a tiny sigma.
 MAX_TAU_PX = HALF_WIDTH_PX
+
+#: A refinement needs at least this many vertices (with contrast): with 3-4,
+#: a few short strips carry the whole pose, and the property sweeps found such
+#: fits ``ok`` and 1.0-2.4 px off at one-sigmas of 0.02-0.31 px (limbs and
+#: terminators, with the PSF's wings or light noise), where no fit of 5 or
+#: more vertices was more than 1 px off (docs/profiles.rst, "Property sweeps").
+MIN_VERTICES = 5
 
 #: A refinement that moves the offset farther than this from the DT-LM
 #: lock is discarded: the DT's photometric bias reaches ~0.75 px at
@@ -484,6 +492,10 @@ def refine_with_profile(
             raise _Unusable("no vertex's profile has any contrast across its strip", 0)
         if flat.any():
             pb = _kept(pb, ~flat)
+        if pb.verts.shape[0] < MIN_VERTICES:
+            raise _Unusable(f"too few vertices for the photometric fit ({pb.verts.shape[0]}, "
+                            f"at least {MIN_VERTICES}): a few strips do not average the "
+                            "model's errors", 0)
         ref = _refine(pb, profile, dt_offset_vu, step_jump, soft, t_start)
         return dataclasses.replace(ref, n_flat_vertices=int(flat.sum()))
     except _Unusable as exc:
