@@ -163,25 +163,6 @@ def test_fit_item_names_the_polyline_of_a_bad_option(example):
     assert item.polylines[0] in failure["error"] and "trust_region_px" in failure["error"]
 
 
-def test_fit_rows_take_a_status_when_the_fit_has_one(example):
-    from dtalign.archive.tasks import _status
-
-    class Fit:
-        status = "suspicious"
-        reasons = ("seed_at_window_edge",)
-
-    class Status:
-        value = "failed"
-        reasons = ["degenerate"]
-
-    class Fit2:
-        status = Status()
-
-    assert _status(Fit()) == ("suspicious", ["seed_at_window_edge"])
-    assert _status(Fit2()) == ("failed", ["degenerate"])
-    assert _status(object()) == (None, None)
-
-
 # --------------------------------------------------------------------------- store
 
 

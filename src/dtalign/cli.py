@@ -559,7 +559,7 @@ def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace)
                      + (f"sigma {UNMEASURED_TEXT}" if fit.failed
                         else f"± {_fmt(fit.sigma_rotation_rad or 0.0, 6)}") + " rad")
     lines.append(f"error     : dv {dv - tv:+.4f}, du {du - tu:+.4f} px")
-    if fit.observable_rank < (3 if fit.fit_rotation else 2):
+    if fit.observable_rank < (fit.n_params):
         lines.append(
             f"observable: rank {fit.observable_rank}: a circle turned about its centre "
             "looks the same, so its rotation is not measured (sigma inf)"
@@ -787,7 +787,7 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
     from .pipeline.status import UNMEASURED_TEXT
 
     d = fit.to_dict()
-    p = 3 if fit.fit_rotation else 2
+    p = fit.n_params
     lines = [
         f"image        : {job.image}",
         f"polyline     : {job.polyline} ({len(poly)} vertices)",
@@ -882,7 +882,7 @@ def _offset_line(fit: Any) -> str:
                 f"{_fmt(su, 4)} px (1 sigma)")
     parts = [f"along ({e[0]:.4f}, {e[1]:.4f}): {_fmt(x, 4)} ± {_fmt(sd, 4)} px"
              for e, x, sd in observed]
-    p = 3 if fit.fit_rotation else 2
+    p = fit.n_params
     # no (dv, du) here: along the unmeasured direction it is the seed's, not a measurement
     return (f"offset       : rank {fit.observable_rank} of {p}: " + "; ".join(parts)
             + " (1 sigma); not measured along "

@@ -285,7 +285,7 @@ def _summary(fit: Any) -> str:
     text += f"\ncoarse seed {fit.coarse_offset_vu}, rms {fit.rms_px:.3f} px, "
     text += f"inliers {fit.inlier_count}/{len(fit.lm.residuals_px)}"
     rank = fit.observable_rank
-    if rank < (3 if fit.fit_rotation else 2):
+    if rank < (fit.n_params):
         text += f", observable rank {rank}"
     if fit.at_window_edge:
         text += ", AT SEARCH-WINDOW EDGE"

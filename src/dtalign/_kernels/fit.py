@@ -15,6 +15,7 @@ from .._jit import kernel
 from .lanes import polarity, staging_buffers, summary_lanes
 from .lm import LOOP_BAD_DT, LOOP_DIVERGED, evaluate_state, lm_loop
 from .pairwise import numpy_sum
+from .params import n_params as _n_params
 from .ridge import (
     PATCH_MARGIN,
     RIDGE_BAD_FIELD,
@@ -88,7 +89,7 @@ def fit(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts):
     other values are placeholders.
     """
     n = pts.shape[0]
-    n_params = 3 if opts.fit_rotation else 2
+    n_params = _n_params(opts.fit_rotation)
     if opts.use_polarity:
         pol, bad = polarity(pts, nrm, grad, pose0[0], pose0[1])
         if bad:
@@ -113,14 +114,14 @@ def fit_with_mask(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts, p
     ridge_half = opts.ridge_half
     ridge_sample_step = opts.ridge_sample_step
     n = pts.shape[0]
-    n_params = 3 if fit_rotation else 2
+    n_params = _n_params(fit_rotation)
     rejected = 0
     for i in range(n):
         if not pol[i] > 0.0:
             rejected += 1
     pose, iterations, converged, r, w, jac, info, status = lm_loop(
         dt, pts, sig, pol, pose0, pivot, fit_rotation, pivot_distance, opts.max_iterations,
-        opts.damping, opts.step_tolerance, tukey_c, opts.rcond, opts.trust_region,
+        opts.damping, opts.step_tolerance_px, tukey_c, opts.pinvh_rcond, opts.trust_region_px,
         opts.tikhonov_alpha,
     )
     if status == LOOP_BAD_DT:
@@ -169,7 +170,7 @@ def fit_with_mask(dt, grad, pts, nrm, sig, pose0, pivot, pivot_distance, opts, p
         rms = math.sqrt(weighted / total_weight)
         # info: the final state's J^T W J as evaluate_state summed it (the
         # products of normal_equations(jac.T, w, r), summed lane-wise)
-        cov, ok = symmetric_pinvh(info, opts.rcond)
+        cov, ok = symmetric_pinvh(info, opts.pinvh_rcond)
         if not ok:
             return _failed(DIVERGED, pose0, n, n_params)
     return (OK, pose, iterations, converged, r, w, jac, cov, rms, raw_rms, inlier_count,

@@ -17,6 +17,7 @@ import numpy as np
 
 from .._jit import kernel
 from .lanes import PENALTY, lane_cost, lane_sums, sample_state, staging_buffers
+from .params import n_params as _n_params
 from .robust import solve_step, tukey
 
 #: Mirrors of the constants in dtalign.api.constants, as compile-time literals.
@@ -152,7 +153,7 @@ def lm_loop(
     unchanged: they are kept rather than recomputed (same values exactly).
     """
     n = pts.shape[0]
-    n_params = 3 if fit_rotation else 2
+    n_params = _n_params(fit_rotation)
     r = np.zeros(n)
     w = np.zeros(n)
     jac = np.zeros((n_params, n))  # the Jacobian's columns

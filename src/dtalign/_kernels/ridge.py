@@ -16,6 +16,7 @@ import numpy as np
 from .._jit import kernel
 from .lanes import EPS_R
 from .lm import step_norm
+from .params import n_params as _n_params
 from .robust import irls_weight, normal_equations, solve_step
 from .sampling import TILE, bilinear, fill_tiles, sample_magnitude, transform
 
@@ -168,7 +169,7 @@ def ridge_loop(field, pts, nrm, sig, weight_mask, pose0, pivot, fit_rotation, pi
     max_iterations, step_tolerance = settings.max_iterations, settings.step_tolerance
     tukey_c, half, sample_step = settings.tukey_c, settings.half, settings.sample_step
     n = pts.shape[0]
-    n_params = 3 if fit_rotation else 2
+    n_params = _n_params(fit_rotation)
     t = np.empty(2 * half + 1)
     for k in range(t.shape[0]):
         t[k] = (k - half) * sample_step

@@ -776,9 +776,6 @@ class LMArgs(NamedTuple):
     trust_region_px: float | None
     tikhonov_alpha: float
     final_gradient_ridge: bool
-    #: The pipeline's :class:`~dtalign.api.options.FitOptions` (its compiled
-    #: LM options beyond the drop-in keywords); None for the drop-in call.
-    options: Any = None
 
 
 def check_lm_inputs(

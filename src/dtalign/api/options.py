@@ -1,34 +1,33 @@
 """The fit options: the public record, and the compiled fits' twin of it.
 
-:class:`FitOptions` holds every option of the one-call fit, the batch, the
-command line and the campaign besides the search window: the LM's, the
-ridge polish's, the polarity test's, the multi-start and ambiguity
-examination's, and the edge profile's. Each field has its default and its
-doc here, and its check where the fit runs it (:func:`resolve` and
-:func:`dtalign.pipeline.jobs.plan`, in the order that fixes which error a
-bad call raises). The public functions take a record (``options=``),
-keywords (``trust_region_px=1.0``), or both (the keywords replace the
-record's fields); :func:`resolve` turns them into one record, once per call.
+:class:`FitOptions` holds every option of one call of the one-call fit,
+the batch, the command line and the campaign: the search window, the
+LM's, the ridge polish's, the polarity test's, the multi-start and
+ambiguity examination's. What belongs to one polyline (its arrays, its
+kind of edge, its edge profile) is the :class:`~dtalign.Polyline`'s.
+Each field has its default and its doc here, and its check where the fit
+runs it (:func:`resolve` and :func:`dtalign.pipeline.jobs.plan`, in the
+order that fixes which error a bad call raises). The public functions take
+a record (``options=``), keywords (``trust_region_px=1.0``), or both (the
+keywords replace the record's fields); :func:`resolve` turns them into one
+record, once per call.
 
 The LM's fields (``group="lm"`` in their metadata) are exactly the keywords
-of :func:`dtalign.lm_subpixel_refine`. A field in the group ``"kernel"``
-is a pipeline option the drop-in function does not take: it is checked by
-its ``check`` (metadata) and reaches the compiled twin below by name, so
-a new option of the compiled LM is a field here, a field of
-``LMKernelOptions``, and the kernel code that reads it.
+of :func:`dtalign.lm_subpixel_refine`.
 
 The compiled twin
 -----------------
 
 ``dtalign._kernels.fit.fit``, ``fit_with_mask`` and the pipeline's loop
 ``dtalign._kernels.pipeline.fit_polylines`` take arrays plus one
-``LMKernelOptions``. Numba passes a named tuple of scalars as one argument
-(one specialisation for its field types, cached like any other), so the
-options are not a list of positional arguments kept in step by hand at
-every call site. ``lm_kernel_options`` builds the record from
-``lm_subpixel_refine``'s checked arguments (``dtalign.api.checks.LMArgs``);
-``fit_arguments`` the whole argument tuple of the compiled fit. Every field
-is converted to one Python type (bool, int or float), so every caller
+:class:`LMKernelOptions`, whose fields have the LM keywords' names. Numba
+passes a named tuple of scalars as one argument (one specialisation for its
+field types, cached like any other), so the options are not a list of
+positional arguments kept in step by hand at every call site.
+:func:`lm_kernel_options` builds the record from ``lm_subpixel_refine``'s
+checked arguments (``dtalign.api.checks.LMArgs``), once per call;
+:func:`fit_arguments` the whole argument tuple of the compiled fit. Every
+field is converted to one Python type (bool, int or float), so every caller
 reaches the same compiled specialisation, and the same bits.
 """
 
@@ -40,6 +39,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .._kernels.params import n_params
 from . import checks as check
 from . import constants as c
 from .checks import FloatArray, LMArgs
@@ -52,9 +52,7 @@ __all__ = ["DEFAULT_SEARCH_WINDOW_VU", "DEFAULT_SEEDS", "NO_GRADIENT", "RIDGE_HA
 #: The pipeline's coarse-search margin when a call gives none, px per axis:
 #: wide enough for the pointing errors the navigation frames show (the
 #: disc demo's offset is ~9 px), small enough that a 1024 x 1024 frame's
-#: search stays a small part of the fit. The command line's ``--window``
-#: default is the same value. The window is each call's own argument, not a
-#: field of :class:`FitOptions`: every public fit names it.
+#: search stays a small part of the fit (:attr:`FitOptions.search_window_vu`).
 DEFAULT_SEARCH_WINDOW_VU: tuple[int, int] = (30, 30)
 
 #: How many starts the one-call pipeline fits by default: 1, the coarse
@@ -66,7 +64,7 @@ _LM = {"group": "lm"}
 
 @dataclass(frozen=True)
 class FitOptions:
-    """Every option of a pipeline fit but the search window, with its default.
+    """Every option of a pipeline fit, with its default.
 
     Pass one to :func:`~dtalign.pipeline.fit_polyline`,
     :func:`~dtalign.pipeline.fit_polyline_products`,
@@ -77,6 +75,11 @@ class FitOptions:
 
     Attributes
     ----------
+    search_window_vu : tuple of int
+        Coarse-search margin ``(mv, mu)``: every integer shift in
+        ``[-mv, mv] x [-mu, mu]`` is scored. Default
+        :data:`DEFAULT_SEARCH_WINDOW_VU`, ``(30, 30)`` (the command line's
+        ``--window`` too).
     fit_rotation : bool
         Also fit an in-plane rotation about ``pivot_vu``.
     pivot_vu : tuple of float or None
@@ -109,26 +112,19 @@ class FitOptions:
         ``ambiguity`` and ``hypotheses``, and the status ``ambiguous`` when
         a rival across the edge costs nearly as little. It costs a few LM
         fits; False skips it.
-    edge_profile : EdgeProfile or None
-        The predicted brightness across each vertex
-        (:func:`dtalign.sphere_edge_profile` for a sphere's limb or
-        terminator): after the DT-LM lock the offset is refined against the
-        image's pixels with it (:mod:`dtalign.pipeline.profile_fit`). One
-        polyline's own: the batch takes it from each polyline instead.
     edge_kind : str or None
-        What kind of edge the polyline is, one of
-        :data:`dtalign.api.profiles.EDGE_KINDS` (``"limb"``,
-        ``"terminator"``, ``"ring"``, ``"other"``); None: not declared.
-        When an ``edge_profile`` is given its ``edge`` is the kind (giving
-        a different one is a ValueError). A ``"terminator"`` fitted
+        What kind of edge the call's polylines are when a polyline does not
+        say (:attr:`Polyline.edge_kind <dtalign.Polyline>`, or its edge
+        profile's ``edge``), one of :data:`dtalign.api.profiles.EDGE_KINDS`
+        (``"limb"``, ``"terminator"``, ``"ring"``, ``"other"``); None: not
+        declared. A polyline's profile of another kind is a ValueError. A ``"terminator"`` fitted
         without a profile carries the reason
         :attr:`~dtalign.pipeline.status.FitReason.TERMINATOR_WITHOUT_PROFILE`:
         the DT puts a Lambert terminator wherever the brightness ramp
-        crosses the edge threshold (:ref:`profiles-terminator`). The batch
-        takes it from each polyline (an ``edge_kind`` attribute, or its
-        profile's ``edge``) when this is None.
+        crosses the edge threshold (:ref:`profiles-terminator`).
     """
 
+    search_window_vu: tuple[int, int] = DEFAULT_SEARCH_WINDOW_VU
     fit_rotation: bool = False
     pivot_vu: tuple[float, float] | None = None
     pivot_distance_px: float | None = None
@@ -144,12 +140,16 @@ class FitOptions:
     pinvh_rcond: float = field(default=c.DEFAULT_PINVH_RCOND, metadata=_LM)
     seeds: int = DEFAULT_SEEDS
     ambiguity: bool = True
-    edge_profile: Any = field(default=None, repr=False)
     edge_kind: str | None = None
 
     def lm_keywords(self) -> dict[str, Any]:
         """The LM's options as :func:`dtalign.lm_subpixel_refine` keywords."""
         return {f.name: getattr(self, f.name) for f in _LM_FIELDS}
+
+    @property
+    def n_params(self) -> int:
+        """The pose parameters fitted: 2 (``dv``, ``du``), 3 with the rotation."""
+        return int(n_params(self.fit_rotation))
 
     @property
     def examined(self) -> bool:
@@ -159,47 +159,30 @@ class FitOptions:
 
 _LM_FIELDS = tuple(f for f in dataclasses.fields(FitOptions) if f.metadata.get("group") == "lm")
 
-#: The compiled LM's own options (none today): each is a field of
-#: :class:`LMKernelOptions` by the same name, checked by its ``check``.
-KERNEL_FIELDS = tuple(f for f in dataclasses.fields(FitOptions)
-                      if f.metadata.get("group") == "kernel")
-
-
-def check_kernel_fields(options: FitOptions) -> None:
-    """Run the check of every ``group="kernel"`` field (after the LM's own checks)."""
-    for f in KERNEL_FIELDS:
-        f.metadata["check"](getattr(options, f.name), f.name)
-
 #: Every option's name (what the public functions accept as keywords).
 NAMES = frozenset(f.name for f in dataclasses.fields(FitOptions))
 
 
-def resolve(options: Any = None, overrides: dict[str, Any] | None = None, *,
-            profile: bool = True) -> FitOptions:
+def resolve(options: Any = None, overrides: dict[str, Any] | None = None) -> FitOptions:
     """The options of one call: ``options`` (a :class:`FitOptions`, or None for
     the defaults) with ``overrides`` (keywords) in place of its fields.
 
     Checks the names and ``seeds`` (the first option a fit checks); the
     other values are checked by :func:`dtalign.pipeline.jobs.plan` in the
-    fit's order. ``profile=False`` (the batch: each polyline brings its own
-    profile) refuses ``edge_profile``.
+    fit's order.
     """
     if options is None:
         options = _DEFAULTS
     elif not isinstance(options, FitOptions):
         raise TypeError(f"options must be a FitOptions, got {type(options).__name__}")
     if overrides:
-        accepted = NAMES if profile else NAMES - {"edge_profile"}
-        unknown = sorted(set(overrides) - accepted)
+        unknown = sorted(set(overrides) - NAMES)
         if unknown:
             raise TypeError(
                 f"unexpected fit option(s) {', '.join(map(repr, unknown))}; "
-                f"accepted: {', '.join(sorted(accepted))}"
+                f"accepted: {', '.join(sorted(NAMES))}"
             )
         options = dataclasses.replace(options, **overrides)
-    if not profile and options.edge_profile is not None:
-        raise TypeError("options.edge_profile is one polyline's: give each polyline its own "
-                        "(an edge_profile attribute, or a 4th item)")
     seeds = check.check_seeds(options.seeds)
     if type(options.seeds) is not int:  # a NumPy integer: one type from here on
         options = dataclasses.replace(options, seeds=seeds)
@@ -224,12 +207,12 @@ class LMKernelOptions(NamedTuple):
     fit_rotation: bool
     max_iterations: int
     damping: float
-    step_tolerance: float
+    step_tolerance_px: float
     tukey_c: float
-    #: The pseudoinverse cutoff of the covariance (``pinvh_rcond``).
-    rcond: float
-    #: ``trust_region_px``, or -1.0 for none.
-    trust_region: float
+    #: The pseudoinverse cutoff of the covariance.
+    pinvh_rcond: float
+    #: The trust region, or -1.0 for none.
+    trust_region_px: float
     tikhonov_alpha: float
     #: Run the gradient-ridge polish after the LM (``final_gradient_ridge``).
     ridge: bool
@@ -244,18 +227,16 @@ class LMKernelOptions(NamedTuple):
 
 def lm_kernel_options(a: LMArgs, ridge: bool | None = None) -> LMKernelOptions:
     """The options record of checked arguments ``a``; ``ridge`` overrides
-    ``a.final_gradient_ridge`` (the LM before a caller's ridge stage, :ref:`contract-lm`).
-    The fields of the :data:`KERNEL_FIELDS` come from ``a.options`` (the
-    pipeline's record), or their defaults (the drop-in call)."""
+    ``a.final_gradient_ridge`` (the LM before a caller's ridge stage, :ref:`contract-lm`)."""
     return LMKernelOptions(
         use_polarity=bool(a.use_polarity),
         fit_rotation=bool(a.fit_rotation),
         max_iterations=int(a.max_iterations),
         damping=float(a.damping),
-        step_tolerance=float(a.step_tolerance),
+        step_tolerance_px=float(a.step_tolerance),
         tukey_c=float(a.tukey_c),
-        rcond=float(a.pinvh_rcond),
-        trust_region=-1.0 if a.trust_region_px is None else float(a.trust_region_px),
+        pinvh_rcond=float(a.pinvh_rcond),
+        trust_region_px=-1.0 if a.trust_region_px is None else float(a.trust_region_px),
         tikhonov_alpha=float(a.tikhonov_alpha),
         ridge=bool(a.final_gradient_ridge if ridge is None else ridge),
         ridge_half=int(RIDGE_HALF),
@@ -264,8 +245,6 @@ def lm_kernel_options(a: LMArgs, ridge: bool | None = None) -> LMKernelOptions:
         ridge_step_tolerance=float(c.DEFAULT_LM_STEP_TOLERANCE),
         ridge_max_displacement=float(c.DEFAULT_RIDGE_MAX_TOTAL_DISPLACEMENT_PX),
         use_libm=bool(_use_libm_hypot()),
-        # the pipeline's own options of the compiled LM, by name
-        **{f.name: getattr(a.options or _DEFAULTS, f.name) for f in KERNEL_FIELDS},
     )
 
 

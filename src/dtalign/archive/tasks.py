@@ -74,28 +74,9 @@ def _profile(fit: Any) -> dict[str, Any]:
     }
 
 
-def _status(fit: Any) -> tuple[str | None, list[str] | None]:
-    """The fit's status and reasons, if its result type has them.
-
-    Read with getattr: the status is being added to
-    :class:`~dtalign.pipeline.PolylineFit` separately, as a string, an enum
-    or a record with ``reasons``; any of these is stored as text.
-    """
-    status = getattr(fit, "status", None)
-    reasons = getattr(fit, "reasons", None)
-    if reasons is None and status is not None:
-        reasons = getattr(status, "reasons", None)
-    if status is not None and not isinstance(status, str):
-        for attr in ("value", "name", "code", "label"):
-            value = getattr(status, attr, None)
-            if isinstance(value, str):
-                status = value
-                break
-        else:
-            status = str(status)
-    if reasons is not None:
-        reasons = [str(r.value if hasattr(r, "value") else r) for r in reasons]
-    return status, reasons
+def _status(fit: Any) -> tuple[str, list[str]]:
+    """The fit's status and reasons, as the store's text columns."""
+    return str(fit.status), [str(r) for r in fit.reasons]
 
 
 class _ErrorsOnly(logging.Filter):

@@ -273,8 +273,9 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     parts = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines]
     # fit_many's defaults with the production trust region; the examination
     # after the loop is not the loop
-    shared, first = plan(products, *parts[0], (30, 30),
-                         FitOptions(trust_region_px=1.0, ambiguity=False))
+    shared, first = plan(products, *parts[0],
+                         FitOptions(search_window_vu=(30, 30), trust_region_px=1.0,
+                                    ambiguity=False))
     batch, error = prepare(shared, parts, first)
     if error is not None:
         raise error

@@ -756,7 +756,7 @@ def fit_many(
     n = _check_workers(workers)
     collect = _check_errors(errors)
     progress = _check_progress(progress)
-    opts = resolve(options, overrides, profile=False)
+    opts = resolve(options, {**overrides, "search_window_vu": search_window_vu})
     items = [_polyline(item, i) for i, item in enumerate(polylines)]
     with _reporter(progress, len(items), "polyline") as report, _runner(n, report) as runner:
         out = _fit_and_conclude(products, items, search_window_vu, opts, collect, runner)
@@ -804,7 +804,7 @@ def _fit_parts(
         return []
     if not collect:
         try:
-            shared, first = runner.call(_jobs.plan, products, *parts[0], window, options)
+            shared, first = runner.call(_jobs.plan, products, *parts[0], options)
         except (TypeError, ValueError) as exc:  # what a bad polyline or option raises
             if runner.call(_call_error, products, window, options, exc):
                 raise
@@ -837,7 +837,7 @@ def _probe_plan(products: ImageProducts, window: Any, options: FitOptions) -> An
     the image centre, which fails no check of its own."""
     h, w = products.shape
     probe = (np.array([[(h - 1) / 2.0, (w - 1) / 2.0]]), np.array([[1.0, 0.0]]), np.ones(1))
-    return _jobs.plan(products, *probe, window, options)[0]
+    return _jobs.plan(products, *probe, options)[0]
 
 
 def _call_error(products: ImageProducts, window: Any, options: FitOptions,
@@ -1091,7 +1091,7 @@ def fit_images(
     if config is not None and not isinstance(config, ImageDerivativesConfig):
         raise TypeError(f"config must be an ImageDerivativesConfig, got {type(config).__name__}")
     progress = _check_progress(progress)
-    opts = resolve(options, overrides, profile=False)
+    opts = resolve(options, {**overrides, "search_window_vu": search_window_vu})
     jobs = [((item, None, None) if callable(item) else _image_parts(item, i))
             + (search_window_vu, config, opts, collect, i) for i, item in enumerate(items)]
     out: list[Any] = [None] * len(jobs)

@@ -38,11 +38,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._kernels.params import n_params
 from ..api import checks as check
 from ..api.constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C, POLARITY_PENALTY_RESIDUAL
 from ..api.image import edge_threshold
 from ..api.lm import fit_checked
-from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions, resolve
+from ..api.options import FitOptions, resolve
 from ..api.results import ImageDerivativesConfig, LMRefineResult, summary_text
 from . import hypotheses as _hypotheses
 from . import jobs
@@ -64,7 +65,15 @@ from .profile_fit import (
     edge_kind_of,
     refine_with_profile,
 )
-from .status import SETTLE_ITERATIONS, SETTLE_SIGMAS, FitReason, FitStatus, Settling
+from .status import (
+    SETTLE_ITERATIONS,
+    SETTLE_SIGMAS,
+    Assessment,
+    FitReason,
+    FitStatus,
+    Settling,
+    assess,
+)
 from .uncertainty import (
     Evidence,
     PoseUncertainty,
@@ -204,6 +213,11 @@ class PolylineFit:
         the second edges' correction moved it (equal to it when neither did)."""
         return self.lm.offset_vu
 
+    @property
+    def n_params(self) -> int:
+        """The pose parameters fitted: 2 (``dv``, ``du``), 3 with the rotation."""
+        return int(n_params(self.fit_rotation))
+
     def __post_init__(self) -> None:
         for name in ("vertices_vu", "normals_vu"):
             object.__setattr__(self, name, _readonly(np.asarray(getattr(self, name))))
@@ -218,8 +232,7 @@ class PolylineFit:
         It decides :attr:`observable_rank`.
         """
         if self.vertices_vu.shape[0] == 0:
-            n = 3 if self.fit_rotation else 2
-            return _readonly(np.full((n, n), np.inf))
+            return _readonly(np.full((self.n_params, self.n_params), np.inf))
         cov = normal_information_covariance(
             self.vertices_vu,
             self.normals_vu,
@@ -277,8 +290,9 @@ class PolylineFit:
     @property
     def settled(self) -> bool:
         """Whether the pose is settled: the LM converged, or it stopped but its
-        pose no longer moved (:class:`~dtalign.pipeline.status.Settling`)."""
-        return _status.settled(self)
+        pose no longer moved (:class:`~dtalign.pipeline.status.Settling`; a fit
+        without one, such as a rival hypothesis, reads the LM's ``converged``)."""
+        return self.lm.converged or (self.settling is not None and self.settling.settled)
 
     @property
     def degenerate(self) -> bool:
@@ -419,7 +433,7 @@ class PolylineFit:
         w = np.asarray(self.lm.weights)
         r = np.asarray(self.lm.residuals_px)
         kept = w > 0.0
-        dof = int(np.count_nonzero(kept)) - (3 if self.fit_rotation else 2)
+        dof = int(np.count_nonzero(kept)) - self.n_params
         if dof <= 0:
             return math.inf
         return float(np.dot(w[kept], r[kept] * r[kept]) / dof)
@@ -461,29 +475,24 @@ class PolylineFit:
         return int(np.count_nonzero(self.polarity_rejected))
 
     @functools.cached_property
-    def reasons(self) -> tuple[FitReason, ...]:
-        """Every condition that makes the fit failed, suspect or rank-deficient.
+    def assessment(self) -> Assessment:
+        """Its status, reasons and message, found once by
+        :func:`~dtalign.pipeline.status.assess` (when the pipeline concludes
+        the fit, or on first reading for a fit built otherwise)."""
+        return assess(self)
 
-        A tuple of :class:`~dtalign.pipeline.status.FitReason` (str values such as
-        ``"degenerate"``, ``"not_converged"``); empty for a clean fit. See
-        :mod:`dtalign.pipeline.status` for what each means.
-        """
-        return _status.fit_reasons(self)
+    @property
+    def reasons(self) -> tuple[FitReason, ...]:
+        """Every condition that makes the fit failed, suspect or ambiguous, or a note
+        (:class:`~dtalign.pipeline.status.FitReason`, str values such as
+        ``"degenerate"``); empty for a clean fit."""
+        return self.assessment.reasons
 
     @property
     def status(self) -> FitStatus:
-        """``"ok"``, ``"suspect"``, ``"ambiguous"`` or ``"failed"`` (:class:`~dtalign.pipeline.status.FitStatus`).
-
-        The worst severity among :attr:`reasons`: ``failed`` when the pose is
-        not a measurement (most or all vertices polarity-rejected, degenerate,
-        seed on the window edge); ``ambiguous`` when a rival basin across
-        the edge fits about as well; ``ok`` otherwise, with notes in
-        :attr:`reasons` for a pose that has not settled or that is
-        rank-deficient (its unobservable sigmas are ``inf``); ``suspect``
-        when an edge profile's refinement was discarded or a limb has no
-        usable edge (the pose is then the DT-LM's, or rests on the law).
-        """
-        return _status.fit_status(_status.fit_problems(self))
+        """``"ok"``, ``"suspect"``, ``"ambiguous"`` or ``"failed"``: the worst
+        severity among :attr:`reasons` (:class:`~dtalign.pipeline.status.FitStatus`)."""
+        return self.assessment.status
 
     @property
     def failed(self) -> bool:
@@ -493,7 +502,7 @@ class PolylineFit:
     @property
     def status_message(self) -> str:
         """The status and each reason explained, one line (``"ok"`` for a clean fit)."""
-        return _status.describe(self, self.reasons)
+        return self.assessment.message
 
     def transform(self, vertices_vu: ArrayLike) -> FloatArray:
         """Apply the fitted pose (rotation about the pivot, then offset) to vertices."""
@@ -807,11 +816,11 @@ def _settling_from(st: dict[str, Any]) -> Settling:
 
 def fit_polyline_products(
     products: ImageProducts,
-    vertices_vu: ArrayLike,
-    normals_vu: ArrayLike,
-    sigmas: ArrayLike | float,
+    polyline: Any,
+    normals_vu: ArrayLike | None = None,
+    sigmas: ArrayLike | float | None = None,
     *,
-    search_window_vu: tuple[int, int] = DEFAULT_SEARCH_WINDOW_VU,
+    edge_profile: Any = None,
     options: FitOptions | None = None,
     **overrides: Any,
 ) -> PolylineFit:
@@ -824,14 +833,17 @@ def fit_polyline_products(
     the LM of :func:`dtalign.lm_subpixel_refine`; examine the fit against
     its rival basins (:func:`dtalign.pipeline.hypotheses.examine`); judge
     whether an unconverged fit has settled (:func:`~dtalign.pipeline.fit.settle`); refine against
-    the image with the edge profile, when one is given.
+    the image with the edge profile, when there is one; assess it
+    (:func:`~dtalign.pipeline.status.assess`).
 
     Parameters
     ----------
     products : ImageProducts
         From :func:`~dtalign.pipeline.products.prepare_image`.
-    vertices_vu : array_like, shape (N, 2)
-        Model vertices ``(v, u)`` in pixels, N > 0.
+    polyline : Polyline or array_like, shape (N, 2)
+        The model polyline: a :class:`~dtalign.Polyline` (its vertices,
+        normals, sigmas, edge kind and edge profile), or its vertices
+        ``(v, u)`` in pixels, N > 0, with ``normals_vu`` and ``sigmas``.
     normals_vu : array_like, shape (N, 2)
         Unit normals pointing to the bright side of each edge (the polarity
         test accepts a vertex when its normal points up the gradient).
@@ -839,19 +851,19 @@ def fit_polyline_products(
         Prior one-sigma of each vertex along its normal, pixels, > 0; a
         single number applies to every vertex (see the guide's "Choosing
         the vertex sigmas").
-    search_window_vu : tuple of int, optional
-        Coarse-search margin ``(mv, mu)``: every integer shift in
-        ``[-mv, mv] x [-mu, mu]`` is scored. Default
-        :data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`, ``(30, 30)``,
-        the command line's default too.
+    edge_profile : EdgeProfile, optional
+        The polyline's edge profile (:func:`dtalign.sphere_edge_profile`),
+        when the polyline is given as arrays: after the DT-LM lock the
+        offset is refined against the image's pixels with it
+        (:mod:`dtalign.pipeline.profile_fit`).
     options : FitOptions, optional
-        The fit's options (:class:`~dtalign.api.options.FitOptions`:
-        rotation and pivot, the LM's, ``seeds``, ``ambiguity``,
-        ``edge_profile``); the defaults when None.
+        The call's options (:class:`~dtalign.api.options.FitOptions`: the
+        search window, rotation and pivot, the LM's, ``seeds``,
+        ``ambiguity``, ``edge_kind``); the defaults when None.
     **overrides
         Any field of :class:`~dtalign.api.options.FitOptions` by name
-        (``fit_rotation=True``, ``trust_region_px=1.0``, ``edge_profile=...``):
-        it replaces the field of ``options``.
+        (``search_window_vu=(30, 30)``, ``fit_rotation=True``,
+        ``trust_region_px=1.0``): it replaces the field of ``options``.
 
     Returns
     -------
@@ -866,16 +878,18 @@ def fit_polyline_products(
         On malformed vertices, normals, sigmas, window, pivot or LM
         parameters; the message names the argument.
     """
+    vertices_vu, normals_vu, sigmas, edge_profile, kind = polyline_parts(
+        polyline, normals_vu, sigmas, edge_profile)
     opts = resolve(options, overrides)
     shared, item = jobs.plan(products, vertices_vu, normals_vu,
-                             jobs.broadcast_sigmas(vertices_vu, sigmas), search_window_vu, opts)
+                             jobs.broadcast_sigmas(vertices_vu, sigmas), opts)
     profile = None
-    if opts.edge_profile is not None:
-        profile = check_edge_profile(opts.edge_profile, item.normals)
+    if edge_profile is not None:
+        profile = check_edge_profile(edge_profile, item.normals)
         if products.image is None:
             raise ValueError("edge_profile needs the image: these products were built "
                              "without it (use prepare_image)")
-    kind = edge_kind_of(opts.edge_kind, profile)
+    kind = edge_kind_of(opts.edge_kind if kind is None else kind, profile)
     # the seed (with its score surface, when the fit is to be examined), the LM
     # from it, then the examination and the settling
     t1 = time.perf_counter()
@@ -886,24 +900,42 @@ def fit_polyline_products(
     return fit
 
 
+def polyline_parts(polyline: Any, normals_vu: Any, sigmas: Any, edge_profile: Any = None
+                   ) -> tuple[Any, Any, Any, Any, str | None]:
+    """``(vertices, normals, sigmas, edge_profile, edge_kind)`` of a one-call fit's
+    polyline: a :class:`~dtalign.Polyline` (or a record with its attributes)
+    alone, or the arrays; the kind is None where the polyline declares none."""
+    if normals_vu is None and sigmas is None and hasattr(polyline, "vertices_vu"):
+        own = getattr(polyline, "edge_profile", None)
+        if own is not None and edge_profile is not None:
+            raise TypeError("edge_profile is given twice: the polyline has one already")
+        return (polyline.vertices_vu, polyline.normals_vu, polyline.sigmas,
+                own if edge_profile is None else edge_profile,
+                getattr(polyline, "edge_kind", None))
+    if normals_vu is None or sigmas is None:
+        raise TypeError("give a Polyline, or vertices_vu with normals_vu and sigmas")
+    return polyline, normals_vu, sigmas, edge_profile, None
+
+
 def fit_polyline(
     image: ArrayLike,
-    vertices_vu: ArrayLike,
-    normals_vu: ArrayLike,
-    sigmas: ArrayLike | float,
+    polyline: Any,
+    normals_vu: ArrayLike | None = None,
+    sigmas: ArrayLike | float | None = None,
     *,
-    search_window_vu: tuple[int, int] = DEFAULT_SEARCH_WINDOW_VU,
     noise_sigma: float | None = None,
     config: ImageDerivativesConfig | None = None,
+    edge_profile: Any = None,
     options: FitOptions | None = None,
     **overrides: Any,
 ) -> PolylineFit:
     """Fit a model polyline to an image in one call.
 
     Equivalent to ``fit_polyline_products(prepare_image(image, noise_sigma,
-    config=config), vertices_vu, normals_vu, sigmas, ...)``. To fit several
-    polylines to one image, call :func:`~dtalign.pipeline.products.prepare_image`
-    once and :func:`fit_polyline_products` per polyline instead.
+    config=config), polyline, ...)``. To fit several polylines to one image,
+    call :func:`~dtalign.pipeline.products.prepare_image` once and
+    :func:`fit_polyline_products` per polyline (or
+    :func:`~dtalign.pipeline.batch.fit_many`) instead.
 
     Parameters
     ----------
@@ -911,23 +943,21 @@ def fit_polyline(
         The image (any real dtype; converted to float64). A colour image is
         converted as :func:`~dtalign.pipeline.products.prepare_image` says
         (:mod:`dtalign.api.colour`), and the conversion logged.
-    vertices_vu, normals_vu, sigmas
-        The model polyline: see :func:`fit_polyline_products`.
-    search_window_vu : tuple of int, optional
-        Coarse-search margin ``(mv, mu)``; default ``(30, 30)``
-        (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
+    polyline, normals_vu, sigmas, edge_profile
+        The model polyline: a :class:`~dtalign.Polyline`, or its arrays (and
+        profile); see :func:`fit_polyline_products`.
     noise_sigma : float, optional
         Image noise sigma; estimated by
         :func:`~dtalign.pipeline.products.estimate_noise_sigma` when None.
     config : ImageDerivativesConfig, optional
         Image-side tunables.
     options : FitOptions, optional
-        The fit's options (:class:`~dtalign.api.options.FitOptions`);
+        The call's options (:class:`~dtalign.api.options.FitOptions`);
         the defaults when None.
     **overrides
         Any field of :class:`~dtalign.api.options.FitOptions` by name
-        (``fit_rotation``, ``use_polarity``, ``trust_region_px``,
-        ``max_iterations``, ``seeds``, ``ambiguity``, ``edge_profile``, ...).
+        (``search_window_vu``, ``fit_rotation``, ``use_polarity``,
+        ``trust_region_px``, ``max_iterations``, ``seeds``, ``ambiguity``, ...).
 
     Returns
     -------
@@ -938,15 +968,13 @@ def fit_polyline(
     >>> from dtalign import scenes
     >>> from dtalign.pipeline import fit_polyline
     >>> scene = scenes.disc_scene()
-    >>> p = scene.polyline
-    >>> fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas,
-    ...                    search_window_vu=(30, 30))
+    >>> fit = fit_polyline(scene.image, scene.polyline, search_window_vu=(30, 30))
     >>> [round(x, 1) for x in fit.offset_vu]
     [7.3, -4.6]
     """
     products = prepare_image(image, noise_sigma, config=config)
-    return fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
-                                 search_window_vu=search_window_vu, options=options, **overrides)
+    return fit_polyline_products(products, polyline, normals_vu, sigmas,
+                                 edge_profile=edge_profile, options=options, **overrides)
 
 
 # ---------------------------------------------------------------------------
@@ -970,9 +998,20 @@ def _evidence_from(found: dict[str, Any], n: int) -> Evidence:
 def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
              kind: str | None) -> PolylineFit:
     """The last steps of every fit, the batch's too: the refinement with its
-    edge profile (when given, :func:`with_profile`), its edge kind, and the
-    DT's :class:`~dtalign.pipeline.uncertainty.Evidence` at its DT-LM pose,
-    from which :attr:`PolylineFit.covariance` is formed."""
+    edge profile (when given, :func:`with_profile`), its edge kind, the DT's
+    :class:`~dtalign.pipeline.uncertainty.Evidence` at its DT-LM pose, from
+    which :attr:`PolylineFit.covariance` is formed, and last its
+    :func:`~dtalign.pipeline.status.assess`-ment, stored on the result (on
+    the batch's threads, for a batch)."""
+    fit = _measured(fit, products, profile, kind)
+    # what cached_property stores on first reading, stored now, once
+    fit.__dict__["assessment"] = assess(fit)
+    return fit
+
+
+def _measured(fit: PolylineFit, products: ImageProducts, profile: Any,
+              kind: str | None) -> PolylineFit:
+    """:func:`conclude` but the assessment."""
     if profile is not None:
         fit = with_profile(fit, products, profile, kind)
     # the detector's own edge threshold: a second edge is one it keeps
@@ -1121,7 +1160,7 @@ def settle(fit: PolylineFit, shared: jobs.Plan, it: jobs.Item) -> PolylineFit:
     d = np.array([lm.offset_vu[0] - before[0], lm.offset_vu[1] - before[1],
                   lm.rotation_rad - before[2]])
     shift_px = float(math.hypot(d[0], d[1]) + abs(d[2]) * fit.pivot_distance_px)
-    p = 3 if fit.fit_rotation else 2
+    p = fit.n_params
     cov = np.asarray(lm.covariance, dtype=np.float64)
     if np.isfinite(cov).all():
         # the information the covariance holds (its pseudoinverse): a movement

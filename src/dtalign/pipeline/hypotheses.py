@@ -253,10 +253,10 @@ def _unobservable(fit: Any) -> NDArray[np.float64]:
     examined along any direction)."""
     try:
         return np.asarray(fit.unobservable_directions, dtype=np.float64).reshape(
-            -1, 3 if fit.fit_rotation else 2
+            -1, fit.n_params
         )
     except (ValueError, FloatingPointError, OverflowError):
-        return np.zeros((0, 3 if fit.fit_rotation else 2))
+        return np.zeros((0, fit.n_params))
 
 
 def examine(fit: Any, shared: Any, item: Any, *, refit: Any, surface: Any = None) -> Any:

@@ -25,6 +25,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .._kernels.params import n_params as _n_params
 from ..api import checks as check
 from ..api import loop
 from ..api.checks import LMArgs
@@ -33,7 +34,6 @@ from ..api.lm import raise_for_code
 from ..api.options import (
     DEFAULT_SEARCH_WINDOW_VU,
     FitOptions,
-    check_kernel_fields,
     gradient_of,
     lm_kernel_options,
 )
@@ -101,7 +101,7 @@ def _distance(products: ImageProducts, pivot: tuple[float, float], fit_rotation:
     return distance
 
 
-def plan(products: Any, vertices_vu: Any, normals_vu: Any, sigmas: Any, window: Any,
+def plan(products: Any, vertices_vu: Any, normals_vu: Any, sigmas: Any,
          options: FitOptions) -> tuple[Plan, Item]:
     """Check the first polyline and everything shared, in the pipeline's order."""
     if not isinstance(products, ImageProducts):
@@ -119,7 +119,7 @@ def plan(products: Any, vertices_vu: Any, normals_vu: Any, sigmas: Any, window: 
         verts = check.vertices(vertices_vu, "vertices_vu", allow_empty=False)
         norms = check.normals(normals_vu, verts.shape[0])
         sig = check.sigmas(sigmas, verts.shape[0], "sigmas")
-    window = check.search_window(window)
+    window = check.search_window(options.search_window_vu)
     fit_rotation = bool(options.fit_rotation)
     # the centroid of polyline_status is bit-identical to resolve_pivot's mean
     pivot = ((c_v, c_u) if status == loop.OK and options.pivot_vu is None
@@ -136,8 +136,7 @@ def plan(products: Any, vertices_vu: Any, normals_vu: Any, sigmas: Any, window: 
         "initial_offset_vu": (0.0, 0.0), "fit_rotation": fit_rotation, "pivot_vu": pivot,
         "pivot_distance_px": distance, **options.lm_keywords(),
     }, (verts, norms, sig, (c_v, c_u)) if status == loop.OK else None,
-        trusted_images=True)._replace(options=options)
-    check_kernel_fields(options)
+        trusted_images=True)
     h, w = products.shape
     shared = Plan(products=products, window=window, mv=min(window[0], max(h - 1, 0)),
                   mu=min(window[1], max(w - 1, 0)), lm=lm, options=options)
@@ -147,7 +146,7 @@ def plan(products: Any, vertices_vu: Any, normals_vu: Any, sigmas: Any, window: 
 def recheck(shared: Plan, vertices_vu: Any, normals_vu: Any, sigmas: Any) -> None:
     """Raise what fitting this polyline alone would raise (it failed a bulk check):
     :func:`plan`'s exact sequence with the call's options."""
-    plan(shared.products, vertices_vu, normals_vu, sigmas, shared.window, shared.options)
+    plan(shared.products, vertices_vu, normals_vu, sigmas, shared.options)
     raise AssertionError("unreachable: the bulk checks and plan() disagree")  # pragma: no cover
 
 
@@ -326,7 +325,7 @@ def loop_inputs(shared: Plan, batch: Batch) -> tuple[loop.LoopInputs, np.ndarray
     :func:`run_loop` ``(inputs, lo, hi, errors, outputs)``."""
     k = batch.n
     a = shared.lm
-    n_params = 3 if a.fit_rotation else 2
+    n_params = int(_n_params(a.fit_rotation))
     n_pts = batch.pts.shape[0]
     errors = np.zeros(k, dtype=np.int64)
     out = loop.LoopOutputs(

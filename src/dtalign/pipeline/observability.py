@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._kernels.params import n_params as _n_params
 from ..api import checks as check
 from ..api.constants import DEFAULT_PINVH_RCOND
 
@@ -274,7 +275,7 @@ def normal_information_covariance(
     check.pair(offset_vu, "offset_vu")
     theta = check.finite_real(rotation_rad, "rotation_rad")
     pivot = check.resolve_pivot(verts, pivot_vu)
-    n_params = 3 if fit_rotation else 2
+    n_params = int(_n_params(fit_rotation))
     if not (w > 0).any():
         return np.full((n_params, n_params), np.inf)
     c, s_ = math.cos(theta), math.sin(theta)

@@ -472,7 +472,7 @@ def evidence(fit: Any, edge_dt: FloatArray, gradient: tuple[FloatArray, FloatArr
     n = pts.shape[0]
     # one sampling call: the pose, then +-eps along v and along u
     at = sample_dt_bilinear(edge_dt, (pts + _STEPS * eps).reshape(-1, 2)).reshape(5, n)
-    jac = np.empty((n, 3 if fit.fit_rotation else 2))
+    jac = np.empty((n, fit.n_params))
     jac[:, 0] = (at[1] - at[2]) / (2.0 * eps)
     jac[:, 1] = (at[3] - at[4]) / (2.0 * eps)
     if fit.fit_rotation:
@@ -564,7 +564,7 @@ def second_edge_pull(fit: Any, found: Evidence) -> FloatArray:
         pose minus ``beta`` is the pose the second edges did not push.
         Zero for a degenerate fit and where no vertex has a second edge.
     """
-    p = 3 if fit.fit_rotation else 2
+    p = fit.n_params
     # most polylines have no second edge: no bread to form for them
     if fit.lm.degenerate or found.second_edge_vu is None or not np.any(found.second_edge_vu):
         return np.zeros(p)
@@ -586,7 +586,7 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
     PoseUncertainty
         All ``inf`` for a degenerate fit, or one with too few inliers.
     """
-    p = 3 if fit.fit_rotation else 2
+    p = fit.n_params
     w = np.asarray(fit.lm.weights, dtype=np.float64)
     source = source_of(fit)
     floor = floor_px(source, fit.profile)
