@@ -45,13 +45,28 @@ def fit():
 # --------------------------------------------------------------------------- printing results
 
 
-def test_printed_fit_is_short_and_summarises_arrays(fit):
-    text = repr(fit)
-    assert len(text.splitlines()) <= 40  # was 89 lines of residuals for the demo
-    assert "residuals_px: array (200,) float64: min" in text
-    assert str(fit) == text == fit.summary()
+def test_printed_fit_is_a_short_summary(fit):
+    text = str(fit)
+    assert text == fit.summary() and len(text.splitlines()) <= 12
+    assert text.splitlines()[0] == "PolylineFit: ok"
+    assert "offset_vu: (7.28208, -4.59701) px" in text
     # no per-vertex dump: not one residual printed in full
     assert f"{float(fit.lm.residuals_px[17]):.8f}" not in text
+    assert len(repr(fit).splitlines()) <= 3 and repr(fit).startswith("<PolylineFit ok")
+
+
+def test_printed_fit_with_rotation_and_profile_stays_short():
+    sc = scenes.render_sphere(shape=(160, 160), center_vu=(80.2, 79.6), radius_px=45.0,
+                              phase_deg=30.0, illumination_deg=40.0, offset_vu=(0.3, -0.6))
+    L = sc.limb
+    prof = dtalign.sphere_edge_profile(L.vertices_vu, center_vu=sc.model_center_vu,
+                                       radius_px=45.0, phase_deg=30.0, illumination_deg=40.0)
+    fit = fit_polyline(sc.image, L, search_window_vu=(6, 6), edge_profile=prof,
+                       fit_rotation=True)
+    lines = str(fit).splitlines()
+    assert len(lines) <= 12 and len(repr(fit).splitlines()) <= 3
+    assert any(line.startswith("  profile: ") for line in lines)
+    assert any(line.startswith("  sigma_rotation_rad: ") for line in lines)
 
 
 @pytest.mark.parametrize("which", ["lm", "ridge"])

@@ -20,13 +20,13 @@ The compiled twin
 
 ``dtalign._kernels.fit.fit``, ``fit_with_mask`` and the pipeline's loop
 ``dtalign._kernels.pipeline.fit_polylines`` take arrays plus one
-:class:`LMKernelOptions`, whose fields have the LM keywords' names. Numba
+``LMKernelOptions``, whose fields have the LM keywords' names. Numba
 passes a named tuple of scalars as one argument (one specialisation for its
 field types, cached like any other), so the options are not a list of
 positional arguments kept in step by hand at every call site.
-:func:`lm_kernel_options` builds the record from ``lm_subpixel_refine``'s
+``lm_kernel_options`` builds the record from ``lm_subpixel_refine``'s
 checked arguments (``dtalign.api.checks.LMArgs``), once per call;
-:func:`fit_arguments` the whole argument tuple of the compiled fit. Every
+``fit_arguments`` the whole argument tuple of the compiled fit. Every
 field is converted to one Python type (bool, int or float), so every caller
 reaches the same compiled specialisation, and the same bits.
 """
@@ -78,7 +78,7 @@ class FitOptions:
     search_window_vu : tuple of int
         Coarse-search margin ``(mv, mu)``: every integer shift in
         ``[-mv, mv] x [-mu, mu]`` is scored. Default
-        :data:`DEFAULT_SEARCH_WINDOW_VU`, ``(30, 30)`` (the command line's
+        :data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`, ``(30, 30)`` (the command line's
         ``--window`` too).
     fit_rotation : bool
         Also fit an in-plane rotation about ``pivot_vu``.

@@ -44,7 +44,7 @@ from ..api.constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C, POLARITY_PENAL
 from ..api.image import edge_threshold
 from ..api.lm import fit_checked
 from ..api.options import FitOptions, resolve
-from ..api.results import ImageDerivativesConfig, LMRefineResult, summary_text
+from ..api.results import ImageDerivativesConfig, LMRefineResult
 from . import hypotheses as _hypotheses
 from . import jobs
 from . import status as _status
@@ -227,22 +227,27 @@ class PolylineFit:
         """Pose covariance when each vertex measures only its shift along its normal.
 
         Formed by :func:`~dtalign.pipeline.observability.normal_information_covariance`
-        from the polyline and the LM's final weights, on first access (it is
-        not needed by most callers, and batch fits should not pay for it).
-        It decides :attr:`observable_rank`.
+        from the polyline and the LM's final weights. It decides
+        :attr:`observable_rank`. All ``inf`` (nothing observed) without
+        vertices, and when the information matrix overflows float64
+        (coordinates or a pivot near the float range).
         """
+        unmeasured = _readonly(np.full((self.n_params, self.n_params), np.inf))
         if self.vertices_vu.shape[0] == 0:
-            return _readonly(np.full((self.n_params, self.n_params), np.inf))
-        cov = normal_information_covariance(
-            self.vertices_vu,
-            self.normals_vu,
-            np.asarray(self.lm.weights),
-            offset_vu=self.lm.offset_vu,
-            rotation_rad=self.lm.rotation_rad,
-            fit_rotation=self.fit_rotation,
-            pivot_vu=self.pivot_vu,
-            rcond=self.pinvh_rcond,
-        )
+            return unmeasured
+        try:
+            cov = normal_information_covariance(
+                self.vertices_vu,
+                self.normals_vu,
+                np.asarray(self.lm.weights),
+                offset_vu=self.lm.offset_vu,
+                rotation_rad=self.lm.rotation_rad,
+                fit_rotation=self.fit_rotation,
+                pivot_vu=self.pivot_vu,
+                rcond=self.pinvh_rcond,
+            )
+        except ValueError:  # J^T W J overflows: no reading of the geometry exists
+            return unmeasured
         return _readonly(np.asarray(cov))
 
     @functools.cached_property
@@ -733,30 +738,52 @@ class PolylineFit:
         except KeyError as exc:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
 
-    # Printing: field-generic (see dtalign.api.results), arrays summarised.
-    _SUMMARY_EXTRA = ("sigma_vu", "sigma_rotation_rad", "observable_rank", "status", "reasons",
-                      "dt_offset_vu", "profile")
-
     def summary(self) -> str:
-        """A short text summary: one line per field, the LM result nested,
-        arrays as their shape and min / median / max, then the one-sigma,
-        the observable rank and the status (``repr`` gives the same). A
-        failed fit's sigmas read ``not measured (failed)``: its ``inf`` (or a
-        finite sigma from a few stray inliers) is no measurement; the
-        fields themselves keep their values."""
-        return summary_text(self, extra=self._SUMMARY_EXTRA, text=self._unmeasured_text())
+        """The fit in at most a dozen lines: the status and its reasons, the
+        offset and its one-sigma, the rank, the LM, the seed and, when there
+        is one, the edge profile's refinement (``str(fit)``). A failed fit's
+        sigmas read ``not measured (failed)``: its ``inf`` (or a finite sigma
+        from a few stray inliers) is no measurement; the fields keep their
+        values. Every reading is also an attribute (:meth:`to_dict` has them all)."""
+        failed = self.status is FitStatus.FAILED
 
-    def _unmeasured_text(self) -> dict[str, str]:
-        """What :meth:`summary` prints for the sigmas of a failed fit (empty otherwise)."""
-        if not self.failed:
-            return {}
-        out = {"sigma_vu": _status.UNMEASURED_TEXT}
+        def sig(x: float | None) -> str:
+            return "inf" if x is None or not math.isfinite(x) else f"{x:.4g}"
+
+        sv = (_status.UNMEASURED_TEXT if failed
+              else f"({sig(self.sigma_vu[0])}, {sig(self.sigma_vu[1])}) px")
+        lines = [f"PolylineFit: {self.status}",
+                 f"  reasons: {', '.join(map(str, self.reasons)) or 'none'}",
+                 f"  offset_vu: ({self.offset_vu[0]:.5f}, {self.offset_vu[1]:.5f}) px",
+                 f"  sigma_vu: {sv}"]
         if self.fit_rotation:
-            out["sigma_rotation_rad"] = _status.UNMEASURED_TEXT
-        return out
+            sr = _status.UNMEASURED_TEXT if failed else f"{sig(self.sigma_rotation_rad)} rad"
+            lines += [f"  rotation_rad: {self.rotation_rad:.6g} about {_pair(self.pivot_vu)}",
+                      f"  sigma_rotation_rad: {sr}"]
+        lm = self.lm
+        settled = "converged" if lm.converged else ("settled" if self.settled else "not settled")
+        lines += [f"  observable_rank: {self.observable_rank} of {self.n_params}",
+                  f"  vertices: {len(lm.residuals_px)}, {lm.inlier_count} inliers, "
+                  f"rms {lm.rms_px:.4g} px",
+                  f"  lm: {lm.iterations} iterations, {settled}",
+                  f"  coarse_offset_vu: {tuple(self.coarse_offset_vu)} in a window "
+                  f"±{tuple(self.search_window_vu)}"]
+        if self.profile is not None:
+            ref = self.profile
+            lines.append(f"  profile: {'accepted' if ref.accepted else 'rejected'}, DT-LM offset "
+                         f"{_pair(self.dt_offset_vu)}, walk {ref.walk_px:.3g} px")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.summary()
 
     def __repr__(self) -> str:
-        return self.summary()
+        return (f"<PolylineFit {self.status}: offset_vu={_pair(self.offset_vu)}, "
+                f"sigma_vu={_pair(self.sigma_vu)}, reasons={[str(r) for r in self.reasons]}>")
+
+
+def _pair(x: Any) -> str:
+    return f"({float(x[0]):.5g}, {float(x[1]):.5g})"
 
 
 def _num(x: float) -> float | None:
@@ -1066,7 +1093,7 @@ def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, pro
     one-sigma (its covariance plus the profile floor of
     :mod:`dtalign.pipeline.uncertainty`, the largest axis): the photometry
     then picks the same pose from either basin, which
-    :func:`~dtalign.pipeline.status.fit_reasons` reads as no ambiguity.
+    :func:`~dtalign.pipeline.status.assess` reads as no ambiguity.
     """
     amb = fit.ambiguity
     if not (ref.accepted and amb is not None and amb.ambiguous and amb.rival is not None
@@ -1090,26 +1117,37 @@ def _shape_of(products: ImageProducts) -> tuple[int, int]:
     return int(h), int(w)
 
 
+def new_fit(shared: jobs.Plan, lm: LMRefineResult, coarse: tuple[int, int],
+            pivot: tuple[float, float], distance: float, vertices: FloatArray,
+            normals: FloatArray, timings: dict[str, float]) -> PolylineFit:
+    """The one constructor of the pipeline's :class:`PolylineFit`: the LM's
+    result ``lm`` from the integer seed ``coarse``, of the polyline
+    ``vertices``, ``normals`` with its pivot, fitted with the call's ``shared``
+    plan. The later steps (:func:`finish`, :func:`conclude`) add to it."""
+    p = shared.products
+    a = shared.lm
+    return PolylineFit(
+        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, coarse_offset_vu=coarse,
+        at_window_edge=jobs.at_window_edge(coarse[0], coarse[1], shared.window),
+        lm=lm, search_window_vu=shared.window, fit_rotation=a.fit_rotation,
+        pivot_vu=pivot, pivot_distance_px=float(distance), noise_sigma=p.noise_sigma,
+        vertices_vu=vertices, normals_vu=normals, pinvh_rcond=a.pinvh_rcond,
+        tukey_c=a.tukey_c, timings_s=timings, image_shape=_shape_of(p),
+    )
+
+
 def fit_from(shared: jobs.Plan, it: jobs.Item, coarse: tuple[int, int],
              coarse_s: float = 0.0) -> PolylineFit:
     """The LM from the integer seed ``coarse`` (a multi-start's other starts
     too), as a :class:`PolylineFit`; ``coarse_s`` is the seed's search time."""
-    p = shared.products
     t2 = time.perf_counter()
     lm = fit_checked(shared.lm._replace(
         vertices=it.vertices, normals=it.normals, sigmas=it.sigmas,
         offset=(float(coarse[0]), float(coarse[1])), pivot=it.pivot, pivot_distance=it.distance,
     ))
     t3 = time.perf_counter()
-    return PolylineFit(
-        offset_vu=lm.offset_vu, rotation_rad=lm.rotation_rad, coarse_offset_vu=coarse,
-        at_window_edge=jobs.at_window_edge(coarse[0], coarse[1], shared.window),
-        lm=lm, search_window_vu=shared.window, fit_rotation=shared.lm.fit_rotation,
-        pivot_vu=it.pivot, pivot_distance_px=float(it.distance), noise_sigma=p.noise_sigma,
-        vertices_vu=it.vertices, normals_vu=it.normals, pinvh_rcond=shared.lm.pinvh_rcond,
-        tukey_c=shared.lm.tukey_c, timings_s={**p.timings_s, "coarse": coarse_s, "lm": t3 - t2},
-        image_shape=_shape_of(p),
-    )
+    timings = {**shared.products.timings_s, "coarse": coarse_s, "lm": t3 - t2}
+    return new_fit(shared, lm, coarse, it.pivot, it.distance, it.vertices, it.normals, timings)
 
 
 def finish(fit: PolylineFit, shared: jobs.Plan, it: jobs.Item,
@@ -1190,7 +1228,6 @@ def wrap(shared: jobs.Plan, batch: jobs.Batch, out: tuple[Any, ...], lo: int,
     # slices each fit keeps.
     bounds = batch.starts[lo : hi + 1].tolist()
     timings = p.timings_s
-    shape = _shape_of(p)
     fits = []
     for j, (pose, (dv, du), n_iter, conv, rms_j, raw_j, inl, deg, pv, dist) in enumerate(zip(
         poses[lo:hi].tolist(), coarse[lo:hi].tolist(), iterations[lo:hi].tolist(),
@@ -1210,12 +1247,6 @@ def wrap(shared: jobs.Plan, batch: jobs.Batch, out: tuple[Any, ...], lo: int,
                 np.count_nonzero(residuals == POLARITY_PENALTY_RESIDUAL)
             ) if a.use_polarity else 0,
         )
-        fits.append(PolylineFit(
-            offset_vu=lm.offset_vu, rotation_rad=pose[2], coarse_offset_vu=(dv, du),
-            at_window_edge=jobs.at_window_edge(dv, du, shared.window), lm=lm,
-            search_window_vu=shared.window, fit_rotation=a.fit_rotation,
-            pivot_vu=(pv[0], pv[1]), pivot_distance_px=dist, noise_sigma=p.noise_sigma,
-            vertices_vu=pts[s_j:e_j], normals_vu=nrm[s_j:e_j], pinvh_rcond=a.pinvh_rcond,
-            tukey_c=a.tukey_c, timings_s=dict(timings), image_shape=shape,
-        ))
+        fits.append(new_fit(shared, lm, (dv, du), (pv[0], pv[1]), dist, pts[s_j:e_j],
+                            nrm[s_j:e_j], dict(timings)))
     return fits
