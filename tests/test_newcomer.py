@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import inspect
 import logging
 import os
 import subprocess
@@ -26,10 +25,10 @@ import pytest
 
 import dtalign
 from dtalign import scenes
-from dtalign.cli import DEFAULT_WINDOW_PX, main
+from dtalign.cli import main
 from dtalign.io import load_image, read_image, save_polyline_csv
 from dtalign.pipeline import DEFAULT_SEARCH_WINDOW_VU, fit_polyline, prepare_image
-from dtalign.pipeline.batch import fit_images, fit_many
+from dtalign.pipeline.batch import fit_many
 
 TRUE = (3.4, -2.2)
 
@@ -184,11 +183,14 @@ def test_the_drop_in_lm_keeps_its_per_vertex_sigmas(scene):
 
 
 def test_one_documented_default_window_in_python_and_on_the_cli(scene):
-    assert DEFAULT_SEARCH_WINDOW_VU == (DEFAULT_WINDOW_PX, DEFAULT_WINDOW_PX) == (30, 30)
-    for fn in (fit_polyline, dtalign.fit_polyline_products, fit_many, fit_images):
-        default = inspect.signature(fn).parameters["search_window_vu"].default
-        assert default == DEFAULT_SEARCH_WINDOW_VU, fn.__name__
-        assert "(30, 30)" in (fn.__doc__ or ""), fn.__name__
+    # the window is an option of the call: one default, FitOptions', which
+    # the command line's --window shows
+    assert dtalign.FitOptions().search_window_vu == DEFAULT_SEARCH_WINDOW_VU == (30, 30)
+    assert "(30, 30)" in (dtalign.FitOptions.__doc__ or "")
+    from dtalign.cli import build_parser
+
+    assert "default 30,30" in build_parser()._subparsers._group_actions[0].choices[
+        "fit"].format_help().replace("\n", " ").replace("  ", " ")
     p = scene.polyline
     fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas)
     assert fit.search_window_vu == (30, 30)

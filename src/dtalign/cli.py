@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import functools
 import glob
 import importlib
@@ -54,6 +55,8 @@ from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from .api.constants import DEFAULT_SEARCH_WINDOW_VU
 
 __all__ = ["build_parser", "main"]
 
@@ -80,11 +83,6 @@ COMPILE_NOTICE = (
     "the machine code is then cached on disk) ..."
 )
 
-#: The ``fit`` search margin unless ``--window`` says otherwise (px): the
-#: same value as the Python pipeline's default,
-#: ``dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`` (a test holds them equal;
-#: not imported here so that building the parser stays light).
-DEFAULT_WINDOW_PX = 30
 
 #: Options that take a pair of numbers, per subcommand: one style
 #: everywhere, the two numbers joined by a comma (``--displace 3,-2``).
@@ -406,9 +404,10 @@ def _add_fit(sub: Any) -> None:
     fit.add_argument("--batch", metavar="LIST", help="text file, one 'IMAGE [POLYLINE]' per line "
                      "(POLYLINE defaults to IMAGE's stem + .csv)")
     fit.add_argument("--glob", metavar="PATTERN", help="images matching PATTERN (quote it)")
-    fit.add_argument("--window", default=str(DEFAULT_WINDOW_PX), metavar="N|V,U",
+    window = ",".join(map(str, DEFAULT_SEARCH_WINDOW_VU))
+    fit.add_argument("--window", default=window, metavar="N|V,U",
                      help="search margin in px: N for both axes, or V,U (e.g. 30,20); "
-                     f"default {DEFAULT_WINDOW_PX}, as in Python")
+                     f"default {window}, as FitOptions.search_window_vu")
     fit.add_argument("--noise-sigma", type=float, help="image noise sigma (default: estimated)")
     for flag, spec in _FIT_OPTIONS.items():
         if flag == "--edge-kind":  # listed after the --sphere options: its help speaks of --edge
@@ -742,9 +741,11 @@ def _load(job: _Job, args: argparse.Namespace, sphere: dict[str, Any] | None,
 
     image, job.colour = io.read_image(job.image)
     poly = io.load_polyline_csv(job.polyline)
-    profile = None if sphere is None else sphere_edge_profile(poly.vertices_vu, **sphere)
+    if sphere is not None:
+        poly = dataclasses.replace(poly, edge_profile=sphere_edge_profile(poly.vertices_vu,
+                                                                          **sphere))
     job.loaded = (image, poly)
-    return image, args.noise_sigma, [(poly.vertices_vu, poly.normals_vu, poly.sigmas, profile)]
+    return image, args.noise_sigma, [poly]
 
 
 def _fit_options(args: argparse.Namespace) -> dict[str, Any]:

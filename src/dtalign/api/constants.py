@@ -64,6 +64,13 @@ DEFAULT_COARSE_MIN_SUPPORT_FRACTION: float = 0.5
 #: Residual given to polarity-rejected vertices: the Tukey biweight zeroes
 #: any such vertex on the first reweighting. Today's techniques import it
 #: as ``_INFINITY_DT_PENALTY_PX`` (:ref:`contract-today`).
+#: The pipeline's coarse-search margin when a call gives none, px per axis:
+#: wide enough for the pointing errors the navigation frames show (the
+#: disc demo's offset is ~9 px), small enough that a 1024 x 1024 frame's
+#: search stays a small part of the fit (``FitOptions.search_window_vu``,
+#: the command line's ``--window``).
+DEFAULT_SEARCH_WINDOW_VU: tuple[int, int] = (30, 30)
+
 POLARITY_PENALTY_RESIDUAL: float = 1.0e6
 _INFINITY_DT_PENALTY_PX: float = POLARITY_PENALTY_RESIDUAL
 

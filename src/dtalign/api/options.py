@@ -47,13 +47,9 @@ from .image import _use_libm_hypot
 
 __all__ = ["DEFAULT_SEARCH_WINDOW_VU", "DEFAULT_SEEDS", "NO_GRADIENT", "RIDGE_HALF",
            "FitOptions", "LMKernelOptions", "fit_arguments", "gradient_of", "lm_kernel_options",
-           "resolve"]
+           "n_params", "resolve"]
 
-#: The pipeline's coarse-search margin when a call gives none, px per axis:
-#: wide enough for the pointing errors the navigation frames show (the
-#: disc demo's offset is ~9 px), small enough that a 1024 x 1024 frame's
-#: search stays a small part of the fit (:attr:`FitOptions.search_window_vu`).
-DEFAULT_SEARCH_WINDOW_VU: tuple[int, int] = (30, 30)
+DEFAULT_SEARCH_WINDOW_VU = c.DEFAULT_SEARCH_WINDOW_VU
 
 #: How many starts the one-call pipeline fits by default: 1, the coarse
 #: search's seed (multi-start is opt-in: ``seeds=3``).

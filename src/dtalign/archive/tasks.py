@@ -15,6 +15,7 @@ the serial loop of the benchmark.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime
 import logging
 import math
@@ -240,7 +241,7 @@ def _fit_polylines(item: Item, products: Any, polylines: list[Any]) -> list[Any]
                 profile = sphere_edge_profile(poly.vertices_vu, **sphere)
             except (TypeError, ValueError) as exc:
                 raise type(exc)(f"polyline {path}: {exc}") from None
-        parts.append((poly.vertices_vu, poly.normals_vu, poly.sigmas, profile))
+        parts.append(poly if profile is None else dataclasses.replace(poly, edge_profile=profile))
     try:
         with _fits_not_logged():
             return fit_many(products, parts, search_window_vu=item.window, workers=1,

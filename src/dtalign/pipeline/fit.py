@@ -32,18 +32,18 @@ import dataclasses
 import functools
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._kernels.params import n_params
 from ..api import checks as check
 from ..api.constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C, POLARITY_PENALTY_RESIDUAL
 from ..api.image import edge_threshold
 from ..api.lm import fit_checked
-from ..api.options import FitOptions, resolve
+from ..api.options import FitOptions, n_params, resolve
 from ..api.results import ImageDerivativesConfig, LMRefineResult
 from . import hypotheses as _hypotheses
 from . import jobs
@@ -65,6 +65,7 @@ from .profile_fit import (
     edge_kind_of,
     refine_with_profile,
 )
+from .records import from_json, to_json
 from .status import (
     SETTLE_ITERATIONS,
     SETTLE_SIGMAS,
@@ -449,10 +450,8 @@ class PolylineFit:
 
         The option beside the prior covariance, as
         ``curve_fit(absolute_sigma=False)``: use it when the vertex sigmas
-        you passed are only relative weights. Over 120 seeded disc scenes
-        its one-sigma is within a factor 2 of the fits' real scatter, the
-        prior one's is not (``tests/test_uncertainty.py`` checks both).
-        All ``inf`` when degenerate.
+        you passed are only relative weights (the docs' uncertainty page
+        compares it with the fits' real scatter). All ``inf`` when degenerate.
         """
         cov = np.asarray(self.lm.covariance)
         factor = self.variance_factor
@@ -579,98 +578,40 @@ class PolylineFit:
     def to_dict(self, *, arrays: bool = False) -> dict[str, Any]:
         """A JSON-ready summary; with ``arrays=True``, everything :meth:`from_dict` needs.
 
-        A value that is not finite is written as ``None`` (JSON ``null``):
-        in practice ``+inf``, the sigma or covariance of a direction the fit
-        does not measure, or the rms of a degenerate fit (JSON has no
-        infinity; the string ``"inf"`` it used to hold is no number).
+        The fields (``_WRITTEN``), the LM's under the keys of ``_LM_KEYS``,
+        and the readings of ``_READINGS``, each in its JSON form
+        (:func:`~dtalign.pipeline.records.to_json`): a value that is
+        not finite is written as ``None`` (JSON ``null``), in practice
+        ``+inf``, the sigma or covariance of a direction the fit does not
+        measure, or the rms of a degenerate fit.
 
         Parameters
         ----------
         arrays : bool, optional
             Also write the per-vertex arrays (``vertices_vu``,
-            ``normals_vu``, ``residuals_px``, ``weights``), from which the
-            fit's derived readings (status, sigmas, observable rank) are
-            computed again on loading.
+            ``normals_vu``, ``residuals_px``, ``weights``, ``evidence``), from
+            which the fit's derived readings (status, sigmas, observable rank)
+            are computed again on loading.
         """
-
-        num = _num
-        cov = np.asarray(self.lm.covariance)
-        extra = self._arrays_dict() if arrays else {}
-        u = self.uncertainty
-        return {
-            "offset_vu": [num(x) for x in self.offset_vu],
-            "rotation_rad": num(self.rotation_rad),
-            "sigma_vu": [num(x) for x in self.sigma_vu],
-            "sigma_vu_unobservable_inf": [num(x) for x in self.sigma_vu_unobservable_inf],
-            "sigma_rotation_rad": (
-                None if self.sigma_rotation_rad is None else num(self.sigma_rotation_rad)
-            ),
-            "variance_factor": num(self.variance_factor),
-            "sigma_vu_scaled": [num(x) for x in self.sigma_vu_scaled],
-            "status": str(self.status),
-            "reasons": [str(r) for r in self.reasons],
-            "status_message": self.status_message,
-            "ambiguity_ratio": None if self.ambiguity is None else num(self.ambiguity.ratio),
-            "ambiguity_rival_offset_vu": (
-                None if self.ambiguity is None or self.ambiguity.rival is None
-                else [num(x) for x in self.ambiguity.rival.offset_vu]
-            ),
-            "ambiguity": None if self.ambiguity is None else _ambiguity_dict(self.ambiguity),
-            "settling": None if self.settling is None else _settling_dict(self.settling),
-            "hypotheses": [_hypothesis_dict(h) for h in self.hypotheses],
-            "covariance": [[num(float(x)) for x in row] for row in np.asarray(self.covariance)],
-            "covariance_mestimator": [[num(float(x)) for x in row] for row in cov],
-            "uncertainty_source": None if u is None else u.source,
-            "uncertainty_floor_px": None if u is None else u.floor_px,
-            "normal_covariance": [
-                [num(float(x)) for x in row] for row in np.asarray(self.normal_covariance)
-            ],
-            "observable_rank": self.observable_rank,
-            "coarse_offset_vu": list(self.coarse_offset_vu),
-            "at_window_edge": self.at_window_edge,
-            "search_window_vu": list(self.search_window_vu),
-            "fit_rotation": self.fit_rotation,
-            "pivot_vu": list(self.pivot_vu),
-            "pivot_distance_px": self.pivot_distance_px,
-            "noise_sigma": self.noise_sigma,
-            "rms_px": num(self.lm.rms_px),
-            "raw_rms_px": num(self.lm.raw_rms_px),
-            "iterations": self.lm.iterations,
-            "converged": self.lm.converged,
-            "degenerate": self.lm.degenerate,
-            "inlier_count": self.lm.inlier_count,
-            "n_vertices": int(np.asarray(self.lm.residuals_px).shape[0]),
-            "polarity_rejected": self.polarity_rejected_count,
-            "outside_image": self.outside_image_count,
-            "image_shape": None if self.image_shape is None else list(self.image_shape),
-            "tukey_rejected": int(self.tukey_rejected.sum()),
-            "pinvh_rcond": self.pinvh_rcond,
-            "tukey_c": self.tukey_c,
-            "timings_s": dict(self.timings_s),
-            **extra,
-            "dt_offset_vu": [num(x) for x in self.dt_offset_vu],
-            "dt_rotation_rad": num(self.lm.rotation_rad),
-            "profile": None if self.profile is None else self.profile.to_dict(),
-            "edge_kind": self.edge_kind,
-        }
-
-    def _arrays_dict(self) -> dict[str, Any]:
-        """The per-vertex arrays of :meth:`to_dict` with ``arrays=True``."""
-        extra: dict[str, Any] = {name: np.asarray(getattr(src, name)).tolist() for src, name in (
-            (self, "vertices_vu"), (self, "normals_vu"), (self.lm, "residuals_px"),
-            (self.lm, "weights"))}
-        found = self.evidence
-        extra["evidence"] = None if found is None else {
-            k: np.asarray(v).tolist() for k, v in found._asdict().items()}
-        return extra
+        out = {name: to_json(getattr(self, name)) for name in _WRITTEN}
+        out.update((key, to_json(getattr(self.lm, name))) for key, name in _LM_KEYS.items())
+        out.update((key, to_json(read(self))) for key, read in _READINGS.items())
+        if arrays:  # as they are: their values are finite, or NaN where nothing is
+            found = self.evidence
+            out.update({name: np.asarray(a).tolist() for name, a in (
+                ("vertices_vu", self.vertices_vu), ("normals_vu", self.normals_vu),
+                ("residuals_px", self.lm.residuals_px), ("weights", self.lm.weights))})
+            out["evidence"] = None if found is None else {
+                k: None if v is None else np.asarray(v).tolist() for k, v in found._asdict().items()}
+        return out
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PolylineFit:
         """The fit :meth:`to_dict` described, from ``to_dict(arrays=True)`` (or its JSON).
 
         ``from_dict(fit.to_dict(arrays=True)).to_dict(arrays=True)`` equals
-        ``fit.to_dict(arrays=True)``: the pose, covariance, hypotheses,
-        ambiguity and settling are read back, and the derived readings
+        ``fit.to_dict(arrays=True)``: the fields are read back
+        (:func:`~dtalign.pipeline.records.from_json`), and the readings
         (status, reasons, sigmas, observable rank) computed again from them
         and the per-vertex arrays. ``None`` stands for ``+inf`` (``nan`` for
         a coarse score).
@@ -681,60 +622,35 @@ class PolylineFit:
             If ``d`` lacks the per-vertex arrays (a summary written by
             ``to_dict()`` without ``arrays=True``) or another field.
         """
-        needed = ("vertices_vu", "normals_vu", "residuals_px", "weights")
-        missing = [k for k in needed if k not in d]
+        missing = [k for k in ("vertices_vu", "normals_vu", "residuals_px", "weights")
+                   if k not in d]
         if missing:
             raise ValueError(
                 f"PolylineFit.from_dict needs the per-vertex arrays {missing}: write the dict "
                 "with to_dict(arrays=True)"
             )
 
-        inf = _inf
+        def array(x: Any, shape: tuple[int, ...] = (-1,)) -> FloatArray:
+            return _readonly(np.asarray(x, dtype=np.float64).reshape(shape))
+
         try:
-            vertices = np.asarray(d["vertices_vu"], dtype=np.float64).reshape(-1, 2)
-            normals = np.asarray(d["normals_vu"], dtype=np.float64).reshape(-1, 2)
-            # written before the pipeline's own covariance: "covariance" was the LM's
+            # a dict written before "dt_offset_vu" and "dt_rotation_rad" has the
+            # LM's pose as the fit's, and one written before the pipeline's own
+            # covariance has the LM's as "covariance"
             lm_cov = d.get("covariance_mestimator", d["covariance"])
-            cov = np.array([[inf(x) for x in row] for row in lm_cov], dtype=np.float64)
+            lm = from_json(
+                LMRefineResult,
+                {name: d[key] if key in d else d[_LM_FALLBACK[key]]
+                 for key, name in _LM_KEYS.items() if name != "covariance"},
+                covariance=_readonly(np.array([[_inf(x) for x in row] for row in lm_cov],
+                                              dtype=np.float64)),
+                residuals_px=array(d["residuals_px"]), weights=array(d["weights"]),
+                polarity_rejected_count=int(d["polarity_rejected"]))
+            vertices = array(d["vertices_vu"], (-1, 2))
             found = d.get("evidence")
-            # the LM's own pose: the DT-LM one when a profile refinement or the
-            # second edges' correction moved the fit's (a dict written before
-            # "dt_rotation_rad" has the LM's rotation as the fit's)
-            dt = d.get("dt_offset_vu", d["offset_vu"])
-            lm = LMRefineResult(
-                offset_vu=(float(dt[0]), float(dt[1])),
-                rotation_rad=float(d.get("dt_rotation_rad", d["rotation_rad"])),
-                covariance=_readonly(cov),
-                residuals_px=_readonly(np.asarray(d["residuals_px"], dtype=np.float64)),
-                weights=_readonly(np.asarray(d["weights"], dtype=np.float64)),
-                rms_px=inf(d["rms_px"]), raw_rms_px=inf(d["raw_rms_px"]),
-                iterations=int(d["iterations"]), converged=bool(d["converged"]),
-                inlier_count=int(d["inlier_count"]), degenerate=bool(d["degenerate"]),
-                polarity_rejected_count=int(d["polarity_rejected"]),
-            )
-            prof = d.get("profile")
-            return cls(
-                offset_vu=(float(d["offset_vu"][0]), float(d["offset_vu"][1])),
-                rotation_rad=float(d["rotation_rad"]),
-                coarse_offset_vu=(int(d["coarse_offset_vu"][0]), int(d["coarse_offset_vu"][1])),
-                at_window_edge=bool(d["at_window_edge"]), lm=lm,
-                search_window_vu=(int(d["search_window_vu"][0]), int(d["search_window_vu"][1])),
-                fit_rotation=bool(d["fit_rotation"]),
-                pivot_vu=(float(d["pivot_vu"][0]), float(d["pivot_vu"][1])),
-                pivot_distance_px=float(d["pivot_distance_px"]),
-                noise_sigma=float(d["noise_sigma"]), vertices_vu=vertices, normals_vu=normals,
-                pinvh_rcond=float(d["pinvh_rcond"]), tukey_c=float(d["tukey_c"]),
-                timings_s={str(k): float(v) for k, v in d["timings_s"].items()},
-                hypotheses=tuple(_hypothesis_from(h) for h in d["hypotheses"]),
-                ambiguity=None if d["ambiguity"] is None else _ambiguity_from(d["ambiguity"]),
-                settling=None if d["settling"] is None else _settling_from(d["settling"]),
-                profile=None if prof is None else ProfileRefinement.from_dict(prof),
-                edge_kind=d.get("edge_kind"),
-                evidence=None if found is None else _evidence_from(found, len(vertices)),
-                # written before the image's shape was recorded: None (nothing outside)
-                image_shape=None if d.get("image_shape") is None
-                else (int(d["image_shape"][0]), int(d["image_shape"][1])),
-            )
+            return from_json(
+                cls, d, lm=lm, vertices_vu=vertices, normals_vu=array(d["normals_vu"], (-1, 2)),
+                evidence=None if found is None else _evidence_from(found, len(vertices)))
         except KeyError as exc:
             raise ValueError(f"PolylineFit.from_dict: the dict has no {exc.args[0]!r}") from None
 
@@ -796,44 +712,45 @@ def _inf(x: Any) -> float:
     return math.inf if x is None else float(x)
 
 
-def _hypothesis_dict(h: Hypothesis) -> dict[str, Any]:
-    return {"source": h.source, "seed_vu": list(h.seed_vu), "offset_vu": list(h.offset_vu),
-            "rotation_rad": h.rotation_rad, "cost": _num(h.cost), "inliers": h.inliers,
-            "converged": h.converged, "coarse_score": _num(h.coarse_score)}
+#: The fields :meth:`PolylineFit.to_dict` writes as they are (the LM's go by
+#: :data:`_LM_KEYS`; the arrays only with ``arrays=True``).
+_WRITTEN = tuple(f.name for f in dataclasses.fields(PolylineFit)
+                 if f.name not in ("lm", "vertices_vu", "normals_vu", "evidence"))
 
+#: The LM result's fields in :meth:`PolylineFit.to_dict`, by key.
+_LM_KEYS = {"dt_offset_vu": "offset_vu", "dt_rotation_rad": "rotation_rad",
+            "covariance_mestimator": "covariance", "rms_px": "rms_px",
+            "raw_rms_px": "raw_rms_px", "iterations": "iterations", "converged": "converged",
+            "degenerate": "degenerate", "inlier_count": "inlier_count"}
 
-def _hypothesis_from(h: dict[str, Any]) -> Hypothesis:
-    return Hypothesis(
-        source=h["source"], seed_vu=(int(h["seed_vu"][0]), int(h["seed_vu"][1])),
-        coarse_score=math.nan if h["coarse_score"] is None else float(h["coarse_score"]),
-        offset_vu=(float(h["offset_vu"][0]), float(h["offset_vu"][1])),
-        rotation_rad=float(h["rotation_rad"]), cost=_inf(h["cost"]),
-        inliers=int(h["inliers"]), converged=bool(h["converged"]),
-    )
+#: Where a dict written before a key existed keeps its value.
+_LM_FALLBACK = {"dt_offset_vu": "offset_vu", "dt_rotation_rad": "rotation_rad"}
 
-
-def _ambiguity_dict(a: Ambiguity) -> dict[str, Any]:
-    return {"ratio": _num(a.ratio), "rival": None if a.rival is None else _hypothesis_dict(a.rival),
-            "ambiguous": a.ambiguous, "along_unobservable": a.along_unobservable,
-            "reason": a.reason}
-
-
-def _ambiguity_from(a: dict[str, Any]) -> Ambiguity:
-    return Ambiguity(
-        ratio=_inf(a["ratio"]), rival=None if a["rival"] is None else _hypothesis_from(a["rival"]),
-        ambiguous=bool(a["ambiguous"]), along_unobservable=bool(a["along_unobservable"]),
-        reason=str(a["reason"]),
-    )
-
-
-def _settling_dict(st: Settling) -> dict[str, Any]:
-    return {"iterations": st.iterations, "shift_px": _num(st.shift_px),
-            "shift_sigmas": _num(st.shift_sigmas), "settled": st.settled}
-
-
-def _settling_from(st: dict[str, Any]) -> Settling:
-    return Settling(int(st["iterations"]), _inf(st["shift_px"]), _inf(st["shift_sigmas"]),
-                    bool(st["settled"]))
+#: The readings :meth:`PolylineFit.to_dict` writes beside the fields
+#: (:meth:`PolylineFit.from_dict` computes them again).
+_READINGS: dict[str, Callable[[PolylineFit], Any]] = {
+    "sigma_vu": lambda f: f.sigma_vu,
+    "sigma_vu_unobservable_inf": lambda f: f.sigma_vu_unobservable_inf,
+    "sigma_rotation_rad": lambda f: f.sigma_rotation_rad,
+    "variance_factor": lambda f: f.variance_factor,
+    "sigma_vu_scaled": lambda f: f.sigma_vu_scaled,
+    "status": lambda f: f.status,
+    "reasons": lambda f: f.reasons,
+    "status_message": lambda f: f.status_message,
+    "ambiguity_ratio": lambda f: None if f.ambiguity is None else f.ambiguity.ratio,
+    "ambiguity_rival_offset_vu": lambda f: (
+        None if f.ambiguity is None or f.ambiguity.rival is None
+        else f.ambiguity.rival.offset_vu),
+    "covariance": lambda f: f.covariance,
+    "uncertainty_source": lambda f: None if f.uncertainty is None else f.uncertainty.source,
+    "uncertainty_floor_px": lambda f: None if f.uncertainty is None else f.uncertainty.floor_px,
+    "normal_covariance": lambda f: f.normal_covariance,
+    "observable_rank": lambda f: f.observable_rank,
+    "n_vertices": lambda f: len(f.lm.residuals_px),
+    "polarity_rejected": lambda f: f.polarity_rejected_count,
+    "outside_image": lambda f: f.outside_image_count,
+    "tukey_rejected": lambda f: int(f.tukey_rejected.sum()),
+}
 
 
 # ---------------------------------------------------------------------------

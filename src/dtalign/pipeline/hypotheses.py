@@ -20,7 +20,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -138,6 +138,9 @@ class Hypothesis:
     cost: float
     inliers: int
     converged: bool
+
+    #: JSON's None reads back as NaN for the coarse score (:mod:`dtalign.pipeline.records`).
+    NONFINITE: ClassVar[dict[str, float]] = {"coarse_score": math.nan}
 
 
 @dataclass(frozen=True)

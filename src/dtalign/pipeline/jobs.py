@@ -25,7 +25,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .._kernels.params import n_params as _n_params
 from ..api import checks as check
 from ..api import loop
 from ..api.checks import LMArgs
@@ -37,6 +36,7 @@ from ..api.options import (
     gradient_of,
     lm_kernel_options,
 )
+from ..api.options import n_params as _n_params
 from .products import ImageProducts
 
 __all__ = ["DEFAULT_SEARCH_WINDOW_VU", "Batch", "Item", "Plan", "plan", "prepare"]

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._kernels.params import n_params as _n_params
 from ..api import checks as check
 from ..api.constants import DEFAULT_PINVH_RCOND
+from ..api.options import n_params as _n_params
 
 __all__ = [
     "covariance_with_unobservable_inf",

@@ -28,7 +28,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,6 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..api import checks as check
 from ..api import loop
 from ..api.profiles import EDGE_KINDS, EdgeProfile
+from .records import from_json, to_json
 
 __all__ = [
     "HALF_WIDTH_PX",
@@ -316,64 +317,18 @@ class ProfileRefinement:
     wing_sigma_px: float = math.nan
     n_flat_vertices: int = 0
 
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict (a value that is not finite is ``None``, as in
-        :meth:`dtalign.pipeline.PolylineFit.to_dict`); :meth:`from_dict` reads it back."""
-        def num(x: float) -> float | None:
-            return x if math.isfinite(x) else None
+    #: JSON's None reads back as NaN (:mod:`dtalign.pipeline.records`).
+    NONFINITE: ClassVar[float] = math.nan
 
-        return {
-            "offset_vu": [num(x) for x in self.offset_vu],
-            "dt_offset_vu": [num(x) for x in self.dt_offset_vu],
-            "accepted": self.accepted, "reason": self.reason, "gain": num(self.gain),
-            "background": num(self.background),
-            "background_slope": num(self.background_slope), "shape_amplitude": num(self.shape_amplitude),
-            "psf_sigma_px": num(self.psf_sigma_px),
-            "psf_estimated": self.psf_estimated, "iterations": self.iterations,
-            "converged": self.converged, "walk_px": num(self.walk_px),
-            "n_pixels": self.n_pixels, "residual_scale": num(self.residual_scale),
-            "covariance": [[num(x) for x in row] for row in self.covariance],
-            "step_jump": num(self.step_jump), "soft_edge": self.soft_edge,
-            "time_s": self.time_s,
-            "start_offset_vu": (None if self.start_offset_vu is None
-                                else [num(x) for x in self.start_offset_vu]),
-            "rival_offset_vu": (None if self.rival_offset_vu is None
-                                else [num(x) for x in self.rival_offset_vu]),
-            "rival_agrees": self.rival_agrees,
-            "wing_fraction": num(self.wing_fraction), "wing_sigma_px": num(self.wing_sigma_px),
-            "n_flat_vertices": self.n_flat_vertices,
-        }
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict of the fields (a value that is not finite is
+        ``None``); :meth:`from_dict` reads it back."""
+        return to_json(self)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ProfileRefinement:
         """The refinement :meth:`to_dict` wrote (``None`` reads as NaN)."""
-        def num(x: Any) -> float:
-            return math.nan if x is None else float(x)
-
-        def pair(x: Any) -> tuple[float, float]:
-            return num(x[0]), num(x[1])
-
-        cov = d["covariance"]
-        return cls(
-            offset_vu=pair(d["offset_vu"]), dt_offset_vu=pair(d["dt_offset_vu"]),
-            accepted=bool(d["accepted"]), reason=str(d["reason"]), gain=num(d["gain"]),
-            background=num(d["background"]), background_slope=num(d["background_slope"]),
-            shape_amplitude=num(d["shape_amplitude"]), psf_sigma_px=num(d["psf_sigma_px"]),
-            psf_estimated=bool(d["psf_estimated"]), iterations=int(d["iterations"]),
-            converged=bool(d["converged"]), walk_px=num(d["walk_px"]),
-            n_pixels=int(d["n_pixels"]), residual_scale=num(d["residual_scale"]),
-            covariance=(pair(cov[0]), pair(cov[1])), step_jump=num(d["step_jump"]),
-            soft_edge=bool(d["soft_edge"]), time_s=float(d["time_s"]),
-            start_offset_vu=(None if d.get("start_offset_vu") is None
-                             else pair(d["start_offset_vu"])),
-            rival_offset_vu=(None if d.get("rival_offset_vu") is None
-                             else pair(d["rival_offset_vu"])),
-            rival_agrees=d.get("rival_agrees"),
-            # absent from a dict written before the wings were fitted
-            wing_fraction=num(d.get("wing_fraction", 0.0)),
-            wing_sigma_px=num(d.get("wing_sigma_px")),
-            n_flat_vertices=int(d.get("n_flat_vertices", 0)),
-        )
+        return from_json(cls, d)
 
 
 def check_edge_profile(value: Any, normals_vu: FloatArray) -> EdgeProfile:

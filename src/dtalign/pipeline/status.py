@@ -378,6 +378,22 @@ def _reasons(fit: Any) -> list[FitReason]:
     return out
 
 
+class _Facts(dict[str, Any]):
+    """The facts of one fit's messages, each read (by :data:`_FACT`) when a template names it."""
+
+    fit: Any
+    status: FitStatus
+
+    def __init__(self, fit: Any, status: FitStatus) -> None:
+        super().__init__()
+        self.fit = fit
+        self.status = status
+
+    def __missing__(self, key: str) -> Any:
+        value = self[key] = _FACT[key](self)
+        return value
+
+
 def _settling_text(fit: Any) -> str:
     s, n = fit.settling, fit.lm.iterations
     if s is None:
@@ -450,18 +466,6 @@ _FACT: dict[str, Callable[[_Facts], Any]] = {
     # a failed fit's sigmas are no measurement anywhere: no "inf" to read there
     "inf_there": lambda x: "" if x.status is _FAILED else " (sigma inf there)",
 }
-
-
-class _Facts(dict[str, Any]):
-    """The facts of one fit's messages, each read (by :data:`_FACT`) when a template names it."""
-
-    def __init__(self, fit: Any, status: FitStatus) -> None:
-        super().__init__()
-        self.fit, self.status = fit, status
-
-    def __missing__(self, key: str) -> Any:
-        value = self[key] = _FACT[key](self)
-        return value
 
 
 def assess(fit: Any) -> Assessment:
