@@ -942,7 +942,7 @@ def _evidence_from(found: dict[str, Any], n: int) -> Evidence:
 def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
              kind: str | None) -> PolylineFit:
     """The last steps of every fit, the batch's too: the refinement with its
-    edge profile (when given, :func:`with_profile`), its edge kind, the DT's
+    edge profile (when given, :func:`refined`), its edge kind, the DT's
     :class:`~dtalign.pipeline.uncertainty.Evidence` at its DT-LM pose, from
     which :attr:`PolylineFit.covariance` is formed, and last its
     :func:`~dtalign.pipeline.status.assess`-ment, stored on the result (on
@@ -955,48 +955,45 @@ def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
 
 def _measured(fit: PolylineFit, products: ImageProducts, profile: Any,
               kind: str | None) -> PolylineFit:
-    """:func:`conclude` but the assessment."""
-    if profile is not None:
-        fit = with_profile(fit, products, profile, kind)
+    """:func:`conclude` but the assessment: what it adds to ``fit``, in one
+    rebuild (each step reads only the DT-LM's pose, weights and polyline)."""
+    changes: dict[str, Any] = {"edge_kind": kind}
+    ref = None
+    if profile is not None and not fit.lm.degenerate:  # nothing locked: nothing to refine
+        ref = refined(fit, products, profile, kind)
+        changes.update(profile=ref, timings_s={**fit.timings_s, "profile": ref.time_s})
+        if ref.accepted:
+            changes["offset_vu"] = ref.offset_vu
     # the detector's own edge threshold: a second edge is one it keeps
     threshold = edge_threshold(products.config, products.noise_sigma)
     found = None if fit.lm.degenerate else evidence(
         fit, products.edge_dt, (products.gradient_magnitude, products.gradient_vu), threshold)
-    fit = dataclasses.replace(fit, edge_kind=kind, evidence=found)
-    if found is None or (fit.profile is not None and fit.profile.accepted):
-        return fit
-    # the DT-LM pose less the second edges' pull (uncertainty.second_edge_pull):
-    # a thin crescent's other edge pushes the detected edge away from it
-    beta = second_edge_pull(fit, found)
-    if not beta.any():
-        return fit
-    lm = fit.lm
-    return dataclasses.replace(
-        fit, offset_vu=(lm.offset_vu[0] - float(beta[0]), lm.offset_vu[1] - float(beta[1])),
-        rotation_rad=lm.rotation_rad - float(beta[2]) if beta.shape[0] == 3 else fit.rotation_rad,
-    )
+    changes["evidence"] = found
+    if found is not None and not (ref is not None and ref.accepted):
+        # the DT-LM pose less the second edges' pull (uncertainty.second_edge_pull):
+        # a thin crescent's other edge pushes the detected edge away from it
+        beta = second_edge_pull(fit, found)
+        if beta.any():
+            lm = fit.lm
+            changes["offset_vu"] = (lm.offset_vu[0] - float(beta[0]),
+                                    lm.offset_vu[1] - float(beta[1]))
+            if beta.shape[0] == 3:
+                changes["rotation_rad"] = lm.rotation_rad - float(beta[2])
+    return dataclasses.replace(fit, **changes)
 
 
-def with_profile(fit: PolylineFit, products: ImageProducts, profile: Any,
-                 kind: str | None = None) -> PolylineFit:
+def refined(fit: PolylineFit, products: ImageProducts, profile: Any,
+            kind: str | None = None) -> ProfileRefinement:
     """``fit`` refined against ``products.image`` with ``profile``
-    (:func:`~dtalign.pipeline.profile_fit.refine_with_profile`): its
-    :attr:`~PolylineFit.profile` set and, when the refinement is accepted,
-    its offset replaced (the DT-LM one stays in ``fit.lm``). An accepted
-    refinement of a fit with an ambiguous rival basin is run again from the
-    rival (:func:`rival_check`)."""
+    (:func:`~dtalign.pipeline.profile_fit.refine_with_profile`) from its DT-LM
+    pose; an accepted refinement of a fit with an ambiguous rival basin is
+    run again from the rival (:func:`rival_check`)."""
     assert products.image is not None
-    if fit.lm.degenerate:  # nothing locked: nothing to refine from
-        return fit
     ref = refine_with_profile(
         products.image, profile, np.asarray(fit.vertices_vu), fit.lm.offset_vu,
         rotation_rad=fit.rotation_rad, pivot_vu=fit.pivot_vu,
     )
-    ref = rival_check(fit, ref, products.image, profile, kind)
-    return dataclasses.replace(
-        fit, offset_vu=ref.offset_vu if ref.accepted else fit.offset_vu, profile=ref,
-        timings_s={**fit.timings_s, "profile": ref.time_s},
-    )
+    return rival_check(fit, ref, products.image, profile, kind)
 
 
 def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, profile: Any,

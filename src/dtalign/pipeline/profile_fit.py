@@ -282,7 +282,7 @@ class ProfileRefinement:
     rival_offset_vu : tuple of float or None
         Where the same refinement lands when started from the DT-LM pose of
         the fit's rival basin, for an accepted refinement of a fit whose
-        DT stage was ambiguous (``dtalign.pipeline.fit.with_profile``);
+        DT stage was ambiguous (``dtalign.pipeline.fit.refined``);
         None otherwise.
     rival_agrees : bool or None
         Whether it lands on this refinement's offset (within
