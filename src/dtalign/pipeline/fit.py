@@ -760,7 +760,7 @@ _READINGS: dict[str, Callable[[PolylineFit], Any]] = {
 
 def fit_polyline_products(
     products: ImageProducts,
-    polyline: Any,
+    vertices_vu: Any,
     normals_vu: ArrayLike | None = None,
     sigmas: ArrayLike | float | None = None,
     *,
@@ -784,10 +784,11 @@ def fit_polyline_products(
     ----------
     products : ImageProducts
         From :func:`~dtalign.pipeline.products.prepare_image`.
-    polyline : Polyline or array_like, shape (N, 2)
-        The model polyline: a :class:`~dtalign.Polyline` (its vertices,
-        normals, sigmas, edge kind and edge profile), or its vertices
-        ``(v, u)`` in pixels, N > 0, with ``normals_vu`` and ``sigmas``.
+    vertices_vu : array_like, shape (N, 2), or Polyline
+        The model polyline's vertices ``(v, u)`` in pixels, N > 0, with
+        ``normals_vu`` and ``sigmas``; or the whole polyline, a
+        :class:`~dtalign.Polyline` (its vertices, normals, sigmas, edge kind
+        and edge profile), alone.
     normals_vu : array_like, shape (N, 2)
         Unit normals pointing to the bright side of each edge (the polarity
         test accepts a vertex when its normal points up the gradient).
@@ -823,7 +824,7 @@ def fit_polyline_products(
         parameters; the message names the argument.
     """
     vertices_vu, normals_vu, sigmas, edge_profile, kind = polyline_parts(
-        polyline, normals_vu, sigmas, edge_profile)
+        vertices_vu, normals_vu, sigmas, edge_profile)
     opts = resolve(options, overrides)
     shared, item = jobs.plan(products, vertices_vu, normals_vu,
                              jobs.broadcast_sigmas(vertices_vu, sigmas), opts)
@@ -863,7 +864,7 @@ def polyline_parts(polyline: Any, normals_vu: Any, sigmas: Any, edge_profile: An
 
 def fit_polyline(
     image: ArrayLike,
-    polyline: Any,
+    vertices_vu: Any,
     normals_vu: ArrayLike | None = None,
     sigmas: ArrayLike | float | None = None,
     *,
@@ -876,7 +877,7 @@ def fit_polyline(
     """Fit a model polyline to an image in one call.
 
     Equivalent to ``fit_polyline_products(prepare_image(image, noise_sigma,
-    config=config), polyline, ...)``. To fit several polylines to one image,
+    config=config), vertices_vu, ...)``. To fit several polylines to one image,
     call :func:`~dtalign.pipeline.products.prepare_image` once and
     :func:`fit_polyline_products` per polyline (or
     :func:`~dtalign.pipeline.batch.fit_many`) instead.
@@ -887,9 +888,9 @@ def fit_polyline(
         The image (any real dtype; converted to float64). A colour image is
         converted as :func:`~dtalign.pipeline.products.prepare_image` says
         (:mod:`dtalign.api.colour`), and the conversion logged.
-    polyline, normals_vu, sigmas, edge_profile
-        The model polyline: a :class:`~dtalign.Polyline`, or its arrays (and
-        profile); see :func:`fit_polyline_products`.
+    vertices_vu, normals_vu, sigmas, edge_profile
+        The model polyline: its arrays (and profile), or a
+        :class:`~dtalign.Polyline` alone; see :func:`fit_polyline_products`.
     noise_sigma : float, optional
         Image noise sigma; estimated by
         :func:`~dtalign.pipeline.products.estimate_noise_sigma` when None.
@@ -917,7 +918,7 @@ def fit_polyline(
     [7.3, -4.6]
     """
     products = prepare_image(image, noise_sigma, config=config)
-    return fit_polyline_products(products, polyline, normals_vu, sigmas,
+    return fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
                                  edge_profile=edge_profile, options=options, **overrides)
 
 
