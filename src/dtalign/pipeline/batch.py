@@ -81,6 +81,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import (
     CancelledError,
     Executor,
+    Future,
     ProcessPoolExecutor,
     ThreadPoolExecutor,
     as_completed,
@@ -219,24 +220,28 @@ class _Call:
         results: list[_R | None] = [None] * n
         errors: dict[int, Exception] = {}
         done, after = [False] * n, 0
-        failed: list[int] = []  # items seen failing (by their worker, or here)
+        failed: list[int] = []  # with stop_early, the items seen failing
 
         def guarded(i: int) -> _R:
             if self.stop.is_set() or (failed and i > min(failed)):
                 raise CancelledError  # skipped: the batch stopped, or an item before failed
-            try:
-                return fn(items[i])
-            except Exception:
-                if stop_early:
-                    failed.append(i)
-                raise
+            return fn(items[i])
+
+        def seen(i: int, future: Future[Any]) -> None:  # where the item completed
+            exc = None if future.cancelled() else future.exception()
+            if exc is not None and not isinstance(exc, CancelledError):  # it failed
+                failed.append(i)
+                for later in futures[i + 1 :]:
+                    later.cancel()
 
         if self.pool is None:
-            futures: list[Any] = []
+            futures: list[Future[Any]] = []
         elif self.guard:
             futures = [self.pool.submit(guarded, i) for i in range(n)]
         else:  # a process pool or the caller's executor: what must not start is cancelled
             futures = [self.pool.submit(fn, x) for x in items]
+        for i, future in enumerate(futures if stop_early else ()):
+            future.add_done_callback(functools.partial(seen, i))
         index = {f: i for i, f in enumerate(futures)}
         order = range(n) if self.pool is None else map(index.__getitem__, as_completed(futures))
         try:
@@ -253,10 +258,6 @@ class _Call:
                     errors[i] = CancelledError()  # by the executor's owner
                 except Exception as exc:  # the item's own error
                     errors[i] = exc
-                    if stop_early:
-                        failed.append(i)
-                        for later in futures[i + 1 :]:
-                            later.cancel()
                 if not (stop_early and errors):
                     self.advance(1 if sizes is None else sizes[i])
                 done[i] = True
