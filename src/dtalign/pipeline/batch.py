@@ -1,67 +1,23 @@
 """Batch fitting on several cores: many polylines per image, many images.
 
-The compiled kernels release the GIL (``nogil=True``), so threads fit truly
-in parallel. :func:`fit_many` checks its polylines (the first one and the
-shared options as :func:`~dtalign.pipeline.fit_polyline_products` does, the
-others in bulk), fits them in chunks of a few polylines (one call of the
-compiled loop each), then examines and concludes each fit as one task.
-:func:`fit_images` fits one image per task, on threads, a process pool or
-an executor of the caller's; :func:`map_ordered` is ``[fn(x) for x in
-items]`` on threads. Results come in input order, equal to the serial
-calls'. Nothing global is configured: no Numba threading layer, no thread
-count.
+The compiled kernels release the GIL, so threads fit truly in parallel.
+:func:`fit_many` checks its polylines once, fits them in chunks of a few
+(one call of the compiled loop each), then settles or examines and
+concludes each fit as one task. :func:`fit_images` fits one image per
+task, on threads, a process pool or an executor of the caller's;
+:func:`map_ordered` is ``[fn(x) for x in items]`` on threads. Results come
+in input order, equal to the serial calls'. Nothing global is configured.
 
-Each call makes its own executor and shuts it down before it returns
-(``submit``, ``as_completed``, ``shutdown(cancel_futures=True)``). One more
-thread of the call's, its driver, does all of that; the calling thread
-waits on a :class:`queue.SimpleQueue` and runs what the driver sends it:
-the progress callback, ``on_image``, the result. So KeyboardInterrupt or a
-``SIGALRM`` timeout's exception lands in that wait (C code), never inside
-an item nor inside the executor's ``threading.Condition`` (Python code,
-whose lock an exception can leave held); the call then stops its items
-(each looks at the stop before it starts), waits for the workers to finish
-what they hold (a chunk is a few milliseconds) and propagates
-(docs/benchmarks.rst, "Batch driver thread").
+Each call makes its own executor (``submit``, ``as_completed``,
+``shutdown(cancel_futures=True)``), driven by one more thread of the
+call's; the calling thread waits on a queue and runs what the driver sends
+it (the progress callback, ``on_image``, the result), so that an interrupt
+lands there, never inside an item or the executor's locks (see
+:func:`_run`). Errors name their item (``polylines[31]: ...``) and carry
+its ``index``; ``errors="collect"`` puts each failed item's error in its
+place (:ref:`batch-errors`, :ref:`batch-progress`).
 
-Errors
-------
-With ``errors="raise"`` (the default) a batch raises the error of the first
-failing item in input order, as the serial loop would, after fitting the
-items before it; none after a failed one starts once the failure is seen.
-The exception has the type of the item's own error, a message naming the
-item (``polylines[31]: ...``, ``images[4] (frame.png): ...``), the item's
-position as its ``index`` attribute and the item's own error as its
-``__cause__``. With ``errors="collect"`` every item is fitted and a failed
-item's place holds its exception (as ``asyncio.gather(...,
-return_exceptions=True)`` does)::
-
-    out = fit_many(products, polylines, search_window_vu=(30, 30), errors="collect")
-    failed = {e.index: e for e in out if isinstance(e, Exception)}
-
-Collected are the errors of an item's data and fit and, in
-:func:`fit_images`, any ordinary exception of an image's task (a file that
-cannot be loaded, an image that cannot be prepared); an item of neither
-accepted form, a bad option or a bad ``workers`` raises at once.
-
-Progress
---------
-``progress=callback`` calls ``callback(done, total)`` once per completed
-item (a polyline of :func:`fit_many`, an image of :func:`fit_images`),
-``done`` = 1, 2, ..., ``total``, from the calling thread: the callback
-needs no lock. A failed item collected counts as completed; with
-``errors="raise"`` the calls stop at the first failure. If the callback
-raises, the batch stops as on an interrupt and its exception propagates
-unchanged. ``progress=True`` shows a tqdm bar on standard error (tqdm
-comes with the ``cli`` extra); for a bar of one's own pass its update::
-
-    with tqdm(total=len(polylines), unit="polyline") as bar:
-        fits = fit_many(products, polylines, search_window_vu=(30, 30),
-                        progress=lambda done, total: bar.update(done - bar.n))
-
-Examples
---------
 >>> from dtalign import scenes
->>> from dtalign.pipeline.batch import fit_many
 >>> from dtalign.pipeline import prepare_image
 >>> scene = scenes.navigation_scene()
 >>> products = prepare_image(scene.image, scene.noise_sigma)
@@ -145,10 +101,9 @@ def _reporter(progress: Callable[[int, int], Any] | bool | None, total: int,
 
 
 def _named(exc: Exception, label: str, index: int) -> Exception:
-    """``exc`` as the error of item ``index``: the same type, the message
-    ``f"{label}: {exc}"``, an ``index`` attribute and ``exc`` as its cause.
-    A type that cannot be built from one message (or formats it itself,
-    like ``KeyError``) keeps its own message and gets ``index`` and a note."""
+    """``exc`` as item ``index``'s error: same type, message ``f"{label}: {exc}"``,
+    ``index`` set, ``exc`` its cause; a type that cannot be rebuilt from one
+    message (or formats it, like ``KeyError``) is kept, with ``index`` and a note."""
     message = f"{label}: {exc}"
     try:
         named = type(exc)(message)
@@ -171,13 +126,10 @@ def _ignore_sigint() -> None:
 
 
 class _Call:
-    """One batch call as the thread that runs its work sees it.
-
-    ``pool``: where :meth:`each` runs the items (None: in this thread, looking
-    at ``stop`` before each). ``guard``: the pool is the call's own threads,
-    so each item looks at ``stop`` before it starts. ``posts``: the calling
-    thread's queue when a driver runs the work (:func:`_run`), else None.
-    """
+    """One batch call, as the thread that runs its work sees it: ``pool`` runs
+    :meth:`each`'s items (None: this thread, looking at ``stop`` before each);
+    with ``guard``, each item on the pool looks at ``stop`` before it starts;
+    ``posts`` is the calling thread's queue when a driver runs the work."""
 
     def __init__(self, report: Progress | None = None, workers: int = 1,
                  stop: threading.Event | None = None) -> None:
@@ -203,17 +155,13 @@ class _Call:
              sizes: Sequence[int] | None = None,
              ordered: Callable[[int, Any, Exception | None], Any] | None = None,
              ) -> tuple[list[_R | None], dict[int, Exception]]:
-        """``fn(x)`` for each of ``items``: ``(results, errors)``.
-
-        ``results[i]`` is what ``fn(items[i])`` returned (None if it raised or
-        never ran), ``errors`` maps ``i`` to the ``Exception`` it raised. With
-        ``stop_early`` no item after a failed one starts once the failure is
-        seen, and every item before the first failure has run. Each item that
-        returns (or fails, without ``stop_early``) is reported as ``sizes[i]``
-        items done (default 1). ``ordered(i, result, error)`` is called for
-        each item in input order as soon as it and those before it are done
-        (with ``stop_early``, up to the first failure).
-        """
+        """``fn(x)`` for each of ``items``: ``(results, errors)`` (None where it
+        raised or did not run; ``errors[i]`` the ``Exception``). With
+        ``stop_early`` none after a failed one starts once it is seen, and all
+        before the first failure run. Each returned (or, collecting, failed)
+        item reports ``sizes[i]`` done (default 1); ``ordered(i, result,
+        error)`` is called in input order as soon as the items up to ``i``
+        are done (with ``stop_early``, up to the first failure)."""
         if self.stop.is_set():
             raise CancelledError("the batch was stopped")
         n = len(items)
@@ -344,10 +292,8 @@ def _threads(workers: int, report: Progress | None) -> Callable[[], Executor] | 
 
 
 def _polyline(item: Any, index: int) -> tuple[Any, Any, Any, Any, str | None]:
-    """Polyline ``index`` of a call as ``(vertices, normals, sigmas, edge_profile,
-    edge_kind)``: from a 3-sequence, a ``(vertices_vu, normals_vu, sigmas,
-    edge_profile)`` sequence or an object's attributes (``edge_profile`` and
-    ``edge_kind`` optional: None, the options' kind then)."""
+    """Polyline ``index`` as ``(vertices, normals, sigmas, edge_profile,
+    edge_kind)`` from a 3- or 4-sequence or an object's attributes."""
     if type(item) in (tuple, list) and len(item) in (3, 4):  # plain: no such attributes
         return (item[0], item[1], _jobs.broadcast_sigmas(item[0], item[2]),
                 item[3] if len(item) == 4 else None, None)
@@ -367,14 +313,10 @@ def _polyline(item: Any, index: int) -> tuple[Any, Any, Any, Any, str | None]:
 
 def _fit_and_conclude(products: ImageProducts, polylines: list[tuple[Any, ...]], window: Any,
                       options: FitOptions, collect: bool, call: _Call) -> list[Any]:
-    """The fits of one image's polylines (:func:`_polyline`'s tuples), each then
-    concluded as :func:`~dtalign.pipeline.fit_polyline_products` concludes one
-    (:func:`dtalign.pipeline.fit.conclude`: its edge profile's refinement,
-    its edge kind, its covariance's evidence) as one task on the call's pool
-    (a refinement is compiled work, several times a fit's). A bad profile or
-    kind is the polyline's error. A polyline with a profile is reported done
-    once concluded (its refinement is most of its time), the others once
-    fitted (or examined)."""
+    """One image's fits (:func:`_polyline`'s tuples), each then concluded
+    (:func:`dtalign.pipeline.fit.conclude`: profile refinement, edge kind,
+    evidence) as one task (a refinement is compiled, several times a fit).
+    A polyline with a profile is reported done once concluded."""
     from .profile_fit import check_edge_profile, edge_kind_of
 
     late = [p[3] is not None for p in polylines]
@@ -405,16 +347,13 @@ def _fit_and_conclude(products: ImageProducts, polylines: list[tuple[Any, ...]],
 def _fit_parts(products: ImageProducts, parts: list[tuple[Any, Any, Any]], window: Any,
                options: FitOptions, collect: bool, call: _Call, late: Sequence[bool],
                ) -> list[Any]:
-    """The fits of checked polylines (an error in a failed one's place), each
-    reported done but those marked ``late``.
-
-    The shared arguments are checked first: raising, with the first polyline
-    (:func:`dtalign.pipeline.jobs.plan`, the order of the one-call fit, which
-    fixes which error a bad call raises; an error a probe polyline gets too,
-    :func:`_probe_plan`, is the call's, raised as it is); collecting, with
-    the probe. Then the others in bulk (:func:`~dtalign.pipeline.jobs.prepare`),
-    each run of good ones up to the next bad one fitted.
-    """
+    """The fits of checked polylines (collecting, a failed one's error in its
+    place), reported done but those marked ``late``. Raising, the first
+    polyline is checked with the shared arguments (:func:`~dtalign.pipeline.jobs.plan`,
+    whose order fixes which error a bad call raises; an error the probe of
+    :func:`_probe_plan` gets too is the call's, not named); collecting, the
+    probe alone. Then each run of good polylines up to the next bad one
+    (:func:`~dtalign.pipeline.jobs.prepare`) is fitted."""
     if not parts:
         return []
     first = None
@@ -467,17 +406,12 @@ def _call_error(products: ImageProducts, window: Any, options: FitOptions,
 
 def _fit_batch(shared: Any, batch: Any, call: _Call, stop_early: bool, late: Sequence[bool],
                ) -> tuple[list[Any], dict[int, Exception]]:
-    """Fit the checked polylines of ``batch``: one call of the compiled loop per
-    chunk on the call's pool, their result objects made in one pass from the
-    output arrays they share (each fit's ``timings_s["fit"]`` is the chunks'
-    compiled time divided evenly), then each fit examined against rival
-    basins when the options ask for it, else settled if unconverged
-    (:func:`dtalign.pipeline.fit.finish`), one task a fit.
-
-    Returns the fits (None where one failed) and the errors by polyline (with
-    ``stop_early``, no fits once one failed). Polylines are reported done
-    after their examination, else after their chunk; ``late`` ones are not.
-    """
+    """Fit ``batch``: one compiled loop call per chunk, the result objects in
+    one pass over the shared outputs (``timings_s["fit"]``: the compiled time
+    divided evenly), then :func:`dtalign.pipeline.fit.finish` (examination,
+    settling) one task a fit where there is any. Returns the fits (None where
+    one failed; none at all once one failed, with ``stop_early``) and the
+    errors by polyline. Reported done after the examination, else the chunk."""
     k = batch.n
     if k == 0:
         return [], {}
@@ -544,9 +478,8 @@ def _kernel_error(code: int) -> Exception:
 
 
 def _log(results: list[Any], label: str) -> None:
-    """Report on dtalign's logger each failed or suspect fit
-    (:func:`dtalign.pipeline.status.log_fits`) and, collected, each error at
-    WARNING; an image's list of fits (:func:`fit_images`) as ``label[i].polylines``."""
+    """Log each failed or suspect fit (:func:`~dtalign.pipeline.status.log_fits`),
+    each collected error at WARNING, an image's fits as ``label[i].polylines``."""
     if not any(isinstance(r, (Exception, list)) for r in results):
         log_fits(results, label)
         return
@@ -581,10 +514,9 @@ def _is_path(image: Any) -> bool:
 
 
 def _fit_image(job: tuple[Any, ...], abort: threading.Event | None = None) -> list[Any]:
-    """One image's task (``job``: its item's parts, the call's arguments, its
-    index): the item made by its loader if it has one, the image loaded if a
-    path, its products, then its polylines serially, stopping between them
-    once ``abort`` (the batch's stop) is set. Module level: picklable."""
+    """One image's task: its loader called, its path loaded, its products, its
+    polylines serially, stopping between them once ``abort`` (the batch's
+    stop) is set. Module level: a process pool pickles it."""
     image, noise, parts, window, config, options, collect, index = job
     if parts is None:  # a loader (fit_images' callable item): the item is made here
         image, noise, parts = _image_parts(image(), index)
@@ -598,32 +530,11 @@ def _fit_image(job: tuple[Any, ...], abort: threading.Event | None = None) -> li
 
 def map_ordered(fn: Callable[[_T], _R], items: Iterable[_T], *,
                 workers: int = DEFAULT_WORKERS) -> list[_R]:
-    """``[fn(x) for x in items]`` on a thread pool of the call's, in input order.
-
-    Useful for any of the public fitting functions: their kernels release
-    the GIL, so two threads run two fits at once.
-
-    Parameters
-    ----------
-    fn : callable
-        Applied to each item.
-    items : iterable
-        The inputs.
-    workers : int, optional
-        Threads (default: the CPUs this process may use); 1 runs the plain
-        serial loop in the calling thread.
-
-    Returns
-    -------
-    list
-        ``fn(item)`` for each item, in order.
-
-    Raises
-    ------
-    TypeError, ValueError
-        If ``workers`` is not an int >= 1. An exception raised by ``fn`` is
-        re-raised unchanged: the one of the first failing item in input
-        order (the remaining items are not started once a failure is seen).
+    """``[fn(x) for x in items]`` on ``workers`` threads (default: the CPUs this
+    process may use; 1: that serial loop), in input order. The fitting
+    functions' kernels release the GIL, so two threads run two fits at once.
+    The first failing item's exception (in input order) is re-raised
+    unchanged; the remaining items are not started once a failure is seen.
     """
     n = _check_workers(workers)
     todo = list(items)
@@ -662,58 +573,39 @@ def fit_many(products: ImageProducts, polylines: Iterable[Any], *,
     Parameters
     ----------
     products : ImageProducts
-        From :func:`dtalign.pipeline.prepare_image`, shared (read-only) by
-        every fit.
+        From :func:`dtalign.pipeline.prepare_image`, shared (read-only).
     polylines : iterable
-        Each item has ``vertices_vu``, ``normals_vu`` and ``sigmas``
-        attributes (like :class:`dtalign.scenes.Polyline`) or is a
-        ``(vertices_vu, normals_vu, sigmas)`` sequence. A polyline with an
-        ``edge_profile`` attribute, or a ``(vertices_vu, normals_vu, sigmas,
-        edge_profile)`` sequence, is refined with its
-        :class:`~dtalign.EdgeProfile` as
-        :func:`~dtalign.pipeline.fit_polyline_products` does.
+        Each has ``vertices_vu``, ``normals_vu`` and ``sigmas`` attributes
+        (like :class:`dtalign.scenes.Polyline`), optionally ``edge_profile``
+        and ``edge_kind``, or is a ``(vertices_vu, normals_vu, sigmas)`` or
+        ``(vertices_vu, normals_vu, sigmas, edge_profile)`` sequence; a
+        profile is refined as :func:`~dtalign.pipeline.fit_polyline_products` does.
     search_window_vu : tuple of int, optional
-        Coarse-search margin ``(mv, mu)`` for every polyline; default
-        ``(30, 30)`` (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
+        Coarse-search margin ``(mv, mu)``; default ``(30, 30)``.
     workers : int, optional
-        Threads (default: the CPUs this process may use); 1 fits serially
-        (in one thread of the call's pool when called from the main thread).
+        Threads (default: the CPUs this process may use); 1 fits serially.
     errors : {"raise", "collect"}, optional
-        ``"raise"``: raise the first failing polyline's error (named
-        ``polylines[i]: ...``, with ``index`` i). ``"collect"``: fit every
-        polyline; a failed one's place in the result holds its error
-        (see the module docstring).
+        Raise the first failing polyline's error (``polylines[i]: ...``,
+        with ``index`` i), or put each failed one's error in its place.
     progress : callable or bool, optional
-        ``progress(done, total)`` is called once per completed polyline,
-        ``done`` = 1, 2, ..., ``total``, from the calling thread (a chunk's
-        polylines together; one with an edge profile once it is refined,
-        most of its time); if it raises, the batch stops and its exception
-        propagates unchanged. ``True`` shows a tqdm bar (tqdm is needed);
-        None or False (default): no report.
+        ``progress(done, total)`` once per completed polyline, from the
+        calling thread (a chunk's polylines together, one with a profile
+        once refined); if it raises, the batch stops and its exception
+        propagates unchanged. ``True``: a tqdm bar.
     options : FitOptions, optional
-        The options of every polyline's fit
-        (:class:`~dtalign.api.options.FitOptions`, as
-        :func:`~dtalign.pipeline.fit_polyline_products` takes them; the
-        edge profile and kind are each polyline's own, above).
-    **overrides
-        Any field of ``options`` by name (``fit_rotation``,
-        ``trust_region_px``, ...), as :func:`~dtalign.pipeline.fit_polyline_products` takes them.
+        Every fit's options, as :func:`~dtalign.pipeline.fit_polyline_products`
+        takes them; ``**overrides`` any of its fields by name.
 
     Returns
     -------
     list of PolylineFit
-        One per polyline, in input order, equal to the serial calls' (with
-        ``errors="collect"``, exceptions in place of the failed ones).
+        One per polyline, in input order, equal to the serial calls'.
 
     Raises
     ------
-    TypeError
-        If ``products`` is not an ``ImageProducts``, a polyline has neither
-        form, ``workers`` is not an int, ``progress`` is neither callable
-        nor a bool nor None, or an option is unknown.
-    ValueError
-        If ``workers < 1`` or ``errors`` is unknown; a bad option value;
-        with ``errors="raise"``, the error of the first failing polyline.
+    TypeError, ValueError
+        On bad arguments or options; with ``errors="raise"``, the first
+        failing polyline's error.
     """
     if not isinstance(products, ImageProducts):
         raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
@@ -757,59 +649,37 @@ def fit_images(items: Iterable[Any], *,
     Parameters
     ----------
     items : iterable
-        Each item is an ``(image, noise_sigma, polylines)`` sequence (or an
-        object with those attributes, like :class:`dtalign.scenes.Scene`);
-        ``image`` is an array or a path (loaded in the task with
-        :func:`dtalign.io.load_image`), ``noise_sigma`` may be None
-        (estimated), ``polylines`` as in :func:`fit_many`. An item may also
-        be a callable that returns such an item (a loader, as the command
-        line's files are read): it is called in the image's task, and what
-        it raises is the image's error.
-    search_window_vu : tuple of int, optional
-        Coarse-search margin for every polyline; default ``(30, 30)``
-        (:data:`~dtalign.pipeline.DEFAULT_SEARCH_WINDOW_VU`).
+        ``(image, noise_sigma, polylines)`` sequences or objects with those
+        attributes (like :class:`dtalign.scenes.Scene`); ``image`` an array
+        or a path (loaded in the task, :func:`dtalign.io.load_image`),
+        ``noise_sigma`` None to estimate it, ``polylines`` as in
+        :func:`fit_many`. An item may be a loader, a callable returning
+        such an item, called in the image's task.
+    search_window_vu, options, **overrides
+        As in :func:`fit_many`, for every polyline.
     workers : int, optional
-        Parallel tasks (default: the CPUs this process may use); 1 runs
-        serially (with ``executor="thread"``, as :func:`fit_many`).
+        Parallel tasks (default: the CPUs this process may use).
     executor : {"thread", "process"} or concurrent.futures.Executor, optional
-        ``"thread"`` (default) shares memory and relies on the kernels
-        releasing the GIL; ``"process"`` uses a process pool of ``workers``
-        processes made for the call (each image and its results are
-        pickled; workers load the compiled kernels from Numba's on-disk
-        cache). An ``Executor`` (a pool of the caller's, a Dask client's
-        ``get_executor()``) is used as it is and left running; ``workers``
-        is then not used. Results are equal either way.
+        Threads (default; the kernels release the GIL), a process pool of
+        ``workers`` made for the call (images and results are pickled), or
+        an ``Executor`` of the caller's (a Dask client's
+        ``get_executor()``), used as it is and left running. Results are
+        equal either way.
     config : ImageDerivativesConfig, optional
         Image-side tunables for every image.
     errors : {"raise", "collect"}, optional
-        ``"raise"``: raise the first failing image's error, named
-        ``images[i]: ...`` (``images[i] (path): ...`` for a path), with
-        ``index`` i and the image's own error (perhaps a polyline's) as its
-        cause. ``"collect"``: a failed image's place holds its error and a
-        failed polyline's place in its image's list holds its own (see the
-        module docstring); every ordinary exception of an image's task is
-        collected, loader errors included.
+        Raise the first failing image's error (``images[i]: ...``,
+        ``images[i] (path): ...``, with ``index`` i and the image's own
+        error as its cause), or put each failed image's error in its place
+        (and a failed polyline's in its image's list).
     progress : callable or bool, optional
-        ``progress(done, total)`` is called once per completed image (all
-        its polylines fitted), ``done`` = 1, 2, ..., ``total``, from the
-        calling thread, with any executor; if it raises, the batch stops (on
-        an ``Executor`` of the caller's, the tasks it runs already finish
-        there) and its exception propagates unchanged. ``True`` shows a tqdm
-        bar (tqdm is needed); None or False (default): no report.
+        As in :func:`fit_many`, once per completed image, with any executor.
     on_image : callable, optional
-        ``on_image(i, result)`` is called for each image in input order, as
-        soon as it and the images before it are done, from the calling
-        thread; ``result`` is what the returned list holds at ``i`` (with
-        ``errors="raise"``, only the images before the first failure). A
-        stream of results: what was handed on stays handed on if the batch
-        is then interrupted. The images handed on are not logged: reporting
-        them is the callback's (as :func:`dtalign.pipeline.status.log_fits`
-        does). If it raises, the batch stops as on an interrupt and its
-        exception propagates unchanged.
-    options : FitOptions, optional
-        The options of every polyline's fit, as in :func:`fit_many`.
-    **overrides
-        Any field of ``options`` by name, as in :func:`fit_many`.
+        ``on_image(i, result)`` for each image in input order as soon as it
+        and those before it are done, from the calling thread; what was
+        handed on stays handed on if the batch is interrupted. Those images
+        are not logged (that is the callback's). If it raises, the batch
+        stops and its exception propagates unchanged.
 
     Returns
     -------
@@ -818,12 +688,9 @@ def fit_images(items: Iterable[Any], *,
 
     Raises
     ------
-    TypeError
-        On a malformed item, a bad ``workers`` type, a ``progress`` neither
-        callable nor a bool nor None, or an unknown option.
-    ValueError
-        If ``workers < 1``, ``executor`` or ``errors`` is unknown; with
-        ``errors="raise"``, the first failing image's error.
+    TypeError, ValueError
+        On a malformed item or bad arguments; with ``errors="raise"``, the
+        first failing image's error.
     """
     n = _check_workers(workers)
     collect = _check_errors(errors)
