@@ -12,8 +12,8 @@ Each call makes its own executor (``submit``, ``as_completed``,
 ``shutdown(cancel_futures=True)``), driven by one more thread of the
 call's; the calling thread waits on a queue and runs what the driver sends
 it (the progress callback, ``on_image``, the result), so that an interrupt
-lands there, never inside an item or the executor's locks (see
-:func:`_run`). Errors name their item (``polylines[31]: ...``) and carry
+lands there, never inside an item or the executor's locks
+(docs/benchmarks.rst, "Batch driver thread"). Errors name their item (``polylines[31]: ...``) and carry
 its ``index``; ``errors="collect"`` puts each failed item's error in its
 place (:ref:`batch-errors`, :ref:`batch-progress`).
 
