@@ -19,6 +19,7 @@ place (:ref:`batch-errors`, :ref:`batch-progress`).
 
 >>> from dtalign import scenes
 >>> from dtalign.pipeline import prepare_image
+>>> from dtalign.pipeline.batch import fit_many
 >>> scene = scenes.navigation_scene()
 >>> products = prepare_image(scene.image, scene.noise_sigma)
 >>> fits = fit_many(products, scene.polylines, search_window_vu=(30, 30))
