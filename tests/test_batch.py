@@ -14,8 +14,9 @@ import _batch_scene
 import dtalign
 from _batch_scene import WINDOW
 from dtalign import scenes
+from dtalign.benchmarking.compare import results_equal
 from dtalign.pipeline import fit_polyline_products, prepare_image
-from dtalign.pipeline.batch import fit_images, fit_many, map_ordered, results_equal
+from dtalign.pipeline.batch import fit_images, fit_many, map_ordered
 
 nav = _batch_scene.nav  # the shared scene (a module-scoped fixture)
 products = _batch_scene.products

@@ -11,8 +11,9 @@ import pytest
 import _batch_scene
 from _batch_scene import WINDOW
 from dtalign import scenes
+from dtalign.benchmarking.compare import results_equal
 from dtalign.pipeline import fit_polyline_products, prepare_image
-from dtalign.pipeline.batch import fit_images, fit_many, results_equal
+from dtalign.pipeline.batch import fit_images, fit_many
 
 nav = _batch_scene.nav  # the shared scene (a module-scoped fixture)
 products = _batch_scene.products

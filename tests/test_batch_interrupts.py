@@ -41,7 +41,8 @@ SCRIPT = textwrap.dedent(
 
     from dtalign import scenes
     from dtalign.pipeline import jobs as _fitjobs
-    from dtalign.pipeline.batch import fit_images, fit_many, map_ordered, results_equal
+    from dtalign.pipeline.batch import fit_images, fit_many, map_ordered
+    from dtalign.benchmarking.compare import results_equal
     from dtalign.pipeline import fit_polyline_products, prepare_image
 
     POINTS, SMALL = int(sys.argv[1]), sys.argv[2] == "small"

@@ -11,7 +11,8 @@ import pytest
 
 import _batch_scene
 from _batch_scene import WINDOW
-from dtalign.pipeline.batch import fit_images, results_equal
+from dtalign.benchmarking.compare import results_equal
+from dtalign.pipeline.batch import fit_images
 
 nav = _batch_scene.nav  # the shared scene (a module-scoped fixture)
 

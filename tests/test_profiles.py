@@ -216,8 +216,9 @@ def test_threaded_batches_refine_in_parallel_with_the_serial_results_and_errors(
     import threading
 
     import dtalign.pipeline.batch as batch
+    from dtalign.benchmarking.compare import results_equal
     from dtalign.pipeline import prepare_image
-    from dtalign.pipeline.batch import fit_many, results_equal
+    from dtalign.pipeline.batch import fit_many
 
     where = []
 

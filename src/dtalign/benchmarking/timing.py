@@ -268,24 +268,24 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     from concurrent.futures import ThreadPoolExecutor
 
     from ..api.options import FitOptions
-    from ..pipeline.jobs import loop_inputs, plan, prepare, run_loop
+    from ..pipeline import jobs
 
     parts = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines]
     # fit_many's defaults with the production trust region; the examination
     # after the loop is not the loop
-    shared, first = plan(products, *parts[0],
-                         FitOptions(search_window_vu=(30, 30), trust_region_px=1.0,
-                                    ambiguity=False))
-    batch, error = prepare(shared, parts, first)
+    shared, first = jobs.plan(products, *parts[0],
+                              FitOptions(search_window_vu=(30, 30), trust_region_px=1.0,
+                                         ambiguity=False))
+    batch, error = jobs.prepare(shared, parts, first)
     if error is not None:
         raise error
-    args, codes, out = loop_inputs(shared, batch)
+    args, codes, out = jobs.loop_inputs(shared, batch)
     bounds = [batch.n * w // workers for w in range(workers + 1)]
 
     def call() -> None:
         with ThreadPoolExecutor(workers) as pool:
-            list(pool.map(lambda w: run_loop(args, bounds[w], bounds[w + 1], codes, out),
-                          range(workers)))
+            list(pool.map(lambda w: jobs.fit_polylines(args, bounds[w], bounds[w + 1], codes,
+                                                       out), range(workers)))
 
     return call
 
@@ -314,9 +314,10 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     """
     import dtalign.scenes as scenes
 
-    from ..pipeline.batch import fit_images, fit_many, map_ordered, results_equal
+    from ..pipeline.batch import fit_images, fit_many, map_ordered
     from ..pipeline.products import prepare_image
     from . import fpload
+    from .compare import results_equal
 
     scene = scenes.navigation_scene()
     products = prepare_image(scene.image, scene.noise_sigma)

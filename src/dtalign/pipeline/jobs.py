@@ -10,7 +10,7 @@ every further polyline of the call, which ``prepare`` then checks only
 for its own arrays (one compiled pass) and, when rotating, its pivot
 spread. The polylines run in one compiled loop with the GIL released
 (``dtalign.api.loop.fit_polylines``: ``loop_inputs``,
-``run_loop``), which :mod:`dtalign.pipeline.batch` runs on its threads;
+``fit_polylines``), which :mod:`dtalign.pipeline.batch` runs on its threads;
 ``dtalign.pipeline.fit.wrap`` makes their results. The products of
 :func:`~dtalign.pipeline.products.prepare_image` are trusted: their arrays
 were checked when the products were made.
@@ -322,7 +322,7 @@ def seed_of(shared: Plan, it: Item, *, surface: bool = False
 def loop_inputs(shared: Plan, batch: Batch) -> tuple[loop.LoopInputs, np.ndarray, loop.LoopOutputs]:
     """The compiled loop's inputs for ``batch`` with fresh outputs:
     ``(inputs, errors, outputs)``; the call for polylines ``lo:hi`` is
-    :func:`run_loop` ``(inputs, lo, hi, errors, outputs)``."""
+    :data:`fit_polylines` ``(inputs, lo, hi, errors, outputs)``."""
     k = batch.n
     a = shared.lm
     n_params = int(_n_params(a.fit_rotation))
@@ -349,17 +349,8 @@ def loop_inputs(shared: Plan, batch: Batch) -> tuple[loop.LoopInputs, np.ndarray
 OK = loop.OK
 
 
-def run_loop(inputs: loop.LoopInputs, lo: int, hi: int, errors: np.ndarray,
-             out: loop.LoopOutputs) -> int:
-    """Polylines ``lo:hi`` of :func:`loop_inputs`' ``(inputs, errors, out)``
-    through the compiled loop (GIL released); returns the first that failed,
-    ``hi`` if none did. What :func:`dtalign.pipeline.batch.fit_many` runs on
-    each thread, without its Python around it (the benchmark's control)."""
-    return int(fit_polylines(inputs, lo, hi, errors, out))
-
-
-#: The compiled loop :func:`run_loop` calls (a module attribute, so that a
-#: test can wrap it to watch or gate the batch's compiled calls).
+#: The compiled loop the batch calls (a module attribute, so that a test can
+#: wrap it to watch or gate the batch's compiled calls).
 fit_polylines = loop.fit_polylines
 
 
@@ -376,19 +367,3 @@ def readonly_views(out: loop.LoopOutputs) -> loop.LoopOutputs:
 def raise_for(error: int) -> None:
     """Raise the ValueError of a compiled loop's error code."""
     raise_for_code(error)
-
-
-#: Independent chains of :func:`fp_throughput` (see ``dtalign._kernels.fpload``).
-FP_LANES = loop.FP_LANES
-
-
-def fp_throughput(rounds: int) -> float:
-    """``FP_LANES`` independent multiply-add chains run ``rounds`` times, compiled
-    with the kernels' flags (GIL released); returns their sum.
-
-    Floating-point-bound compiled work with nothing of dtalign in it: how
-    two threads of it scale beside :func:`run_loop`'s tells whether the
-    machine, not the loop, limits a batch (the batch benchmark's control,
-    :mod:`dtalign.benchmarking.fpload`).
-    """
-    return float(loop.fp_throughput(rounds))
