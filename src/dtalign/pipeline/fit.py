@@ -44,6 +44,7 @@ from ..api.constants import DEFAULT_PINVH_RCOND, DEFAULT_TUKEY_C, POLARITY_PENAL
 from ..api.image import edge_threshold
 from ..api.lm import fit_checked
 from ..api.options import FitOptions, n_params, resolve
+from ..api.polylines import Polyline
 from ..api.results import ImageDerivativesConfig, LMRefineResult
 from . import hypotheses as _hypotheses
 from . import jobs
@@ -760,7 +761,7 @@ _READINGS: dict[str, Callable[[PolylineFit], Any]] = {
 
 def fit_polyline_products(
     products: ImageProducts,
-    vertices_vu: Any,
+    vertices_vu: ArrayLike | Polyline,
     normals_vu: ArrayLike | None = None,
     sigmas: ArrayLike | float | None = None,
     *,
@@ -864,7 +865,7 @@ def polyline_parts(polyline: Any, normals_vu: Any, sigmas: Any, edge_profile: An
 
 def fit_polyline(
     image: ArrayLike,
-    vertices_vu: Any,
+    vertices_vu: ArrayLike | Polyline,
     normals_vu: ArrayLike | None = None,
     sigmas: ArrayLike | float | None = None,
     *,
