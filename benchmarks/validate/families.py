@@ -38,6 +38,7 @@ Families (what the image has that the fit is not told, if anything):
 ``capped_limb``
     Minnaert k = 0.7, clipped at the disc centre's brightness (as a
     saturated frame or a simulator's cap), declared as Minnaert k = 0.7.
+    Limbs only.
 ``heavy_noise``
     Lambert, a Gaussian PSF of 0.7 px, albedo 40 DN, 2 e-/DN, 4 DN read noise.
 
@@ -59,8 +60,10 @@ FRAME_PX = 200
 
 
 def edges_of(family: str) -> tuple[str, ...]:
-    """The edges a family renders (the ellipsoid: its limb only)."""
-    return ("limb",) if family == "triaxial" else EDGES
+    """The edges a family renders: the ellipsoid's and the capped limb's are limbs only
+    (dtalign builds no ellipsoid terminator; past phase 90 the disc centre that sets
+    the cap is dark)."""
+    return ("limb",) if family in ("triaxial", "capped_limb") else EDGES
 
 
 def scene_rng(seed: int, family: str, edge: str, index: int) -> np.random.Generator:

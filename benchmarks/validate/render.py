@@ -191,7 +191,8 @@ def _bsdf(body: Body) -> dict:
         return {"type": "minnaert", "k": body.minnaert_k, "albedo": body.albedo}
     if body.albedo_texture is not None:
         tex = np.repeat((body.albedo * body.albedo_texture)[..., None], 3, axis=2)
-        reflectance = {"type": "bitmap", "data": tex.astype(np.float32), "raw": True,
+        reflectance = {"type": "bitmap", "bitmap": mitsuba().Bitmap(tex.astype(np.float32)),
+                       "raw": True,
                        "filter_type": "bilinear"}
     else:
         reflectance = {"type": "rgb", "value": body.albedo}
