@@ -1,5 +1,5 @@
 """Developer sessions: ``nox -s tests``, ``lint``, ``typecheck``, ``docs``, ``bench``,
-``boundscheck``, ``coverage``, ``floors`` and ``sweeps``.
+``boundscheck``, ``coverage``, ``floors``, ``sweeps`` and ``validate``.
 
 Every session installs the package from this checkout into its own virtual
 environment, so a session that passes here passes on a fresh machine.
@@ -66,6 +66,21 @@ def sweeps(session: nox.Session) -> None:
         "python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_profile_sweeps.py",
         *session.posargs, env=env,
     )
+
+
+@nox.session(python=PYTHON)
+def validate(session: nox.Session) -> None:
+    """The validation harness on Mitsuba 3 and GalSim renders (``benchmarks/validate``,
+    docs/validation.rst): the renderer's checks, then every family's scenes fitted
+    and scored. Arguments go to ``python -m benchmarks.validate`` (``--scenes N``,
+    ``--seed S``, ``--families ...``); ``-- fixtures`` rewrites the test's cached
+    renders instead.
+    """
+    session.install(".[validate,test]")
+    if session.posargs[:1] == ["fixtures"]:
+        session.run("python", "-m", "benchmarks.validate.fixtures")
+        return
+    session.run("python", "-m", "benchmarks.validate", *session.posargs)
 
 
 @nox.session(python=PYTHON)
