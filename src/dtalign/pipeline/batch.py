@@ -223,6 +223,21 @@ class _Call:
         return results, errors
 
 
+def _shutdown(executor: Executor) -> None:
+    """``executor.shutdown(wait=True, cancel_futures=True)``; retried for up to
+    5 s while it raises "cannot join thread before it is started": an
+    interrupt landed in a process pool's ``Thread.start``, whose manager
+    thread then starts a moment later (and must be joined, so that its
+    worker processes stop)."""
+    for _ in range(50):
+        try:
+            executor.shutdown(wait=True, cancel_futures=True)
+            return
+        except RuntimeError:
+            time.sleep(0.1)
+    executor.shutdown(wait=True, cancel_futures=True)
+
+
 def _run(work: Callable[[_Call], _R], call: _Call,
          pool: Executor | Callable[[], Executor] | None) -> _R:
     """``work(call)`` on ``pool`` (an executor of the caller's, or how to make one
@@ -249,7 +264,7 @@ def _run(work: Callable[[_Call], _R], call: _Call,
                 outcome: tuple[bool, Any] = (True, work(call))
             finally:
                 if executor is not pool:
-                    executor.shutdown(wait=True, cancel_futures=True)
+                    _shutdown(executor)
         except BaseException as exc:  # the calling thread's to raise
             outcome = (False, exc)
         posts.put((None, outcome))
