@@ -240,6 +240,13 @@ def test_license_changelog_and_one_version():
     assert re.fullmatch(r"\d+\.\d+\.\d+\S*", dtalign.__version__)
 
 
+def test_citation_file_names_this_version():
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "CITATION.cff").read_text(encoding="utf-8")
+    assert "cff-version: 1.2.0" in text and f'version: "{dtalign.__version__}"' in text
+    assert "license: BSD-3-Clause" in text
+
+
 def test_import_dtalign_stays_light():
     code = "import sys, dtalign; print(dtalign.__version__, 'numba' in sys.modules, 'scipy' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,

@@ -102,6 +102,19 @@ def test_flipped_normals_fail_every_vertex_polarity_rejected(products, scene, ca
     assert "normals" in record.getMessage() and "wrong way" in record.getMessage()
 
 
+def test_a_demo_disc_with_flipped_normals_is_failed_not_ambiguous():
+    """``disc_scene(seed=2)`` with its normals negated: every vertex sees the
+    gradient the wrong way, and the likeliest cause leads (a rival basin at
+    (0, 0) with 1 inlier is no reason to call it ``ambiguous``)."""
+    s = scenes.disc_scene(seed=2)
+    p = s.polyline
+    fit = fit_polyline(s.image, p.vertices_vu, -p.normals_vu, p.sigmas, search_window_vu=(30, 30))
+    assert fit.status == "failed"
+    assert str(fit.reasons[0]) == "most_polarity_rejected"
+    assert fit.status_message.startswith(
+        "failed: most vertices see the gradient the wrong way")
+
+
 def test_zero_normals_fail(products, scene):
     fit = _fit(products, scene, normals=np.zeros_like(scene.polyline.normals_vu))
     assert fit.status == "failed" and "all_polarity_rejected" in fit.reasons
