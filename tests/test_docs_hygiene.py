@@ -1,4 +1,4 @@
-"""Paper cuts of issue 15: printing results, docs that stand alone, packaging.
+"""Results that print short, docs that stand alone, packaging, and source text without diaries.
 
 * a result prints as a short summary (arrays summarised), not every residual;
 * the docs, code and tests cite the shipped contract (``docs/contract.rst``

@@ -306,7 +306,7 @@ def test_image_and_products_validation(small):
     p = small.polyline
     with pytest.raises(TypeError, match="products must be an ImageProducts"):
         fit_polyline_products(small.image, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(1, 1))
-    # (H, W, 3 or 4) is a colour image, converted since issue 30; (H, W, 2) is not an image
+    # (H, W, 3 or 4) is a colour image, converted to grey; (H, W, 2) is not an image
     with pytest.raises(TypeError, match="image must be 2-D"):
         fit_polyline(np.zeros((4, 4, 2)), p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(1, 1))
     with pytest.raises(ValueError, match="image must not be empty"):
@@ -368,8 +368,8 @@ def test_image_products_names_reexported_from_pipeline():
 
 
 def test_importing_pipeline_compiles_nothing_and_the_root_stays_lazy():
-    # Issue 29: plain imports at the top of each module, lazy loading only at
-    # the package root. `import dtalign` imports no Numba; importing the
+    # Plain imports at the top of each module, lazy loading only at the
+    # package root. `import dtalign` imports no Numba; importing the
     # pipeline imports the kernels' modules but compiles none of them
     # (compilation is lazy: on a kernel's first call).
     script = (
