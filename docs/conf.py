@@ -72,7 +72,14 @@ templates_path: list[str] = []
 exclude_patterns = ["_build", "_generated", "_intersphinx"]
 html_theme = "alabaster"
 html_static_path = ["_static"]
+# Code blocks hold lines of up to about 130 columns (the command line's
+# output): no 800px cap on the body (the basic theme's body_max_width, about
+# 80 columns of code), a page wide enough for such lines beside the sidebar,
+# and _static/dtalign.css lets a wider block scroll rather than be cut off.
+html_css_files = ["dtalign.css"]
 html_theme_options = {
     "description": "Sub-pixel polyline alignment against an edge distance transform",
     "fixed_sidebar": True,
+    "page_width": "1400px",
+    "body_max_width": "none",
 }

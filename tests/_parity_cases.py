@@ -8,7 +8,7 @@ shared by every case that uses it. A :class:`ParityCase` holds a polyline
 sub-pixel jitter added to the coarse seed, and the remaining keywords of
 ``lm_subpixel_refine``.
 
-Families (issue #2, item 6): translation, rotation, trust region, Tikhonov,
+Families: translation, rotation, trust region, Tikhonov,
 ridge on, polarity off, outliers, degenerate (every vertex rejected),
 ``max_iterations=0``, flat DT, polylines partly outside the image, random
 walks that follow no edge, and a handful of 1024 x 1024 scenes. Images
@@ -16,7 +16,7 @@ are mostly 96-256 px so the whole sweep stays fast.
 
 Also here: the contract's state of a pose (:func:`spec_state`) and the two
 conditioning measures that decide which fits are held to exact parity
-(issue #14; see ``test_parity``'s docstring).
+(see ``test_parity``'s docstring).
 """
 
 from __future__ import annotations

@@ -10,6 +10,7 @@ are tiny arrays built here, with NumPy only.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import inspect
 import re
 
@@ -134,6 +135,19 @@ def test_star_import_gives_every_name():
     ns: dict = {}
     exec("from dtalign import *", ns)
     assert {*CONSTANTS, *FUNCTIONS, *CLASSES} <= set(ns)
+
+
+def test_dir_lists_the_public_names_only():
+    # the same before and after a lazy name is loaded, or a subpackage imported
+    before = dir(dtalign)
+    assert before == sorted({*dtalign.__all__, "__version__"})
+    for helper in ("Any", "TYPE_CHECKING", "annotations", "importlib", "_LAZY", "_PRIVATE_LAZY",
+                   "api", "pipeline", "_rotate_vertices"):
+        assert helper not in before, helper
+    importlib.import_module("dtalign.pipeline")  # binds the subpackage on the package
+    dtalign.fit_polyline, dtalign._rotate_vertices  # noqa: B018  (loads them lazily)
+    assert dir(dtalign) == before
+    assert all(hasattr(dtalign, name) for name in before)
 
 
 @pytest.mark.parametrize("name", CONSTANTS)

@@ -250,7 +250,7 @@ def test_cli_on_an_existing_scheduler(cluster, frames, tmp_path, capsys):
             "--scheduler", c.scheduler_address, "--no-progress"]
     assert main(argv) == 1  # two items failed
     out, err = capsys.readouterr()
-    # issue 30: "in error" for items, never "failed" for both items and fits
+    # "in error" for items: "failed" is a fit's status, not an item's
     assert "4 item(s) done, 2 item(s) in error (12 result rows)" in out
     assert "FAILED missing: image file not found" in err
     assert_store_matches_serial(tmp_path / "store", manifest)

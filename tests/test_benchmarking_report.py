@@ -1,4 +1,4 @@
-"""The benchmark report's renderings: the README section it rewrites."""
+"""The benchmark report: the README section it rewrites, its rows, its exit status."""
 
 from __future__ import annotations
 
@@ -62,3 +62,18 @@ def test_fp_control_unit_is_deterministic_work():
 def test_readme_table_needs_its_markers(text):
     with pytest.raises(ValueError, match="bench-table"):
         timing.replace_readme_table(text, REPORT)
+
+
+def test_bench_exits_1_when_a_row_fails(monkeypatch, capsys):
+    import dtalign.benchmarking as bench
+
+    rows = [{"name": "x", "passed": True}, {"name": "y", "passed": False}]
+    monkeypatch.setattr(bench, "run", lambda *a, **k: {
+        "rows": rows, "total_s": 1.0, "warmup_s": 0.0, "other_load_cores": 0.0,
+        "all_passed": False})
+    monkeypatch.setattr(bench, "format_table", lambda rows: "| table |")
+    assert bench.main(["--quick"]) == 1
+    assert "1 row(s) FAIL: exit status 1" in capsys.readouterr().err
+    assert bench.main(["--quick", "--allow-fail"]) == 0
+    rows[1]["passed"] = True
+    assert bench.main(["--quick"]) == 0

@@ -1,4 +1,5 @@
-"""The dtalign command line: demo, fit (single, batch, glob), bench, and every error path."""
+"""The dtalign command line: demo, fit (single, batch, glob), bench, every error path, and
+pairs of numbers given as one comma-joined word."""
 
 from __future__ import annotations
 
@@ -378,3 +379,46 @@ def test_cache_check_cold_without_indexes_or_with_another_format(tmp_path):
         src, _ = _fake_kernels(tmp_path / "old", ("0.1.0", "plain-numba"))
         os.utime(src, (1_000_000, 1_000_000))
         assert _kernel_cache_cold(src.parent) is True
+
+
+# --------------------------------------------------------------------------- pairs of numbers
+
+
+@pytest.mark.parametrize(("argv", "written"), [
+    (["overlay", "x.png", "--shape", "limb", "--image", "i.npy", "--polyline", "p.csv",
+      "--displace", "3", "-2"], "--displace 3,-2, not --displace 3 -2"),
+    (["fit", "a.npy", "a.csv", "--window", "30", "20"], "--window 30,20, not --window 30 20"),
+    (["fit", "a.npy", "a.csv", "--plot", "x.png", "--zoom", "50", "100"],
+     "--zoom 50,100, not --zoom 50 100"),
+])
+def test_two_word_pairs_are_refused_with_the_comma_form(argv, written, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "takes its two numbers as one word, joined by a comma" in err and written in err
+    assert "odd number of files" not in err
+
+
+def test_displace_takes_a_comma_pair_negative_first_too(tmp_path, capsys, monkeypatch):
+    from dtalign.io import cassini
+
+    # a stand-in frame and overlay: the option's parsing is what is tested
+    monkeypatch.setattr(cassini, "load_cassini_overlay_frame", lambda path: _FakeFrame())
+    monkeypatch.setattr(cassini, "overlay_polylines", lambda f, shape, n_lines: [
+        scenes.Polyline("l", np.array([[10.0, 10.0], [10.0, 20.0], [20.0, 20.0]]),
+                        np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.ones(3))])
+    code = main(["overlay", "x.png", "--shape", "limb", "--image", str(tmp_path / "i.npy"),
+                 "--polyline", str(tmp_path / "p.csv"), "--displace", "-2,3"])
+    assert code == 0, capsys.readouterr().err
+    from dtalign.io import load_polyline_csv
+
+    moved = load_polyline_csv(tmp_path / "p.csv")
+    assert np.allclose(moved.vertices_vu[0], (12.0, 7.0))  # moved by -(-2, 3)
+    assert main(["overlay", "x.png", "--shape", "limb", "--image", str(tmp_path / "i.npy"),
+                 "--polyline", str(tmp_path / "p.csv"), "--displace", "3"]) == 1
+    assert "--displace takes two numbers separated by a comma (e.g. 3,-2)" \
+        in capsys.readouterr().err
+
+
+class _FakeFrame:
+    image = np.zeros((30, 30))
+    header_rows = 0

@@ -1,4 +1,4 @@
-"""Issue 31.4: interrupted batches keep what they finished.
+"""Interrupted command-line batches keep what they finished.
 
 ``dtalign fit`` on many image/CSV pairs, interrupted with Ctrl-C (SIGINT),
 prints or writes the rows finished before it and exits 130; a Ctrl-C sent

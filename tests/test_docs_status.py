@@ -1,4 +1,4 @@
-"""Issue 30.5: the status page lists the four statuses and every reason, from the enums.
+"""The status page lists the four statuses and every reason, from the enums.
 
 ``docs/conf.py`` writes ``docs/_generated/status_tables.rst`` from
 :func:`dtalign.pipeline.status._doc_tables` at each build and

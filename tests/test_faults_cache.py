@@ -1,4 +1,4 @@
-"""Issue 18.3 and 18.4: a damaged or unusable Numba cache never stops dtalign.
+"""A damaged or unusable Numba cache never stops dtalign.
 
 Each case runs a tiny module compiled with :func:`dtalign._jit.kernel` (the
 same decorator as every dtalign kernel, so the same cache machinery, at a
@@ -261,7 +261,7 @@ def test_every_package_kernel_has_the_checked_cache() -> None:
 
 
 # ---------------------------------------------------------------------------
-# Issue 31.2: a Numba without what the checked cache needs
+# A Numba without what the checked cache needs
 # ---------------------------------------------------------------------------
 
 

@@ -1,4 +1,4 @@
-"""Issue 18.5 (loader part): hostile files give one-line errors naming the file.
+"""Hostile files give one-line loader errors naming the file.
 
 Every failure of :func:`dtalign.io.load_image` / :func:`load_polyline_csv`
 is a ValueError (or FileNotFoundError / ImportError) whose message is one

@@ -1,4 +1,4 @@
-"""Issue 18.7: numeric parameters outside a bounded range are refused up front.
+"""Numeric parameters outside a bounded range are refused up front.
 
 Before, these ended in Numba's internals after a compile (``max_iterations``
 beyond int64, ridge profiles of 10^300 samples: TypingError), in a

@@ -1,4 +1,4 @@
-"""Issue 30.3: the first compile is announced by the library, and ``dtalign.warm_up()``.
+"""The first compile is announced by the library, and ``dtalign.warm_up()`` does it ahead.
 
 A tiny module compiled with :func:`dtalign._jit.kernel` (the decorator of
 every dtalign kernel, so the same cache machinery, at a fraction of the

@@ -1,4 +1,4 @@
-"""Issue 17: today's seed in the pipeline, multi-start fits and the ambiguity verdict."""
+"""Today's seed in the pipeline, multi-start fits and the ambiguity verdict."""
 
 from __future__ import annotations
 
@@ -164,7 +164,7 @@ def test_to_dict_records_the_verdict(nav):
     p = scene.polylines[0]
     d = fit_polyline_products(products, p.vertices_vu, p.normals_vu, p.sigmas,
                               search_window_vu=(10, 10)).to_dict()
-    # issue 30: an infinite ratio (no rival basin) is JSON null, so "examined"
+    # an infinite ratio (no rival basin) is JSON null, so "examined"
     # is read from the ambiguity record itself
     assert d["ambiguity"] is not None and d["hypotheses"][0]["source"] == "seed 1"
     assert d["ambiguity_ratio"] == d["ambiguity"]["ratio"]
@@ -172,7 +172,7 @@ def test_to_dict_records_the_verdict(nav):
 
 
 def test_no_confidently_wrong_fit_on_a_fixed_subset_of_the_hard_scenes():
-    """Issue 17's property, on the first seeds of every family of
+    """No confident wrong answer, on the first seeds of every family of
     :mod:`dtalign.robustness`, with the production trust region: no fit is
     wrong and says ``ok``, and multi-start keeps the plain pipeline's
     correct fits."""

@@ -12,7 +12,7 @@
   modules and names outside itself;
 * dependencies point down: ``_kernels`` imports no layer above it, ``api``
   neither ``pipeline`` nor ``io``, and ``io.files`` not ``io.cassini``;
-* no layer skips one: only ``api`` imports ``_kernels`` (issue 29).
+* no layer skips one: only ``api`` imports ``_kernels``.
 
 A "unit" is the first name under ``dtalign`` (``api``, ``pipeline``,
 ``_kernels``, ``cli``, ...): a boundary is crossed when two modules' units differ.
@@ -285,7 +285,7 @@ def test_dtalign_ridge_is_the_api_ridge_module():
 
 
 # ---------------------------------------------------------------------------
-# Layers without skipping (issue 29): pipeline -> api -> _kernels. Only the
+# Layers without skipping: pipeline -> api -> _kernels. Only the
 # api layer (and the kernels, and the compile helpers _jit/warmup/_numba_cache
 # that exist to drive them) imports dtalign._kernels: the pipeline, the batch,
 # I/O, the command line, the campaign, the benchmark runner and the NumPy

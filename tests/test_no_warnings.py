@@ -1,4 +1,4 @@
-"""The drop-in surface never warns (issue 13, item 5).
+"""The drop-in surface never warns.
 
 Today's techniques run their tests with warnings as errors, so a
 ``RuntimeWarning`` from an overflow, a ``0 * inf`` or an empty mean inside

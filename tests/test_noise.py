@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 
 import dtalign
 from dtalign import reference, scenes
 from dtalign._kernels import noise as kernels
-from dtalign.pipeline.products import estimate_noise_sigma
+from dtalign.pipeline.products import estimate_noise_sigma, prepare_image
 
 
 def _images():
@@ -247,3 +249,17 @@ def test_one_pass_is_exact_whatever_the_bounds():
                 assert (got_c, got_mad) == (c, mad), bounds
     # the cases must include both outcomes in number, or they test nothing
     assert 0.1 * trials < successes < 0.9 * trials
+
+
+def test_quantised_noise_estimate_is_said(caplog):
+    from dtalign.pipeline.products import QUANTISED_NOISE_STEP, quantised_noise_steps
+
+    assert quantised_noise_steps(0.4942) == 2.0  # both Cassini frames' estimate
+    assert QUANTISED_NOISE_STEP * 2 == pytest.approx(0.4942, abs=1e-12)
+    assert quantised_noise_steps(2.006) is None
+    caplog.set_level(logging.INFO, logger="dtalign")
+    rng = np.random.default_rng(0)
+    image = np.round(50.0 + 0.5 * rng.standard_normal((64, 64)))  # 8-bit-like, ~0.5 DN
+    products = prepare_image(image)
+    assert quantised_noise_steps(products.noise_sigma) is not None
+    assert any("MAD of quantised pixels" in r.getMessage() for r in caplog.records)

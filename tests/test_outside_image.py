@@ -1,4 +1,4 @@
-"""Issue 43.4: natural first inputs diagnosed right.
+"""A polyline off the image, and other natural first inputs, diagnosed right.
 
 A polyline off the image is named as such first (``outside_image``,
 ``partly_outside_image``) and its rejections are not blamed on its normals;

@@ -1,11 +1,11 @@
-"""Parity of the compiled path with the NumPy specification (issue #2, item 6).
+"""Parity of the compiled path with the NumPy specification.
 
 Every LM case of ``_parity_cases`` runs the reference and the compiled
 ``build_polyline_mask -> coarse_ncc_search -> lm_subpixel_refine`` on the
 same inputs; the image derivatives come from the reference, once per image,
 so the image side (tested on its own) cannot confound the fit.
 
-The bar (issue #2):
+The bar:
 
 * coarse offsets, ``iterations``, ``converged``, ``degenerate``,
   ``inlier_count`` equal in every case;
@@ -19,7 +19,7 @@ four lane-wise partial sums), and how the BLAS rounds depends on the CPU
 (OpenBLAS picks a kernel per CPU: SkylakeX, Haswell, Sandybridge, ...), so
 the reference itself moves by rounding from one machine to the next. A
 well-conditioned fit carries those ulps along without growing them; an
-ill-conditioned one does not (issue #14, item 1). Each case is therefore
+ill-conditioned one does not. Each case is therefore
 classified from the compiled path's fits, whose sums do not go through the
 BLAS (the classification is the same under the three kernels), by
 

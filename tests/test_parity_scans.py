@@ -439,7 +439,7 @@ def test_huge_windows_over_far_flung_vertices_are_refused_not_run():
 
 
 def test_scan_cap_message_names_the_figure_over_its_cap():
-    """Issue 31.4: the refusal names what exceeded its cap (shifts, or
+    """The refusal names what exceeded its cap (shifts, or
     shift-vertex pairs), not a figure within it."""
     from dtalign.api.checks import MAX_SCAN_SHIFTS, MAX_SCAN_TABLE
 

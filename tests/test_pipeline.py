@@ -306,7 +306,7 @@ def test_image_and_products_validation(small):
     p = small.polyline
     with pytest.raises(TypeError, match="products must be an ImageProducts"):
         fit_polyline_products(small.image, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(1, 1))
-    # (H, W, 3 or 4) is a colour image, converted since issue 30; (H, W, 2) is not an image
+    # (H, W, 3 or 4) is a colour image, converted to grey; (H, W, 2) is not an image
     with pytest.raises(TypeError, match="image must be 2-D"):
         fit_polyline(np.zeros((4, 4, 2)), p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(1, 1))
     with pytest.raises(ValueError, match="image must not be empty"):
@@ -368,8 +368,8 @@ def test_image_products_names_reexported_from_pipeline():
 
 
 def test_importing_pipeline_compiles_nothing_and_the_root_stays_lazy():
-    # Issue 29: plain imports at the top of each module, lazy loading only at
-    # the package root. `import dtalign` imports no Numba; importing the
+    # Plain imports at the top of each module, lazy loading only at the
+    # package root. `import dtalign` imports no Numba; importing the
     # pipeline imports the kernels' modules but compiles none of them
     # (compilation is lazy: on a kernel's first call).
     script = (
@@ -393,3 +393,28 @@ def test_importing_pipeline_compiles_nothing_and_the_root_stays_lazy():
 def test_results_compare_by_identity(disc_fit, small_products):
     assert disc_fit == disc_fit and disc_fit != small_products
     assert len({disc_fit, small_products}) == 2
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """A 200 x 200 disc of radius 50 px, its 100-vertex limb displaced by (3.4, -2.2) px."""
+    return scenes.disc_scene(shape=(200, 200), radius=50.0, n_vertices=100, offset_vu=(3.4, -2.2))
+
+
+def test_json_writes_infinite_sigmas_as_null_and_from_dict_round_trips(scene):
+    import json
+
+    from dtalign.pipeline import PolylineFit
+
+    p = scene.polyline
+    fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(8, 8),
+                       fit_rotation=True, max_iterations=3)  # a circle: rotation sigma inf
+    d = fit.to_dict(arrays=True)
+    text = json.dumps(d, allow_nan=False)  # strict JSON: no Infinity, no NaN
+    assert d["sigma_rotation_rad"] is None and '"inf"' not in text
+    back = PolylineFit.from_dict(json.loads(text))
+    assert back.to_dict(arrays=True) == d
+    assert back.status == fit.status and back.reasons == fit.reasons
+    assert back.sigma_vu == fit.sigma_vu and back.sigma_rotation_rad == fit.sigma_rotation_rad
+    with pytest.raises(ValueError, match="to_dict\\(arrays=True\\)"):
+        PolylineFit.from_dict(fit.to_dict())

@@ -87,3 +87,21 @@ def test_plotting_does_not_touch_pyplot_backend(outlier_fit):
     plot_fit(scene.image, scene.polyline.vertices_vu, fit)
     assert matplotlib.get_backend() == before
     assert np.isfinite(fit.offset_vu).all()
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """A 200 x 200 disc of radius 50 px, its 100-vertex limb displaced by (3.4, -2.2) px."""
+    return scenes.disc_scene(shape=(200, 200), radius=50.0, n_vertices=100, offset_vu=(3.4, -2.2))
+
+
+def test_plot_titles_lead_with_the_status(scene, tmp_path):
+    pytest.importorskip("matplotlib")
+    from dtalign.plotting import plot_fit
+
+    p = scene.polyline
+    bad = fit_polyline(scene.image, p.vertices_vu, -p.normals_vu, p.sigmas, search_window_vu=(8, 8))
+    fig = plot_fit(scene.image, p.vertices_vu, bad)
+    title = fig.axes[0].get_title()
+    assert title.startswith("status FAILED (most_polarity_rejected")
+    assert "no offset measured" in title and "±" not in title.splitlines()[1]

@@ -1,4 +1,4 @@
-"""The public polyline builders (issue 43, item 5): a sphere's limb and terminator.
+"""The public polyline builders: a sphere's limb and terminator.
 
 * they are the scenes' polylines: :func:`dtalign.scenes.render_sphere`'s
   ``limb`` and ``terminator`` are the builders' output for its model

@@ -365,7 +365,7 @@ def test_a_closed_limb_leaves_its_unlit_half_out_and_says_so():
 
 @pytest.mark.parametrize("first", [None, 40, 60, 100])
 def test_the_163_vertex_limb_that_raised_fits(first):
-    """Issue 43's reproducer (``LinAlgError`` from a NaN residual at the
+    """The reproducer of a ``LinAlgError`` (from a NaN residual at the
     vertex whose normal was ``(-0.0, -1.0)``), and the subsets of its
     vertices that raised and fitted in turn on the independent renders."""
     sc = render_sphere(shape=(320, 320), radius_px=90.0, phase_deg=35.0, illumination_deg=90.0,

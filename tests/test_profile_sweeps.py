@@ -1,4 +1,4 @@
-"""Property-based sweeps of the profile refinement (issue 43, item 3).
+"""Property-based sweeps of the profile refinement: drawn scenes, not one fixed scene.
 
 The profile fit once raised ``LinAlgError`` on 126 of 273 limb scenes of an
 independent simulator: a vertex whose normal lay exactly on an image axis
@@ -11,7 +11,7 @@ instead of fixing it:
 * the light direction over 0-360 deg, its multiples of 45 deg drawn
   explicitly often (normals exactly on the axes and diagonals);
 * vertex counts 3-1000 (a list of awkward ones drawn often: odd counts,
-  counts of the form 4k + 2, the issue's 163);
+  counts of the form 4k + 2, the reproducer's 163);
 * phase 0-180 deg, the frame 160-240 px, the radius what the frame holds,
   the planted offset up to 2.5 px with its sub-pixel part drawn (0 and
   1/2 explicitly);
@@ -95,7 +95,7 @@ PSFS = ("none", "given", "estimated", "wings-given", "wings-estimated")
 NOISES = ("none", "light", "heavy")
 LAWS = ("lambert", "minnaert", "lommel-seeliger")
 #: Counts drawn often: odd (a limb vertex on the sub-solar point), 4k + 2
-#: (vertices at +-45 deg from it), tiny, the issue's 163 and its subsets'.
+#: (vertices at +-45 deg from it), tiny, the reproducer's 163 and its subsets'.
 AWKWARD_COUNTS = (3, 4, 5, 6, 7, 9, 10, 15, 40, 41, 60, 63, 100, 101, 162, 163, 199, 201, 398,
                   401, 999, 1000)
 
@@ -366,8 +366,8 @@ def test_profile_sweep(case: Case) -> None:
         run_case(case)
 
 
-def _issue_scene() -> Any:
-    # the issue's reproducer: 163 vertices put vertex 81 on the sub-solar point,
+def _axis_normal_scene() -> Any:
+    # the reproducer: 163 vertices put vertex 81 on the sub-solar point,
     # whose normal is then exactly (-0.0, -1.0) with the light at 90 deg
     return render_sphere(shape=(320, 320), radius_px=90.0, phase_deg=35.0,
                          illumination_deg=90.0, offset_vu=(0.37, -0.61), n_vertices=163,
@@ -375,19 +375,19 @@ def _issue_scene() -> Any:
 
 
 #: The reproducer as a draw (its PSF none, the profile's 0; the bound's input).
-ISSUE_CASE = Case(family="limb", shape=(320, 320), centre_shift_vu=(0.0, 0.0), radius_px=90.0,
+AXIS_NORMAL_CASE = Case(family="limb", shape=(320, 320), centre_shift_vu=(0.0, 0.0), radius_px=90.0,
                   phase_deg=35.0, illumination_deg=90.0, n_vertices=163, offset_vu=(0.37, -0.61),
                   law="lambert", minnaert_k=None, psf="none", psf_sigma_px=0.0, noise="none",
                   albedo_dn=1500.0, background_dn=20.0, fit_law=True, noise_seed=0)
 
 #: Subsets of the reproducer's limb: ``n`` vertices ``163 // n`` apart, vertex
 #: 81 (the one on the axis) among them.
-ISSUE_SUBSETS = (40, 60, 100, 163)
+AXIS_NORMAL_SUBSETS = (40, 60, 100, 163)
 
 
-@pytest.mark.parametrize("n", ISSUE_SUBSETS)
-def test_the_issues_limb_on_an_axis_normal_is_refined(n):
-    sc = _issue_scene()
+@pytest.mark.parametrize("n", AXIS_NORMAL_SUBSETS)
+def test_a_limb_vertex_with_an_axis_normal_is_refined(n):
+    sc = _axis_normal_scene()
     L = sc.limb
     step = 163 // n
     idx = 81 + step * (np.arange(n) - n // 2)
@@ -402,7 +402,7 @@ def test_the_issues_limb_on_an_axis_normal_is_refined(n):
     (many,) = fit_many(prepare_image(sc.image), [(verts, normals, sigmas, prof)],
                        search_window_vu=(6, 6), workers=1)
     for fit in (one, many):
-        check_fit(fit, sc, ISSUE_CASE, "limb")
+        check_fit(fit, sc, AXIS_NORMAL_CASE, "limb")
         assert fit.profile.accepted and fit.status == "ok"
 
 

@@ -60,7 +60,7 @@ def test_terminator_profile_is_accepted():
     assert (prof.values[:, -1] >= prof.values[:, 0]).all()
     assert np.allclose((prof.normals_vu * sc.terminator.normals_vu).sum(axis=1), 1.0)
     # the fit does not assume a limb: no soft-edge verdict for a kink; and the DT lock of a
-    # terminator is pixels off (issue 28), which the refinement does not hide behind an "ok"
+    # terminator is pixels off, which the refinement does not hide behind an "ok"
     T = sc.terminator
     fit = fit_polyline(sc.image, T.vertices_vu, T.normals_vu, T.sigmas, search_window_vu=(8, 8),
                        edge_profile=prof)

@@ -1,4 +1,4 @@
-"""Issue 30.4: the README's campaign lines, run as written.
+"""The README's campaign lines, run as written.
 
 The shell line of the README's "Campaigns on Dask" section (without its
 ``pip install`` step, which the test environment has done) and its

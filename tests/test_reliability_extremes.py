@@ -1,4 +1,4 @@
-"""Reliability (issue #5), continued: large arrays, extreme magnitudes, crashes.
+"""Reliability at the extremes: large arrays, extreme magnitudes, crashes.
 
 Large image-sized arrays are not scanned for NaN/inf on entry: a value the
 fit reads is refused by name, one it never reads cannot change the result.

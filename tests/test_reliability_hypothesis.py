@@ -1,4 +1,4 @@
-"""Property-based parity of the compiled path with the NumPy specification (issue #5, item 3).
+"""Property-based parity of the compiled path with the NumPy specification.
 
 Hypothesis draws small inputs (a few pixels, a few vertices) so each example
 costs well under a millisecond compiled and a few milliseconds in the
@@ -17,7 +17,7 @@ Tolerances:
   from the reference by a few ulps per operation. The discrete outcome
   (iterations, converged, degenerate, inlier count, coarse offset) must be
   identical; offsets may differ by rounding that the iteration carries
-  along (observed ~1e-13 px), so the issue #2 bound of 1e-6 px leaves six
+  along (observed ~1e-13 px), so ``test_parity``'s bound of 1e-6 px leaves six
   orders of magnitude of margin while still catching any real divergence
   (a different accepted step moves the pose by ~1e-3 px or more). The
   covariance is the pseudoinverse of a matrix whose condition number is at
@@ -188,7 +188,7 @@ def lm_problems(draw):
 
 
 def assert_lm_parity(c, r, pivot_distance_px: float = 1.0) -> None:
-    """Issue #2 parity: offsets, and rotation times the pivot distance, within 1e-6 px."""
+    """The parity bar: offsets, and rotation times the pivot distance, within 1e-6 px."""
     assert (c.iterations, c.converged, c.degenerate, c.inlier_count) == (
         r.iterations, r.converged, r.degenerate, r.inlier_count)
     # 1e-6 px, or a few ulps of the offset itself when a fit without a trust

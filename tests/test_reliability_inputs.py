@@ -1,4 +1,4 @@
-"""Reliability matrix (issue #5, item 1): every bad input refused clearly.
+"""Every bad input refused clearly: the reliability matrix of the public functions.
 
 Navigation runs unattended over whole archives, so each public function must
 either refuse an input with the documented exception type and a message that
@@ -364,7 +364,7 @@ def assert_lm_sane(res, n: int, p: int) -> None:
 
 
 def assert_lm_parity(c, r) -> None:
-    """Issue #2 criteria (see test_reliability_hypothesis for the tolerances)."""
+    """The parity bar of ``test_parity`` (see test_reliability_hypothesis for the tolerances)."""
     assert (c.iterations, c.converged, c.degenerate, c.inlier_count) == (
         r.iterations, r.converged, r.degenerate, r.inlier_count)
     np.testing.assert_allclose(c.offset_vu, r.offset_vu, rtol=0, atol=1e-6)

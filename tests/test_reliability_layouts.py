@@ -1,4 +1,4 @@
-"""Array layouts and dtypes (issue #5, item 2).
+"""Array layouts and dtypes: every layout gives the C-contiguous float64 result, bit for bit.
 
 Callers hand over float32 images, integer products, boolean masks, views with
 steps, Fortran-order slices, read-only buffers and big-endian arrays read from

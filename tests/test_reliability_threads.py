@@ -1,4 +1,4 @@
-"""Threads and determinism (issue #5, item 4).
+"""Threads and determinism: concurrent fits equal serial ones, bit for bit.
 
 Archive runs fit many frames concurrently from a ThreadPoolExecutor. The
 kernels are compiled with ``nogil=True`` and must share nothing mutable, so

@@ -349,8 +349,8 @@ def test_plain_pipeline_smoke_run_is_confidently_wrong_somewhere():
     assert len(lines) == 2 + len(FAMILIES)
     assert [line.split("|")[1].strip() for line in lines[2:]] == FAMILIES
     assert all(r.n == 2 and r.median_time_s > 0.0 for r in rows)
-    # What issue 17 is about: the plain pipeline answers wrong with
-    # nothing saying so on at least one hard scene.
+    # What the multi-start fits are for: the plain pipeline answers wrong
+    # with nothing saying so on at least one hard scene.
     assert any(r.confidently_wrong > 0.0 for r in rows)
 
 

@@ -1,5 +1,5 @@
-"""Top-K coarse seeds (issue 17, item 1): the first is the single search's
-result exactly, on every parity scene; the rest are distinct local maxima."""
+"""Top-K coarse seeds: the first is the single search's result exactly, on
+every parity scene; the rest are distinct local maxima."""
 
 from __future__ import annotations
 

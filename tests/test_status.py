@@ -1,9 +1,9 @@
 """Fits that say when they failed: status, reasons, the ``dtalign`` logger, the CLI exit code.
 
-Each case is one of issue 15's silent failures: a polyline outside the
-image, flipped or zero normals, a noise sigma so high no edge survives, a
-seed on the window edge. On the old code each returned the coarse seed
-with 0 inliers and nothing said so.
+Each case is a fit that could fail silently: a polyline outside the image,
+flipped or zero normals, a noise sigma so high no edge survives, a seed on
+the window edge. Each would return the coarse seed with 0 inliers; the
+status, its reasons and the log say so.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def test_a_clean_fit_is_ok_and_logs_nothing(products, scene, caplog):
     fit = _fit(products, scene)
     assert fit.status == "ok" and fit.status is FitStatus.OK and not fit.failed
     # the LM ends at its damping bound on this small disc, but its pose has
-    # settled there: no reason (issue 30: not_converged means "not settled")
+    # settled there: no reason (not_converged means "not settled")
     assert not fit.converged and fit.settled
     assert fit.settling is not None and fit.settling.shift_sigmas <= 0.25
     assert fit.reasons == ()
@@ -102,6 +102,19 @@ def test_flipped_normals_fail_every_vertex_polarity_rejected(products, scene, ca
     assert "normals" in record.getMessage() and "wrong way" in record.getMessage()
 
 
+def test_a_demo_disc_with_flipped_normals_is_failed_not_ambiguous():
+    """``disc_scene(seed=2)`` with its normals negated: every vertex sees the
+    gradient the wrong way, and the likeliest cause leads (a rival basin at
+    (0, 0) with 1 inlier is no reason to call it ``ambiguous``)."""
+    s = scenes.disc_scene(seed=2)
+    p = s.polyline
+    fit = fit_polyline(s.image, p.vertices_vu, -p.normals_vu, p.sigmas, search_window_vu=(30, 30))
+    assert fit.status == "failed"
+    assert str(fit.reasons[0]) == "most_polarity_rejected"
+    assert fit.status_message.startswith(
+        "failed: most vertices see the gradient the wrong way")
+
+
 def test_zero_normals_fail(products, scene):
     fit = _fit(products, scene, normals=np.zeros_like(scene.polyline.normals_vu))
     assert fit.status == "failed" and "all_polarity_rejected" in fit.reasons
@@ -119,8 +132,8 @@ def test_noise_sigma_so_high_no_edge_survives_fails(scene, caplog):
 
 def test_most_vertices_polarity_rejected_fails_with_the_normals_reason_first(
         products, scene, caplog):
-    # issue 30: was "suspect"; a fit whose polarity test rejects most
-    # vertices is failed, and the polarity reason comes first
+    # a fit whose polarity test rejects most vertices is failed (not
+    # "suspect": its pose is no measurement), and the polarity reason comes first
     caplog.set_level(logging.WARNING, logger="dtalign")
     normals = scene.polyline.normals_vu.copy()
     normals[:70] *= -1.0
@@ -163,16 +176,16 @@ def test_rank_deficient_ring_is_a_note():
 
 
 def test_status_values_are_documented_strings():
-    # in order of severity; "ambiguous": a rival basin across the edge (issue 17)
+    # in order of severity; "ambiguous": a rival basin across the edge
     assert [s.value for s in FitStatus] == ["ok", "suspect", "ambiguous", "failed"]
     assert {r.value for r in FitReason} == {
         "degenerate", "all_polarity_rejected", "at_window_edge", "most_polarity_rejected",
         "ambiguous", "not_converged", "ambiguous_along_edge", "rank_deficient",
-        # the profile refinement's (issue 27)
+        # the profile refinement's
         "profile_rejected", "soft_edge", "flat_profile_vertices",
-        # a declared terminator's (issue 28)
+        # a declared terminator's
         "terminator_without_profile", "terminator_imprecise",
-        # vertices outside the image (issue 43.4)
+        # vertices outside the image
         "outside_image", "outside_image_weighted", "partly_outside_image",
     }
     assert str(FitReason.DEGENERATE) == "degenerate" and FitStatus.FAILED == "failed"
@@ -181,7 +194,7 @@ def test_status_values_are_documented_strings():
 def test_to_dict_carries_the_status(products, scene):
     d = _fit(products, scene, normals=np.zeros_like(scene.polyline.normals_vu)).to_dict()
     assert d["status"] == "failed"
-    # the likeliest cause first (issue 30)
+    # the likeliest cause first
     assert d["reasons"] == ["all_polarity_rejected", "degenerate"]
     json.dumps(d)
 
@@ -335,9 +348,9 @@ def test_cli_batch_exits_3_with_the_reason_on_the_fit_line(files):
 
 def test_cli_exits_3_when_the_normals_are_flipped(files):
     """Flipped normals: the polarity-weighted seed finds a shift where a few
-    vertices agree, but most vertices are rejected. Issue 30: this was
-    ``suspect`` (exit 4); the pose is not a measurement, so it is ``failed``
-    (exit 3), the polarity reason first and no offset presented."""
+    vertices agree, but most vertices are rejected. The pose is not a
+    measurement, so it is ``failed`` (exit 3, not ``suspect``'s 4), the
+    polarity reason first and no offset presented."""
     proc = _python_m("fit", "disc.npy", "flipped.csv", "--window", "8", cwd=files)
     assert proc.returncode == 3, proc.stderr
     assert "fit failed: most vertices see the gradient the wrong way" in proc.stderr
@@ -356,7 +369,7 @@ def test_cli_exits_4_when_a_fit_is_ambiguous(tmp_path):
     proc = _python_m("fit", "rings.npy", "rings.csv", "--no-polarity", cwd=tmp_path)
     assert proc.returncode == 4, proc.stderr
     assert "suspect or ambiguous" in proc.stderr
-    # the status names itself once (issue 30: "ambiguous: ambiguous: a rival ...")
+    # the status names itself once (not "ambiguous: ambiguous: a rival ...")
     (status,) = [line for line in proc.stdout.splitlines() if line.startswith("status")]
     assert "ambiguous: a rival basin" in status and "ambiguous: ambiguous" not in status
 

@@ -1,4 +1,4 @@
-"""Issue 28: the pipeline knows a terminator, and never reports a wrong one as ``ok``.
+"""The pipeline knows a terminator, and never reports a wrong one as ``ok``.
 
 The target test fits a fixed seeded subset of the scenes of
 ``benchmarks/terminator_error.py`` (the same generator: Lambert, 300 x 300
@@ -180,7 +180,7 @@ def test_terminator_target_on_a_seeded_subset():
         assert not (_err(fit, sc) > 1.0 and fit.status == "ok"), i
         plain_err.append(_err(plain, sc))
         prof_err.append(_err(fit, sc))
-    # the issue's target with the profile; the plain fit is pixels off (what the reason says)
+    # the target with the profile; the plain fit is pixels off (what the reason says)
     assert np.median(prof_err) <= 0.2
     assert np.percentile(prof_err, 90) <= 0.5
     assert np.median(plain_err) > 2.0

@@ -169,7 +169,7 @@ def test_demo_runs_production_settings_and_explains_converged():
     proc = _python_m("demo", cwd=None)
     assert proc.returncode == 0, proc.stderr
     lm_line = proc.stdout[proc.stdout.index("LM "):]
-    # issue 30: the LM stops at the cap, but its pose has settled there, so
+    # the LM stops at the cap, but its pose has settled there, so
     # the demo says so in a few words and carries no not_converged reason
     assert "iterations (cap 30), settled (moved " in lm_line
     assert "status    : ok\n" in proc.stdout

@@ -1,4 +1,4 @@
-"""Issue 45: dtalign on renders it did not write (Mitsuba 3 and GalSim), from cached fixtures.
+"""dtalign on renders it did not write (Mitsuba 3 and GalSim), from cached fixtures.
 
 The fixtures in ``tests/data/validation/`` are renders of
 ``benchmarks/validate`` (``python -m benchmarks.validate.fixtures`` rewrites
@@ -7,7 +7,7 @@ seed 0's scenes. Mitsuba and GalSim are not needed here: the renders are
 read from the files, fitted with dtalign and scored with the harness's own
 code (:mod:`benchmarks.validate.fitting`, NumPy and dtalign only).
 
-What holds today is asserted; issue 45's targets that do not hold yet are
+What holds today is asserted; the validation targets that do not hold yet are
 strict xfails, so they pass loudly (XPASS fails the run) when the
 pipeline's changes (items 3-5) land.
 """
@@ -80,7 +80,7 @@ def test_nothing_raised(fits):
 
 
 def test_model_right_limb_profile(fits):
-    """Issue 45's target, met: median <= 0.003 px, p95 <= 0.01 px, all accepted and ok."""
+    """The validation target, met: median <= 0.003 px, p95 <= 0.01 px, all accepted and ok."""
     recs = fits[("model_right", "limb")]["profile"]
     err = _errors(recs)
     assert np.median(err) <= 0.003
@@ -90,7 +90,7 @@ def test_model_right_limb_profile(fits):
 
 
 def test_model_right_terminator_profile(fits):
-    """Issue 45's target of at least 95 % accepted and ok, met: every refinement accepted
+    """The validation target of at least 95 % accepted and ok, met: every refinement accepted
     and ok, within 0.1 px (the median target is the strict xfail below)."""
     recs = fits[("model_right", "terminator")]["profile"]
     assert all(r["accepted"] and r["status"] == "ok" for r in recs)
@@ -125,7 +125,7 @@ def test_model_right_terminator_median(fits):
 
 
 def test_psf_mismatch_limb_profile(fits):
-    """Issue 45's PSF-mismatch target, met on these scenes (the NAC-like obscured Airy with
+    """The PSF-mismatch validation target, met on these scenes (the NAC-like obscured Airy with
     jitter, anisotropic jitter, a smear; the PSF estimated): median <= 0.02 px and none
     confidently wrong."""
     recs = fits[("psf_mismatch", "limb")]["profile"]

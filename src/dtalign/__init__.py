@@ -119,7 +119,14 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+    """The public names, for ``dir(dtalign)`` and tab completion.
+
+    Not ``globals()``: that also holds this module's helpers (``importlib``,
+    ``Any``, ``TYPE_CHECKING``, ``_LAZY``) and the subpackage ``api`` that the
+    constants' import binds; a name loaded lazily is listed before its first
+    use as after it.
+    """
+    return sorted({*__all__, "__version__"})
 
 
 if TYPE_CHECKING:  # static analysers see ordinary imports

@@ -92,7 +92,7 @@ def fit_polylines(inp, lo, hi, errors, out):
         a = starts[j]
         b = starts[j + 1]
         p = pts[a:b]
-        if opts.use_polarity:  # today's limb and terminator seed (issue 17)
+        if opts.use_polarity:  # the single polarity-gated seed of the drop-in pipeline
             dv, du, _ = polarity_search(edge, inp.grad, p, nrm[a:b], mv, mu,
                                         inp.seed_support * (b - a))
         else:

@@ -1,4 +1,4 @@
-"""The K best distinct seeds of a coarse score surface (issue 17)."""
+"""The K best distinct seeds of a coarse score surface: the starts of a multi-start fit."""
 
 from __future__ import annotations
 

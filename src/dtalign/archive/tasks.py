@@ -52,7 +52,7 @@ def _now() -> datetime.datetime:
 
 
 def _ambiguity(fit: Any) -> dict[str, float | None]:
-    """The ambiguity columns of a fit examined against rival basins (issue 17)."""
+    """The ambiguity columns of a fit examined against rival basins (its :class:`~dtalign.pipeline.hypotheses.Ambiguity`)."""
     amb = getattr(fit, "ambiguity", None)
     rival = None if amb is None else amb.rival
     return {

@@ -60,10 +60,12 @@ SECTIONS = ("noise_overhead", "profile_overhead", "batch", "startup", "memory", 
 NOISE_OVERHEAD_TARGET = 1.3
 #: ``fit_polyline`` with an edge profile (the photometric refinement, PSF
 #: estimated) may take at most this many times the plain one-call fit of
-#: the same scene (issue 27).
+#: the same scene: the refinement reads each vertex's strip of pixels, which
+#: should cost about as much as the fit it refines.
 PROFILE_OVERHEAD_TARGET = 2.0
-#: Batch rows, 2 workers against 1 in the same run (issue 14): fit_many of
-#: BATCH_FITS polylines on one image, fit_images of BATCH_IMAGES images.
+#: Batch rows, 2 workers against 1 in the same run (so that both see the
+#: same machine load): fit_many of BATCH_FITS polylines on one image,
+#: fit_images of BATCH_IMAGES images.
 BATCH_TARGET = 1.5
 BATCH_FITS = 64
 BATCH_IMAGES_TARGET = 1.8

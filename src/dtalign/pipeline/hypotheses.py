@@ -1,4 +1,4 @@
-"""Several basins, one verdict: multi-start fits and the ambiguity figure (issue 17).
+"""Several basins, one verdict: multi-start fits and the ambiguity figure.
 
 The LM converges into the basin its seed picks; a wrong seed gives a
 confident wrong answer. Here each candidate pose (an LM fit from each of

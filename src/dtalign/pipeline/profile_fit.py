@@ -114,20 +114,19 @@ TERMINATOR_RECENTRES = 6
 #: ... until it lands within this of their centre, pixels: a kink off the
 #: strips' centre leaves one side of it short (1.5 px of the 3.5 px
 #: half-width at a 2 px walk), and the dark side is what tells the kink's
-#: position from the gain and background; two of the four held-out fits
-#: more than 1 px off on the rendered terminators (:ref:`profiles-terminator`)
-#: had stopped 0.9-1.1 px from their strips' centre. About a tenth of the
-#: half-width.
+#: position from the gain and background (fits stopped about 1 px off
+#: their strips' centre were among those more than 1 px off the truth:
+#: :ref:`profiles-terminator`). About a tenth of the half-width.
 TERMINATOR_CENTRED_PX = 0.3
 
 #: An accepted refinement of a fit whose DT stage found an ambiguous rival
 #: basin is run again from the rival's DT-LM pose; when it lands within
 #: this many of the refinement's one-sigma (its covariance plus the
 #: profile floor, the largest axis) of the same offset, the image itself
-#: decides between the two basins and the fit is not ``ambiguous``. On the
-#: rendered terminators (calibration seeds 0-59) the starts that agreed
-#: did so within 0.5 px; the one refinement more than 1 px from the truth
-#: landed 2.2 px away from its rival's.
+#: decides between the two basins and the fit is not ``ambiguous``. Two
+#: sigmas keeps the starts that agree on rendered terminators and leaves
+#: out a refinement that lands far from its rival's
+#: (docs/profiles.rst, "Rival basins").
 RIVAL_AGREEMENT_SIGMAS = 2.0
 
 #: Table margin beyond the strip, pixels: the walk the table still models
@@ -642,10 +641,9 @@ def _terminator_fit(pb: _Problem, params: FloatArray, known: bool) -> tuple[_Pro
     the sigma free on every vertex (:data:`TERMINATOR_FREE_SIGMA`: the blur
     trades with a kink's position). A free run that stops at a sigma of 0
     without converging is held there, then run free once more from
-    :data:`SIGMA_START_PX`, which is kept when it converges above 0 (on the
-    rendered terminators of seeds 0-599, 84 ``ok`` fits had stopped at 0; 30
-    still did after). Returns the last run's problem and its :func:`_run`
-    output with the iterations of every run."""
+    :data:`SIGMA_START_PX`, which is kept when it converges above 0
+    (docs/profiles.rst, "A blur trapped at 0"). Returns the last run's
+    problem and its :func:`_run` output with the iterations of every run."""
     pb, _, out = _recentred(pb, params)
     if not (TERMINATOR_FREE_SIGMA and not known and bool(out[2])):
         return pb, out

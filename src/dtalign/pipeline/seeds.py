@@ -1,4 +1,4 @@
-"""Several distinct coarse seeds instead of one (issue 17).
+"""Several distinct coarse seeds instead of one.
 
 The LM is local: it converges into whichever basin its seed picks. The K
 best *distinct* seeds -- local maxima of the coarse score surface, each at

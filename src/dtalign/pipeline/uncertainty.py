@@ -101,8 +101,9 @@ FloatArray = NDArray[np.float64]
 #: support) thinned to one pixel, a DT value is the distance to the nearest
 #: of them (shared by the vertices around it), and the pixel quantisation
 #: repeats along a tilted edge. Beyond this a pair's Bartlett weight is
-#: zero. Measured: 4 to 12 px change the step-edge families' coverage by a
-#: few hundredths; 8 px is the best of them on the noisy ones.
+#: zero. The coverage is not sensitive to it within a few pixels; 8 px is
+#: the best measured on the noisy families (docs/uncertainty.rst, "The
+#: pipeline's covariance").
 CORRELATION_LENGTH_PX: float = 8.0
 
 #: The floor of each kind of pose, px along the normals (part 3 above), keyed
@@ -117,15 +118,12 @@ CORRELATION_LENGTH_PX: float = 8.0
 #: its steepest gradient lies inside the silhouette, 0.1-0.6 px toward the
 #: body's centre on rendered Lambert spheres at phase 20-60 deg.
 #: ``"dt_terminator"``: a terminator fitted without its profile: a ramp with
-#: no edge, where the DT lock lands several pixels off (median 5.7 px).
+#: no edge, where the DT lock lands several pixels off.
 #: ``"profile"``: an accepted limb (or other) profile refinement: the
 #: profile model's residual error with no blur; it grows with the blur
 #: (:data:`PROFILE_FLOOR_PER_PSF`).
 #: ``"profile_terminator"``: an accepted terminator profile refinement,
-#: whose kink is located less sharply than a limb's step (chosen on the
-#: rendered terminators' seeds 0-199 once the refinement fitted a
-#: terminator without a background slope and with its sigma free; 0.15 px
-#: before, when those fits were 0.17 px off at the median).
+#: whose kink is located less sharply than a limb's step.
 FLOORS_PX: dict[str, float] = {
     "dt": 0.03,
     "dt_limb": 0.23,
@@ -138,18 +136,15 @@ FLOORS_PX: dict[str, float] = {
 #: accepted profile refinement's floor is ``hypot(FLOORS_PX["profile"],
 #: PROFILE_FLOOR_PER_PSF * s)``. A one-sided edge's blur and position are
 #: correlated, and the refinement holds an estimated sigma fixed while it
-#: fits the offset: on rendered limbs (calibration seeds 0-59 and 100-159)
-#: the median error rose from 0.005 px (sigma below 0.3 px) to 0.018 px
-#: (sigma above 1.2 px) while the pixels' covariance rose from 0.003 to
-#: 0.008 px.
+#: fits the offset, so its error grows with the blur faster than the
+#: pixels' own covariance does (the measured rise: docs/uncertainty.rst).
 PROFILE_FLOOR_PER_PSF: float = 0.01
 
 #: A vertex whose final weight is below this fraction of the largest is
 #: mostly rejected (for the Tukey biweight: about two of its sigmas off its
 #: edge): an outlier, whose pull the biweight has already bounded, not a
 #: noisy measurement of the pose. It is left out of the noise term, which it
-#: would otherwise dominate (on the ``outliers`` family the term was then
-#: 1.5 times the real scatter).
+#: would otherwise dominate.
 INLIER_WEIGHT_FRACTION: float = 0.7
 
 #: The step of the DT's second difference across its gradient (the
@@ -157,12 +152,8 @@ INLIER_WEIGHT_FRACTION: float = 0.7
 #: cone, whose curvature across its gradient is ``1/r``; the DT of a thinned
 #: line of edge pixels is flat along the line but for the pixel scallops,
 #: which a step of a few pixels averages away (a step of 1 px meets them).
-#: Measured on seeds 0-199 of the robustness families (68 % / 95 %
-#: coverage, before the second-edge term): 1, 2 and 3 px give
-#: ``heavy_noise`` 0.57 / 0.93, 0.67 / 0.95 and 0.71 / 0.97 (0.89 / 0.99
-#: without the curvature) and ``crater_rim`` 0.61 / 0.89, 0.67 / 0.91 and
-#: 0.68 / 0.91. 3 px was chosen with seeds 200-399 seen as well (2 px put
-#: ``crater_rim`` at 0.59 / 0.87 there); seeds 400-599 checked it.
+#: Of the steps measured, 3 px put the coverage of the sparse-edge families
+#: nearest the targets (the comparison: docs/uncertainty.rst).
 CURVATURE_STEP_PX: float = 3.0
 
 #: How far along each vertex's normal, either way, :func:`evidence` looks
@@ -176,12 +167,10 @@ SECOND_EDGE_REACH_PX: float = 5.0
 #: pixels are the ridge of a gradient smoothed by a Gaussian of 1.2 px: two
 #: opposite edges a few pixels apart overlap in it and their ridges move
 #: apart. A 1-D model of the detector (the Gaussian, the pixel's box, the
-#: central difference) gives 0.22, 0.15, 0.08 and 0.04 px at 3.0, 3.3, 3.8
-#: and 4.2 px; on the ``terminator_limb`` crescents (seeds 0-199), measured
-#: against the distance the search finds (about the width plus 0.25 px),
-#: the fits are off by a median 0.27 px at 3.25 px, 0.12 px at 3.85 px and
-#: 0.06 px at 4.35 px, about 1.5 times the 1-D model (the thinning on a
-#: tilted pixel grid): the constants are the measured ones.
+#: central difference) has the curve's shape; the thinning on a tilted
+#: pixel grid makes the shift about 1.5 times the model's, so the constants
+#: are the ones measured on rendered crescents (docs/uncertainty.rst,
+#: part 4).
 SECOND_EDGE_SHIFT_PX: float = 0.43
 #: See :data:`SECOND_EDGE_SHIFT_PX`.
 SECOND_EDGE_DECAY_PX: float = 0.65

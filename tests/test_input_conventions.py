@@ -1,15 +1,16 @@
-"""Issue 30, items 6 and 7: colour input, argument styles, scalar sigmas, the default window.
+"""How inputs are read: colour images, scalar sigmas, the default search window.
 
 * Colour: one rule for the library and the command line
   (:mod:`dtalign.api.colour`): equal channels are read as grey with an
   INFO note, other colour images as their luma with a WARNING, and the
   command line says which it did.
-* Pairs on the command line are one word joined by a comma everywhere; two
-  words are refused with a message that shows the comma form.
 * A scalar sigma applies to every vertex in the pipeline functions (not in
   the drop-in ``lm_subpixel_refine``, whose contract is per vertex).
 * The search window has one documented default, the same in Python and on
   the command line.
+
+The command line's pairs of numbers (one word, joined by a comma) are
+checked in ``tests/test_cli.py``.
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ import pytest
 
 import dtalign
 from dtalign import scenes
-from dtalign.cli import main
 from dtalign.io import load_image, read_image, save_polyline_csv
 from dtalign.pipeline import DEFAULT_SEARCH_WINDOW_VU, fit_polyline, prepare_image
 from dtalign.pipeline.batch import fit_many
@@ -109,49 +109,6 @@ def test_the_cli_says_what_it_did_with_a_colour_image(scene, tmp_path):
     assert proc.stderr.count("luma") == 1  # said once, not by the library a second time
 
 
-# --------------------------------------------------------------------------- arguments
-
-
-@pytest.mark.parametrize(("argv", "written"), [
-    (["overlay", "x.png", "--shape", "limb", "--image", "i.npy", "--polyline", "p.csv",
-      "--displace", "3", "-2"], "--displace 3,-2, not --displace 3 -2"),
-    (["fit", "a.npy", "a.csv", "--window", "30", "20"], "--window 30,20, not --window 30 20"),
-    (["fit", "a.npy", "a.csv", "--plot", "x.png", "--zoom", "50", "100"],
-     "--zoom 50,100, not --zoom 50 100"),
-])
-def test_two_word_pairs_are_refused_with_the_comma_form(argv, written, capsys):
-    assert main(argv) == 2
-    err = capsys.readouterr().err
-    assert "takes its two numbers as one word, joined by a comma" in err and written in err
-    assert "odd number of files" not in err
-
-
-def test_displace_takes_a_comma_pair_negative_first_too(tmp_path, capsys, monkeypatch):
-    from dtalign.io import cassini
-
-    # a stand-in frame and overlay: the option's parsing is what is tested
-    monkeypatch.setattr(cassini, "load_cassini_overlay_frame", lambda path: _FakeFrame())
-    monkeypatch.setattr(cassini, "overlay_polylines", lambda f, shape, n_lines: [
-        scenes.Polyline("l", np.array([[10.0, 10.0], [10.0, 20.0], [20.0, 20.0]]),
-                        np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.ones(3))])
-    code = main(["overlay", "x.png", "--shape", "limb", "--image", str(tmp_path / "i.npy"),
-                 "--polyline", str(tmp_path / "p.csv"), "--displace", "-2,3"])
-    assert code == 0, capsys.readouterr().err
-    from dtalign.io import load_polyline_csv
-
-    moved = load_polyline_csv(tmp_path / "p.csv")
-    assert np.allclose(moved.vertices_vu[0], (12.0, 7.0))  # moved by -(-2, 3)
-    assert main(["overlay", "x.png", "--shape", "limb", "--image", str(tmp_path / "i.npy"),
-                 "--polyline", str(tmp_path / "p.csv"), "--displace", "3"]) == 1
-    assert "--displace takes two numbers separated by a comma (e.g. 3,-2)" \
-        in capsys.readouterr().err
-
-
-class _FakeFrame:
-    image = np.zeros((30, 30))
-    header_rows = 0
-
-
 # --------------------------------------------------------------------------- sigmas, window
 
 
@@ -195,86 +152,3 @@ def test_one_documented_default_window_in_python_and_on_the_cli(scene):
     fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas)
     assert fit.search_window_vu == (30, 30)
     assert np.allclose(fit.offset_vu, TRUE, atol=0.2)
-
-
-# --------------------------------------------------------------------------- item 8: small ones
-
-
-def test_json_writes_infinite_sigmas_as_null_and_from_dict_round_trips(scene):
-    import json
-
-    from dtalign.pipeline import PolylineFit
-
-    p = scene.polyline
-    fit = fit_polyline(scene.image, p.vertices_vu, p.normals_vu, p.sigmas, search_window_vu=(8, 8),
-                       fit_rotation=True, max_iterations=3)  # a circle: rotation sigma inf
-    d = fit.to_dict(arrays=True)
-    text = json.dumps(d, allow_nan=False)  # strict JSON: no Infinity, no NaN
-    assert d["sigma_rotation_rad"] is None and '"inf"' not in text
-    back = PolylineFit.from_dict(json.loads(text))
-    assert back.to_dict(arrays=True) == d
-    assert back.status == fit.status and back.reasons == fit.reasons
-    assert back.sigma_vu == fit.sigma_vu and back.sigma_rotation_rad == fit.sigma_rotation_rad
-    with pytest.raises(ValueError, match="to_dict\\(arrays=True\\)"):
-        PolylineFit.from_dict(fit.to_dict())
-
-
-def test_plot_titles_lead_with_the_status(scene, tmp_path):
-    pytest.importorskip("matplotlib")
-    from dtalign.plotting import plot_fit
-
-    p = scene.polyline
-    bad = fit_polyline(scene.image, p.vertices_vu, -p.normals_vu, p.sigmas, search_window_vu=(8, 8))
-    fig = plot_fit(scene.image, p.vertices_vu, bad)
-    title = fig.axes[0].get_title()
-    assert title.startswith("status FAILED (most_polarity_rejected")
-    assert "no offset measured" in title and "±" not in title.splitlines()[1]
-
-
-def test_bench_exits_1_when_a_row_fails(monkeypatch, capsys):
-    import dtalign.benchmarking as bench
-
-    rows = [{"name": "x", "passed": True}, {"name": "y", "passed": False}]
-    monkeypatch.setattr(bench, "run", lambda *a, **k: {
-        "rows": rows, "total_s": 1.0, "warmup_s": 0.0, "other_load_cores": 0.0,
-        "all_passed": False})
-    monkeypatch.setattr(bench, "format_table", lambda rows: "| table |")
-    assert bench.main(["--quick"]) == 1
-    assert "1 row(s) FAIL: exit status 1" in capsys.readouterr().err
-    assert bench.main(["--quick", "--allow-fail"]) == 0
-    rows[1]["passed"] = True
-    assert bench.main(["--quick"]) == 0
-
-
-def test_quantised_noise_estimate_is_said(caplog):
-    from dtalign.pipeline.products import QUANTISED_NOISE_STEP, quantised_noise_steps
-
-    assert quantised_noise_steps(0.4942) == 2.0  # both Cassini frames' estimate
-    assert QUANTISED_NOISE_STEP * 2 == pytest.approx(0.4942, abs=1e-12)
-    assert quantised_noise_steps(2.006) is None
-    caplog.set_level(logging.INFO, logger="dtalign")
-    rng = np.random.default_rng(0)
-    image = np.round(50.0 + 0.5 * rng.standard_normal((64, 64)))  # 8-bit-like, ~0.5 DN
-    products = prepare_image(image)
-    assert quantised_noise_steps(products.noise_sigma) is not None
-    assert any("MAD of quantised pixels" in r.getMessage() for r in caplog.records)
-
-
-def test_citation_file_names_this_version():
-    root = Path(__file__).resolve().parents[1]
-    text = (root / "CITATION.cff").read_text(encoding="utf-8")
-    assert "cff-version: 1.2.0" in text and f'version: "{dtalign.__version__}"' in text
-    assert "license: BSD-3-Clause" in text
-
-
-def test_the_issues_flipped_demo_disc_is_failed_not_ambiguous():
-    """Issue 30.1 as written: disc_scene(seed=2) with its normals negated was
-    ``ambiguous`` at (0, 0) with 1 inlier; it is ``failed``, the polarity
-    reason first."""
-    s = scenes.disc_scene(seed=2)
-    p = s.polyline
-    fit = fit_polyline(s.image, p.vertices_vu, -p.normals_vu, p.sigmas, search_window_vu=(30, 30))
-    assert fit.status == "failed"
-    assert str(fit.reasons[0]) == "most_polarity_rejected"
-    assert fit.status_message.startswith(
-        "failed: most vertices see the gradient the wrong way")

@@ -1,9 +1,8 @@
-"""The command line as a new user meets it, each check through a real subprocess.
+"""The command line end to end, each check through a real subprocess.
 
-One test per CLI complaint of issue 15: options anywhere, same-named
-inputs, status lines and the progress bar, output paths checked before the
-work, Ctrl-C, the first-run compile notice, a sample input for ``fit``, and
-the plot zoom.
+Options anywhere, same-named inputs, status lines and the progress bar,
+output paths checked before the work, Ctrl-C, the first-run compile notice,
+a sample input for ``fit``, and the plot zoom.
 """
 
 from __future__ import annotations

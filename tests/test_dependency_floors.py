@@ -1,4 +1,4 @@
-"""Issue 31.1: the declared dependency floors are the ones CI installs and tests.
+"""The declared dependency floors are the ones CI installs and tests.
 
 ``pyproject.toml`` declares ``name>=X`` for each runtime dependency;
 ``.ci/floors.txt`` pins ``name==X`` for CI's floor step and ``nox -s
