@@ -703,13 +703,8 @@ def _pair(x: Any) -> str:
     return f"({float(x[0]):.5g}, {float(x[1]):.5g})"
 
 
-def _num(x: float) -> float | None:
-    """A finite value, or None (JSON ``null``) for ``inf`` and ``nan``."""
-    return x if math.isfinite(x) else None
-
-
 def _inf(x: Any) -> float:
-    """:func:`_num` read back: None is ``+inf``."""
+    """A JSON value read back: None is ``+inf``."""
     return math.inf if x is None else float(x)
 
 
