@@ -230,12 +230,6 @@ OK_PROMISE_PX = 1.0
 #: not yet hold (:func:`open_corner`).
 SMALL_BODY_PX = 25.0
 
-#: Polylines of fewer vertices than this (twice the refinement's minimum)
-#: are an open corner too: a noise-free Minnaert limb of 5 vertices at phase
-#: 90 deg was accepted, ok and 0.094 px off at a one-sigma of 0.006 px (the
-#: fresh-venv CI draw in :data:`FOUND`).
-SPARSE_VERTICES = 10
-
 
 def open_corner(case: Case) -> str | None:
     """The corner of the draws, if any, where the reported covariance is known
@@ -257,8 +251,6 @@ def open_corner(case: Case) -> str | None:
         return "heavy noise"
     if case.radius_px < SMALL_BODY_PX:
         return "a small body"
-    if case.n_vertices < SPARSE_VERTICES:
-        return "a sparse polyline"
     return None
 
 
@@ -485,11 +477,6 @@ FOUND = {
         n_vertices=294, offset_vu=(0.0, 0.5), law='minnaert', minnaert_k=0.5, psf='none',
         psf_sigma_px=0.0, noise='heavy', albedo_dn=409.0119530834447,
         background_dn=2.225073858507e-311, fit_law=True, noise_seed=123547)),
-    "ci-limb-5-vertices-minnaert-phase-90": ("limb", Case(
-        family='limb', shape=(160, 160), centre_shift_vu=(0.0, 0.0), radius_px=32.0,
-        phase_deg=90.0, illumination_deg=0.0, n_vertices=5, offset_vu=(0.0, 0.0),
-        law='minnaert', minnaert_k=0.5, psf='none', psf_sigma_px=0.0, noise='none',
-        albedo_dn=100.0, background_dn=0.0, fit_law=False, noise_seed=0)),
     # seed 3 (1000 draws), draw 115
     "s3-115-terminator-3-vertices-wings-estimated": ("terminator", Case(
         family='limb', shape=(174, 174), centre_shift_vu=(0.3662719424602656,
