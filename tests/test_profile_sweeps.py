@@ -251,6 +251,8 @@ def open_corner(case: Case) -> str | None:
         return "heavy noise"
     if case.radius_px < SMALL_BODY_PX:
         return "a small body"
+    if case.family == "limb" and case.law == "minnaert" and (case.minnaert_k or 1.0) < 1.0:
+        return "a Minnaert limb with k < 1"
     return None
 
 
@@ -477,6 +479,18 @@ FOUND = {
         n_vertices=294, offset_vu=(0.0, 0.5), law='minnaert', minnaert_k=0.5, psf='none',
         psf_sigma_px=0.0, noise='heavy', albedo_dn=409.0119530834447,
         background_dn=2.225073858507e-311, fit_law=True, noise_seed=123547)),
+    # the suite's run on a fresh clone: a Minnaert limb with k < 1, whose
+    # brightness diverges at the limb (mu ** (k - 1)), noise-free
+    "ci-limb-minnaert-k0.5-5-vertices": ("limb", Case(
+        family='limb', shape=(160, 160), centre_shift_vu=(0.0, 0.0), radius_px=32.0,
+        phase_deg=90.0, illumination_deg=0.0, n_vertices=5, offset_vu=(0.0, 0.0),
+        law='minnaert', minnaert_k=0.5, psf='none', psf_sigma_px=0.0, noise='none',
+        albedo_dn=100.0, background_dn=0.0, fit_law=False, noise_seed=0)),
+    "ci-limb-minnaert-k0.5-10-vertices": ("limb", Case(
+        family='limb', shape=(160, 160), centre_shift_vu=(0.0, 0.0), radius_px=47.0,
+        phase_deg=45.0, illumination_deg=0.0, n_vertices=10, offset_vu=(0.0, 0.0),
+        law='minnaert', minnaert_k=0.5, psf='none', psf_sigma_px=0.0, noise='none',
+        albedo_dn=100.0, background_dn=0.0, fit_law=False, noise_seed=0)),
     # seed 3 (1000 draws), draw 115
     "s3-115-terminator-3-vertices-wings-estimated": ("terminator", Case(
         family='limb', shape=(174, 174), centre_shift_vu=(0.3662719424602656,
