@@ -59,7 +59,7 @@ def row(name: str, turned: bool, shifted: bool, seeds: range) -> list[str]:
         e = np.subtract(fit.offset_vu, sc.true_offset_vu)
         d2.append(float(e @ np.linalg.pinv(np.asarray(fit.covariance)[:2, :2]) @ e))
         err.append(math.hypot(*e))
-        dt_err.append(math.hypot(*np.subtract(fit.dt_offset_vu, sc.true_offset_vu)))
+        dt_err.append(math.hypot(*np.subtract(fit.lm.offset_vu, sc.true_offset_vu)))
         n = np.asarray(fit.uncertainty.noise)[:2, :2]
         noise.append(math.sqrt(max(float(np.linalg.eigvalsh(n).max()), 0.0)))
     d = np.asarray(d2)

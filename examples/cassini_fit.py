@@ -120,13 +120,13 @@ def report(key: str, r: dict) -> str:
         f"across the edge (normal {n[0]:+.4f}, {n[1]:+.4f}): {float(r['error'] @ n):+.4f} px"
     )
     out.append(
-        f"inliers {moved.inlier_count}/{len(r['model'])}, polarity-rejected "
+        f"inliers {moved.lm.inlier_count}/{len(r['model'])}, polarity-rejected "
         f"{int(moved.polarity_rejected.sum())}, Tukey-rejected {int(moved.tukey_rejected.sum())}, "
-        f"rms {moved.rms_px:.3f} px"
+        f"rms {moved.lm.rms_px:.3f} px"
     )
     sv, su = moved.sigma_vu
     out.append(f"DT covariance (pinvh, the contract's): sigma_v {sv:.4f}, sigma_u {su:.4f} px")
-    cn = np.asarray(moved.normal_covariance)
+    cn = np.asarray(moved.uncertainty.normal_covariance)
     out.append(
         f"geometry (normals): observable rank {moved.observable_rank} of 2; "
         f"normal-covariance eigenvalues {np.array2string(np.linalg.eigvalsh(cn), precision=3)}"
@@ -138,7 +138,7 @@ def report(key: str, r: dict) -> str:
             f"  unobservable direction ({t[0]:+.4f}, {t[1]:+.4f}): pinvh variance {along:.1e} "
             f"(zero: no information); sigma across the edge {moved.sigma_along(n):.4f} px"
         )
-        iv, iu = moved.sigma_vu_unobservable_inf
+        iv, iu = moved.sigma_vu
         out.append(f"  inf reading: sigma_v {iv}, sigma_u {iu}")
     if moved.at_window_edge:
         out.append("WARNING: coarse seed on the search-window edge")

@@ -131,8 +131,8 @@ def assert_store_matches_serial(store_path, manifest, *, expect_all=True):
             assert (r["sigma_v"], r["sigma_u"]) == fit.sigma_vu
             assert (r["cov_vv"], r["cov_vu"], r["cov_uu"]) == (cov[0, 0], cov[0, 1], cov[1, 1])
             assert (r["coarse_dv"], r["coarse_du"]) == fit.coarse_offset_vu
-            assert r["iterations"] == fit.lm.iterations and r["rms_px"] == fit.rms_px
-            assert r["inlier_count"] == fit.inlier_count
+            assert r["iterations"] == fit.lm.iterations and r["rms_px"] == fit.lm.rms_px
+            assert r["inlier_count"] == fit.lm.inlier_count
             assert r["noise_sigma"] == fit.noise_sigma
             assert r["item_fingerprint"] == item.fingerprint
             assert (r["status"], r["reasons"]) == _status(fit)

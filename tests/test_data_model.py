@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import re
 from pathlib import Path
 
@@ -168,3 +169,23 @@ def test_a_changed_fit_is_assessed_anew(disc):
     other = dataclasses.replace(fit, edge_kind="terminator")
     assert "terminator_without_profile" in other.reasons and fit.reasons == ()
     assert np.array_equal(other.offset_vu, fit.offset_vu)
+
+
+def test_secondary_covariance_views_live_behind_uncertainty_and_lm(disc):
+    """The result leads with one covariance (``sigma_vu``); the M-estimator's
+    and the geometry's readings are under ``fit.uncertainty``, the DT-LM
+    stage's own under ``fit.lm``, not as properties of the fit."""
+    cls = fit_module.PolylineFit
+    props = {n for n, v in vars(cls).items()
+             if not n.startswith("_") and isinstance(v, (property, functools.cached_property))}
+    assert len(props) <= 16, sorted(props)
+    moved = {"covariance_mestimator", "covariance_scaled", "variance_factor", "sigma_vu_scaled",
+             "normal_covariance", "covariance_unobservable_inf"}
+    assert not moved & props
+    assert not {"converged", "degenerate", "rms_px", "inlier_count", "dt_offset_vu"} & props
+    fit = fit_polyline(disc.image, disc.polyline, search_window_vu=(30, 30))
+    u = fit.uncertainty
+    np.testing.assert_array_equal(fit.covariance, u.covariance)
+    np.testing.assert_array_equal(u.covariance_mestimator, fit.lm.covariance)
+    np.testing.assert_array_equal(u.covariance_scaled, fit.lm.covariance * u.variance_factor)
+    assert fit.observable_rank == 2 and u.source == "dt"

@@ -85,6 +85,6 @@ def test_example_runs_as_written(page, index, code, capsys):
         fit, scene = ns["fit"], ns["scene"]
         assert fit.profile is not None and fit.profile.accepted
         assert math.dist(fit.offset_vu, scene.true_offset_vu) < 0.05
-        assert math.dist(fit.dt_offset_vu, scene.true_offset_vu) > 0.1
+        assert math.dist(fit.lm.offset_vu, scene.true_offset_vu) > 0.1
     elif "navigation_scene" in code:
         assert ns["fits"]["ring"].observable_rank == 1

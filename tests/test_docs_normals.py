@@ -68,8 +68,8 @@ def test_outward_limb_normals_reject_every_vertex(scene):
                                  search_window_vu=(30, 30))
     bad = fit_polyline_products(products, limb.vertices_vu, -limb.normals_vu, limb.sigmas,
                                 search_window_vu=(30, 30))
-    assert good.inlier_count == len(limb) and good.status == "ok"
-    assert 2 * bad.polarity_rejected_count > len(limb)
+    assert good.lm.inlier_count == len(limb) and good.status == "ok"
+    assert 2 * bad.lm.polarity_rejected_count > len(limb)
     assert bad.status in ("suspect", "ambiguous", "failed")
     assert "wrong way" in bad.status_message
     # on the true edge, every vertex of the flipped limb is rejected

@@ -79,7 +79,7 @@ def test_a_polyline_off_the_image_is_named_outside_not_its_normals(fits):
     fit = fits[200]
     assert fit.status is FitStatus.FAILED
     assert fit.reasons == (FitReason.OUTSIDE_IMAGE, FitReason.DEGENERATE)
-    assert fit.outside_image_count == 200 and fit.image_shape == (320, 320)
+    assert fit.outside_image.sum() == 200 and fit.image_shape == (320, 320)
     assert fit.status_message.startswith(
         "failed: 200 of 200 vertices lie outside the 320 x 320 image: nothing inside to fit "
         "(is the polyline in this image's pixel frame, (v, u) = (row, column)? is the "
@@ -90,7 +90,7 @@ def test_a_polyline_off_the_image_is_named_outside_not_its_normals(fits):
 def test_a_polyline_half_off_the_image_counts_polarity_only_inside(fits):
     fit = fits[110]
     assert fit.reasons == (FitReason.OUTSIDE_IMAGE, FitReason.MOST_POLARITY_REJECTED)
-    assert fit.outside_image_count == 126 and fit.polarity_rejected_count == 198
+    assert fit.outside_image.sum() == 126 and fit.lm.polarity_rejected_count == 198
     assert fit.status_message == (
         "failed: 126 of 200 vertices lie outside the 320 x 320 image, and only 2 of the 74 "
         "inside kept any weight: too few to fit (is the predicted pose off by more than the "
@@ -147,7 +147,7 @@ def test_to_dict_carries_the_shape_and_the_count(fits):
     # a dict written before the shape was recorded: nothing counted outside (as before)
     old = {k: v for k, v in d.items() if k not in ("image_shape", "outside_image")}
     legacy = PolylineFit.from_dict(old)
-    assert legacy.image_shape is None and legacy.outside_image_count == 0
+    assert legacy.image_shape is None and legacy.outside_image.sum() == 0
     assert legacy.reasons == (FitReason.MOST_POLARITY_REJECTED,)
 
 
@@ -218,7 +218,7 @@ def test_the_command_line_names_outside_and_prints_no_inf(tmp_path, capsys, sphe
 
 def test_a_fit_inside_the_image_is_as_before(fits):
     fit = fits[0]
-    assert fit.outside_image_count == 0
+    assert fit.outside_image.sum() == 0
     assert fit.reasons == () and fit.status_message == "ok"
     # the shape only decides what is outside: without it the fit reads the same
     before = dataclasses.replace(fit, image_shape=None)

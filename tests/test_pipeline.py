@@ -67,11 +67,10 @@ def test_fit_polyline_recovers_disc_offset(disc, disc_fit):
     # A sensible sigma: finite, sub-pixel, larger than the bare error would need.
     assert all(0.01 < s < 1.0 for s in fit.sigma_vu)
     assert fit.sigma_vu == pytest.approx(tuple(np.sqrt(np.diag(fit.covariance))))
-    assert not fit.at_window_edge and not fit.degenerate
+    assert not fit.at_window_edge and not fit.lm.degenerate
     assert fit.observable_rank == 2 and fit.unobservable_directions.shape == (0, 2)
-    assert fit.sigma_vu_unobservable_inf == pytest.approx(fit.sigma_vu)
     assert fit.noise_sigma == pytest.approx(2.0, rel=0.1)  # estimated
-    assert fit.inlier_count == len(disc.polyline)
+    assert fit.lm.inlier_count == len(disc.polyline)
     assert not fit.polarity_rejected.any() and not fit.tukey_rejected.any()
 
 
@@ -120,7 +119,7 @@ def test_several_polylines_share_one_image():
     assert abs(ring.offset_vu[0] - scene.true_offset_vu[0]) < 1.0
     assert ring.observable_rank == 1
     np.testing.assert_allclose(np.abs(ring.unobservable_directions), [[0.0, 1.0]], atol=1e-12)
-    sv, su = ring.sigma_vu_unobservable_inf
+    sv, su = ring.sigma_vu
     assert math.isfinite(sv) and su == math.inf
     assert ring.sigma_along((1.0, 0.0)) == pytest.approx(ring.sigma_vu[0])
 

@@ -167,11 +167,11 @@ def test_a_crescent_s_other_edge_s_pull_is_corrected(seed: int, near: bool) -> N
     along = np.einsum("nk,nk->n", ev.second_edge_vu, fit.normals_vu)
     beta = unc.second_edge_pull(fit, ev)
     # the pose is the DT-LM's less the pull; the pull's size stays in the covariance
-    np.testing.assert_array_equal(fit.offset_vu, np.subtract(fit.dt_offset_vu, beta))
+    np.testing.assert_array_equal(fit.offset_vu, np.subtract(fit.lm.offset_vu, beta))
     np.testing.assert_allclose(u.bias, np.outer(beta, beta), atol=1e-15)
     np.testing.assert_allclose(u.covariance, u.noise + np.asarray(u.bias) + unc.floor_covariance(
         ev.jacobian, fit.lm.weights, u.floor_px), atol=1e-15)
-    dt_err = np.subtract(fit.dt_offset_vu, case.true_offset_vu)
+    dt_err = np.subtract(fit.lm.offset_vu, case.true_offset_vu)
     err = np.subtract(fit.offset_vu, case.true_offset_vu)
     if near:
         # the other edge is on the bright side: every vertex is pushed along
@@ -183,7 +183,7 @@ def test_a_crescent_s_other_edge_s_pull_is_corrected(seed: int, near: bool) -> N
     else:
         assert np.abs(along).max() < 0.03 and np.abs(beta).max() < 0.02
         if not beta.any():
-            assert fit.offset_vu == fit.dt_offset_vu
+            assert fit.offset_vu == fit.lm.offset_vu
 
 
 def _crescents(turned: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -237,7 +237,7 @@ def test_every_fit_path_reports_the_same_covariance(nav, nav_products) -> None:
     for other in (call, many):
         np.testing.assert_array_equal(other.covariance, one.covariance)
     # the M-estimator's is the drop-in's, unchanged
-    np.testing.assert_array_equal(one.covariance_mestimator, one.lm.covariance)
+    np.testing.assert_array_equal(one.uncertainty.covariance_mestimator, one.lm.covariance)
     assert one.sigma_vu == tuple(math.sqrt(x) for x in np.diag(one.covariance))
     # noise plus the floor: never below the floor along an observed axis
     assert min(one.sigma_vu) >= unc.FLOORS_PX["dt"]
@@ -296,7 +296,7 @@ def test_the_covariance_survives_the_dict_round_trip(nav, nav_products) -> None:
     d = json.loads(json.dumps(fit.to_dict(arrays=True)))
     back = PolylineFit.from_dict(d)
     np.testing.assert_allclose(back.covariance, fit.covariance, rtol=1e-15)
-    np.testing.assert_array_equal(back.covariance_mestimator, fit.covariance_mestimator)
+    np.testing.assert_array_equal(back.uncertainty.covariance_mestimator, fit.uncertainty.covariance_mestimator)
     assert d["uncertainty_source"] == "dt_limb"
     np.testing.assert_array_equal(back.evidence.curvature, fit.evidence.curvature)
     np.testing.assert_array_equal(back.evidence.second_edge_vu, fit.evidence.second_edge_vu)
@@ -317,7 +317,7 @@ def test_the_covariance_survives_the_dict_round_trip(nav, nav_products) -> None:
     del d["covariance_mestimator"], d["evidence"]
     d["covariance"] = np.asarray(fit.lm.covariance).tolist()
     old = PolylineFit.from_dict(d)
-    assert old.uncertainty is None
+    assert old.uncertainty.parts is None
     np.testing.assert_array_equal(old.covariance, fit.lm.covariance)
 
 
@@ -325,7 +325,7 @@ def test_a_degenerate_fit_has_an_infinite_covariance(nav, nav_products) -> None:
     limb = nav.polylines[0]
     fit = fit_polyline_products(nav_products, limb.vertices_vu, 0 * limb.normals_vu, limb.sigmas,
                                 search_window_vu=(12, 12))
-    assert fit.degenerate
+    assert fit.lm.degenerate
     assert np.isinf(fit.covariance).all() and fit.sigma_vu == (math.inf, math.inf)
 
 

@@ -141,7 +141,7 @@ def test_profile_fit_meets_targets(case):
     fit = fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas, search_window_vu=(6, 6),
                        edge_profile=prof)
     assert fit.profile is not None and fit.profile.accepted
-    assert fit.dt_offset_vu == plain.offset_vu
+    assert fit.lm.offset_vu == plain.offset_vu
     assert _err(fit, sc) <= 0.03  # the 95th-percentile target; the table's median is far below
     assert _err(fit, sc) < _err(plain, sc)
 
@@ -201,7 +201,7 @@ def test_batch_paths_refine_like_the_one_call_fit():
     many = fit_many(products, [(L.vertices_vu, L.normals_vu, L.sigmas, prof), L],
                     search_window_vu=(6, 6), workers=1)
     assert many[0].offset_vu == one.offset_vu and many[0].profile.accepted
-    assert many[1].profile is None and many[1].offset_vu == one.dt_offset_vu
+    assert many[1].profile is None and many[1].offset_vu == one.lm.offset_vu
     images = fit_images([(sc.image, None, [(L.vertices_vu, L.normals_vu, L.sigmas, prof)])],
                         search_window_vu=(6, 6), workers=1)
     assert images[0][0].offset_vu == one.offset_vu
@@ -325,7 +325,7 @@ def test_far_model_is_discarded_and_said():
                        edge_profile=prof)
     assert not fit.profile.accepted and fit.profile.reason
     assert "profile_rejected" in fit.reasons and fit.status == "suspect"
-    assert fit.offset_vu == fit.dt_offset_vu
+    assert fit.offset_vu == fit.lm.offset_vu
     assert "profile refinement rejected" in fit.status_message
 
 
@@ -424,9 +424,9 @@ def test_a_refined_fit_round_trips_through_its_dict():
     fit = fit_polyline(sc.image, L.vertices_vu, L.normals_vu, L.sigmas, search_window_vu=(6, 6),
                        edge_profile=_profile(sc))
     assert fit.profile is not None and fit.profile.accepted
-    assert fit.offset_vu != fit.dt_offset_vu
+    assert fit.offset_vu != fit.lm.offset_vu
     d = fit.to_dict(arrays=True)
     back = PolylineFit.from_dict(json.loads(json.dumps(d, allow_nan=False)))
-    assert back.offset_vu == fit.offset_vu and back.dt_offset_vu == fit.dt_offset_vu
+    assert back.offset_vu == fit.offset_vu and back.lm.offset_vu == fit.lm.offset_vu
     assert back.profile == fit.profile
     assert back.to_dict(arrays=True) == d

@@ -37,7 +37,7 @@ def test_ring_sigma_vu_is_inf_along_the_edge(ring_fit):
     assert math.isfinite(sv) and 0.0 < sv < 0.5
     assert su == math.inf  # the DT covariance alone said ~1 px here
     assert math.isfinite(float(np.sqrt(ring_fit.covariance[1, 1])))
-    assert ring_fit.sigma_vu_scaled[1] == math.inf
+    assert ring_fit.uncertainty.sigma_vu_scaled[1] == math.inf
     assert ring_fit.sigma_along((0.0, 1.0)) == math.inf
     assert ring_fit.sigma_along((1.0, 0.0)) == pytest.approx(sv)
     ((e, x, s),) = ring_fit.observable_offset()
@@ -71,14 +71,14 @@ def test_variance_factor_is_the_reduced_chi_square(nav):
                                 search_window_vu=(12, 12))
     w, r = np.asarray(fit.lm.weights), np.asarray(fit.lm.residuals_px)
     kept = w > 0
-    assert fit.variance_factor == pytest.approx(np.sum(w[kept] * r[kept] ** 2) / (kept.sum() - 2))
-    assert np.allclose(fit.covariance_scaled, fit.covariance_mestimator * fit.variance_factor)
-    s = math.sqrt(fit.variance_factor)
-    m_sigmas = np.sqrt(np.diag(fit.covariance_mestimator))
-    assert fit.sigma_vu_scaled == pytest.approx(tuple(x * s for x in m_sigmas))
+    assert fit.uncertainty.variance_factor == pytest.approx(np.sum(w[kept] * r[kept] ** 2) / (kept.sum() - 2))
+    assert np.allclose(fit.uncertainty.covariance_scaled, fit.uncertainty.covariance_mestimator * fit.uncertainty.variance_factor)
+    s = math.sqrt(fit.uncertainty.variance_factor)
+    m_sigmas = np.sqrt(np.diag(fit.uncertainty.covariance_mestimator))
+    assert fit.uncertainty.sigma_vu_scaled == pytest.approx(tuple(x * s for x in m_sigmas))
     d = np.array([0.6, 0.8])
     assert fit.sigma_along(d, scaled=True) == pytest.approx(
-        math.sqrt(d @ fit.covariance_mestimator @ d) * s)
+        math.sqrt(d @ fit.uncertainty.covariance_mestimator @ d) * s)
 
 
 def test_degenerate_fit_has_infinite_sigmas(nav):
@@ -86,9 +86,9 @@ def test_degenerate_fit_has_infinite_sigmas(nav):
     limb = nav.polylines[0]
     fit = fit_polyline_products(products, limb.vertices_vu, 0 * limb.normals_vu, limb.sigmas,
                                 search_window_vu=(12, 12))  # zero normals: nothing matches
-    assert fit.degenerate and fit.variance_factor == math.inf
-    assert fit.sigma_vu == (math.inf, math.inf) == fit.sigma_vu_scaled
-    assert np.isinf(fit.covariance_scaled).all()
+    assert fit.lm.degenerate and fit.uncertainty.variance_factor == math.inf
+    assert fit.sigma_vu == (math.inf, math.inf) == fit.uncertainty.sigma_vu_scaled
+    assert np.isinf(fit.uncertainty.covariance_scaled).all()
     assert fit.observable_offset() == []
 
 
@@ -119,8 +119,8 @@ def test_scaled_sigma_matches_the_real_scatter_over_seeded_scenes(caplog):
                            search_window_vu=(10, 10), noise_sigma=noise, trust_region_px=1.0)
         assert not fit.failed
         err.append(np.subtract(fit.offset_vu, offset))
-        prior.append(np.sqrt(np.diag(fit.covariance_mestimator)))
-        scaled.append(fit.sigma_vu_scaled)
+        prior.append(np.sqrt(np.diag(fit.uncertainty.covariance_mestimator)))
+        scaled.append(fit.uncertainty.sigma_vu_scaled)
         honest.append(fit.sigma_vu)
     rms = lambda a: np.sqrt(np.mean(np.square(a), axis=0))  # noqa: E731
     real, prior_rms, scaled_rms = rms(err), rms(prior), rms(scaled)

@@ -86,9 +86,9 @@ def score(fit, truth: np.ndarray) -> dict:
         status=str(fit.status), reasons=[str(r) for r in fit.reasons],
         accepted=None if prof is None else bool(prof.accepted),
         profile_reason=None if prof is None else prof.reason,
-        sigma_vu=list(fit.sigma_vu), sigma_vu_scaled=list(fit.sigma_vu_scaled),
-        d2=_d2(err, fit.covariance), d2_scaled=_d2(err, fit.covariance_scaled),
-        d2_mestimator=_d2(err, fit.covariance_mestimator),
+        sigma_vu=list(fit.sigma_vu), sigma_vu_scaled=list(fit.uncertainty.sigma_vu_scaled),
+        d2=_d2(err, fit.covariance), d2_scaled=_d2(err, fit.uncertainty.covariance_scaled),
+        d2_mestimator=_d2(err, fit.uncertainty.covariance_mestimator),
         psf_sigma_px=None if prof is None else float(prof.psf_sigma_px),
         exception=None,
     )

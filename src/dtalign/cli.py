@@ -536,14 +536,14 @@ def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace)
     h, w = scene.image.shape
     tv, tu = scene.true_offset_vu
     (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
-    (sv2, su2) = fit.sigma_vu_scaled
+    (sv2, su2) = fit.uncertainty.sigma_vu_scaled
     # a failed fit's sigmas are no measurement: words, not inf (status.UNMEASURED_TEXT)
     fitted = (f"dv = {_fmt(dv, 4)}   du = {_fmt(du, 4)} px, sigma {UNMEASURED_TEXT}"
               if fit.failed else
               f"dv = {_fmt(dv, 4)} ± {_fmt(sv, 4)}   du = {_fmt(du, 4)} ± {_fmt(su, 4)} px (1 sigma)")
     scaled = (f"sigma {UNMEASURED_TEXT}" if fit.failed else
               f"± {_fmt(sv2, 4)}, ± {_fmt(su2, 4)} px (the M-estimator's 1 sigma scaled by the "
-              f"residuals, variance factor {_fmt(fit.variance_factor, 4)})")
+              f"residuals, variance factor {_fmt(fit.uncertainty.variance_factor, 4)})")
     lines = [
         f"scene     : {h} x {w} disc, radius 150 px, {len(poly)} limb vertices, seed {args.seed}",
         f"noise     : sigma {scene.noise_sigma:g} DN (estimated from the image: {noise_est:.3f})",
@@ -565,8 +565,8 @@ def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace)
         )
     lines.append(
         f"LM        : {fit.lm.iterations} iterations (cap {DEFAULT_LM_MAX_ITERATIONS}), "
-        f"{_settled_text(fit)}, rms {_fmt(fit.rms_px)} px, "
-        f"inliers {fit.inlier_count}/{len(poly)}"
+        f"{_settled_text(fit)}, rms {_fmt(fit.lm.rms_px)} px, "
+        f"inliers {fit.lm.inlier_count}/{len(poly)}"
     )
     lines += [
         f"status    : {fit.status}"
@@ -580,7 +580,7 @@ def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace)
 
 def _settled_text(fit: Any) -> str:
     """How the LM ended, in a few words: converged, settled, or still moving."""
-    if fit.converged:
+    if fit.lm.converged:
         return "converged"
     s = fit.settling
     if s is None:
@@ -810,13 +810,13 @@ def _table_single(job: _Job, poly: Any, fit: Any, estimated: bool = True) -> str
         obs += f"; unobservable along {tuple(round(float(x), 4) for x in e)} (sigma inf)"
     if fit.failed:  # no direction of a failed fit is a measurement: no "inf" to read
         obs = f"rank {rank} of {p}, sigma {UNMEASURED_TEXT}"
-    rms = f"{_fmt(fit.rms_px)} px" if math.isfinite(fit.rms_px) else "not measured"
+    rms = f"{_fmt(fit.lm.rms_px)} px" if math.isfinite(fit.lm.rms_px) else "not measured"
     lines += [
         f"observable   : {obs}",
-        f"fit quality  : rms {rms}, inliers {fit.inlier_count}/{len(poly)}, "
+        f"fit quality  : rms {rms}, inliers {fit.lm.inlier_count}/{len(poly)}, "
         f"polarity-rejected {d['polarity_rejected']}, Tukey-rejected {d['tukey_rejected']}",
         f"LM           : {fit.lm.iterations} iterations, {_settled_text(fit)}, "
-        f"degenerate={fit.degenerate}",
+        f"degenerate={fit.lm.degenerate}",
     ]
     if fit.profile is not None:
         lines.append(_profile_line(fit.profile))
@@ -871,7 +871,7 @@ def _offset_line(fit: Any) -> str:
     and says which direction is not measured (no finite sigma there).
     """
     (dv, du), (sv, su) = fit.offset_vu, fit.sigma_vu
-    if fit.degenerate:
+    if fit.lm.degenerate:
         return f"offset       : none measured (degenerate; the coarse seed is {fit.coarse_offset_vu})"
     if fit.failed:
         # a failed fit's pose is where the LM stopped, not a measurement: no sigma

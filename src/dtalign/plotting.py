@@ -282,8 +282,8 @@ def _summary(fit: Any) -> str:
         text += f"offset (dv, du) = ({dv:.3f} ± {sv:.3f}, {du:.3f} ± {su:.3f}) px"
     if fit.fit_rotation:
         text += f", rotation {fit.rotation_rad:.5f} rad"
-    text += f"\ncoarse seed {fit.coarse_offset_vu}, rms {fit.rms_px:.3f} px, "
-    text += f"inliers {fit.inlier_count}/{len(fit.lm.residuals_px)}"
+    text += f"\ncoarse seed {fit.coarse_offset_vu}, rms {fit.lm.rms_px:.3f} px, "
+    text += f"inliers {fit.lm.inlier_count}/{len(fit.lm.residuals_px)}"
     rank = fit.observable_rank
     if rank < (fit.n_params):
         text += f", observable rank {rank}"
@@ -381,7 +381,7 @@ def plot_residual_histogram(
     ax.set_xlabel("DT residual at the fitted pose (px)")
     ax.set_ylabel("vertices")
     ax.set_title(
-        f"rms {fit.rms_px:.3f} px (weighted), {int(polarity.sum())} polarity-rejected not shown",
+        f"rms {fit.lm.rms_px:.3f} px (weighted), {int(polarity.sum())} polarity-rejected not shown",
         fontsize=9,
     )
     ax.legend(fontsize=8)

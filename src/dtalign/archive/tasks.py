@@ -65,7 +65,7 @@ def _ambiguity(fit: Any) -> dict[str, float | None]:
 def _profile(fit: Any) -> dict[str, Any]:
     """The DT-LM offset and the profile refinement's columns (null without a profile)."""
     prof = getattr(fit, "profile", None)
-    dt = getattr(fit, "dt_offset_vu", fit.offset_vu)
+    dt = fit.lm.offset_vu
     return {
         "dt_offset_v": float(dt[0]), "dt_offset_u": float(dt[1]),
         "profile_accepted": None if prof is None else bool(prof.accepted),
@@ -139,10 +139,10 @@ def fit_rows(item: Item, fits: list[Any], timings: dict[str, Any], *, run_id: st
             "cov_vr": _f(cov[0, 2]) if rot else None, "cov_ur": _f(cov[1, 2]) if rot else None,
             "cov_rr": _f(cov[2, 2]) if rot else None,
             "coarse_dv": int(fit.coarse_offset_vu[0]), "coarse_du": int(fit.coarse_offset_vu[1]),
-            "at_window_edge": bool(fit.at_window_edge), "converged": bool(fit.converged),
-            "degenerate": bool(fit.degenerate), "iterations": int(fit.lm.iterations),
-            "rms_px": _f(fit.rms_px), "raw_rms_px": _f(fit.lm.raw_rms_px),
-            "inlier_count": int(fit.inlier_count),
+            "at_window_edge": bool(fit.at_window_edge), "converged": bool(fit.lm.converged),
+            "degenerate": bool(fit.lm.degenerate), "iterations": int(fit.lm.iterations),
+            "rms_px": _f(fit.lm.rms_px), "raw_rms_px": _f(fit.lm.raw_rms_px),
+            "inlier_count": int(fit.lm.inlier_count),
             "n_vertices": int(np.asarray(fit.lm.residuals_px).shape[0]),
             "polarity_rejected_count": int(getattr(fit.lm, "polarity_rejected_count", 0)),
             "observable_rank": int(fit.observable_rank),

@@ -72,8 +72,8 @@ CHI2_1D: tuple[float, float] = (1.0, 3.8415)
 #: residuals (``curve_fit(absolute_sigma=False)``).
 READINGS: dict[str, Callable[[Any], Any]] = {
     "pipeline": lambda fit: fit.covariance,
-    "prior": lambda fit: fit.covariance_mestimator,
-    "scaled": lambda fit: fit.covariance_scaled,
+    "prior": lambda fit: fit.lm.covariance,
+    "scaled": lambda fit: fit.uncertainty.covariance_scaled,
 }
 
 #: Rendered spheres: a 200 DN albedo over a 10 DN sky, with shot noise at 20

@@ -18,7 +18,7 @@ dtalign`` alone does not (its names load on first use).
 """
 
 from ..api.options import DEFAULT_SEARCH_WINDOW_VU, FitOptions
-from .fit import PolylineFit, fit_polyline, fit_polyline_products
+from .fit import FitUncertainty, PolylineFit, fit_polyline, fit_polyline_products
 from .observability import (
     covariance_with_unobservable_inf,
     normal_information_covariance,
@@ -30,6 +30,7 @@ from .products import ImageProducts, estimate_noise_sigma, prepare_image
 __all__ = [
     "DEFAULT_SEARCH_WINDOW_VU",
     "FitOptions",
+    "FitUncertainty",
     "ImageProducts",
     "PolylineFit",
     "covariance_with_unobservable_inf",

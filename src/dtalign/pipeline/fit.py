@@ -85,7 +85,7 @@ from .uncertainty import (
     second_edge_pull,
 )
 
-__all__ = ["PolylineFit", "fit_polyline", "fit_polyline_products"]
+__all__ = ["FitUncertainty", "PolylineFit", "fit_polyline", "fit_polyline_products"]
 
 FloatArray = NDArray[np.float64]
 
@@ -104,7 +104,7 @@ class PolylineFit:
         Fitted translation ``(dv, du)`` in pixels: add it to the model
         vertices (after the rotation) to land them on the image edges. The
         accepted profile refinement's when there is one; otherwise the
-        DT-LM's (:attr:`dt_offset_vu`) less the pull of second edges of the
+        DT-LM's (``lm.offset_vu``) less the pull of second edges of the
         opposite polarity near the polyline (a thin crescent's other edge,
         :func:`~dtalign.pipeline.uncertainty.second_edge_pull`), which is
         zero where there are none.
@@ -130,8 +130,8 @@ class PolylineFit:
     noise_sigma : float
         The image noise sigma the edge threshold used.
     vertices_vu, normals_vu : ndarray, shape (N, 2)
-        The fitted polyline (read-only): what :attr:`normal_covariance` is
-        formed from.
+        The fitted polyline (read-only): what the geometry's covariance
+        (``uncertainty.normal_covariance``) is formed from.
     pinvh_rcond : float
         The pseudoinverse cutoff of the covariance.
     tukey_c : float
@@ -158,7 +158,7 @@ class PolylineFit:
         The photometric refinement against an
         :class:`~dtalign.EdgeProfile` (:mod:`dtalign.pipeline.profile_fit`);
         None when no profile was given. When it is accepted,
-        :attr:`offset_vu` is its offset and :attr:`dt_offset_vu` keeps
+        :attr:`offset_vu` is its offset and ``lm.offset_vu`` keeps
         the DT-LM one.
     edge_kind : str or None
         What kind of edge the polyline was declared to be
@@ -166,12 +166,6 @@ class PolylineFit:
         without a profile carries
         :attr:`~dtalign.pipeline.status.FitReason.TERMINATOR_WITHOUT_PROFILE`.
 
-    Whether to trust the fit is read from these fields by :attr:`status`,
-    :attr:`reasons` and :attr:`status_message` (see :mod:`dtalign.pipeline.status`);
-    the uncertainties by :attr:`sigma_vu` and :attr:`sigma_rotation_rad`
-    (from :attr:`covariance`, :mod:`dtalign.pipeline.uncertainty`), the
-    M-estimator's by :attr:`covariance_mestimator` and
-    :attr:`sigma_vu_scaled` (scaled by the residuals, :attr:`variance_factor`).
     evidence : Evidence or None
         The DT's residuals and their gradients at the DT-LM pose
         (:class:`~dtalign.pipeline.uncertainty.Evidence`), sampled when the
@@ -182,6 +176,12 @@ class PolylineFit:
         is read against; None for a fit built without it (a dict written
         before it was recorded), which then counts no vertex outside.
 
+    Whether to trust the fit is read by :attr:`status`, :attr:`reasons` and
+    :attr:`status_message` (:mod:`dtalign.pipeline.status`); its uncertainty
+    by :attr:`sigma_vu` and :attr:`sigma_rotation_rad`, from
+    :attr:`covariance`. The covariance's parts and the alternatives (the
+    drop-in M-estimator's, the same scaled by the residuals) are under
+    :attr:`uncertainty`; the DT-LM stage's own readings under :attr:`lm`.
     Instances compare by identity; compare fields to compare fits.
     """
 
@@ -210,12 +210,6 @@ class PolylineFit:
     image_shape: tuple[int, int] | None = field(default=None, repr=False)
 
     @property
-    def dt_offset_vu(self) -> tuple[float, float]:
-        """The DT-LM offset: :attr:`offset_vu` before the profile refinement or
-        the second edges' correction moved it (equal to it when neither did)."""
-        return self.lm.offset_vu
-
-    @property
     def n_params(self) -> int:
         """The pose parameters fitted: 2 (``dv``, ``du``), 3 with the rotation."""
         return int(n_params(self.fit_rotation))
@@ -225,43 +219,9 @@ class PolylineFit:
             object.__setattr__(self, name, _readonly(np.asarray(getattr(self, name))))
 
     @functools.cached_property
-    def normal_covariance(self) -> FloatArray:
-        """Pose covariance when each vertex measures only its shift along its normal.
-
-        Formed by :func:`~dtalign.pipeline.observability.normal_information_covariance`
-        from the polyline and the LM's final weights. It decides
-        :attr:`observable_rank`. All ``inf`` (nothing observed) without
-        vertices, and when the information matrix overflows float64
-        (coordinates or a pivot near the float range).
-        """
-        unmeasured = _readonly(np.full((self.n_params, self.n_params), np.inf))
-        if self.vertices_vu.shape[0] == 0:
-            return unmeasured
-        try:
-            cov = normal_information_covariance(
-                self.vertices_vu,
-                self.normals_vu,
-                np.asarray(self.lm.weights),
-                offset_vu=self.lm.offset_vu,
-                rotation_rad=self.lm.rotation_rad,
-                fit_rotation=self.fit_rotation,
-                pivot_vu=self.pivot_vu,
-                rcond=self.pinvh_rcond,
-            )
-        except ValueError:  # J^T W J overflows: no reading of the geometry exists
-            return unmeasured
-        return _readonly(np.asarray(cov))
-
-    @functools.cached_property
-    def uncertainty(self) -> PoseUncertainty | None:
-        """The pose covariance and its parts (:mod:`dtalign.pipeline.uncertainty`).
-
-        Formed on first access from ``evidence``; None for a fit built
-        without it (then :attr:`covariance` is the M-estimator's).
-        """
-        if self.evidence is None:
-            return None
-        return pose_uncertainty(self, self.evidence)
+    def uncertainty(self) -> FitUncertainty:
+        """The covariance's parts and its other readings (:class:`FitUncertainty`)."""
+        return FitUncertainty(self)
 
     @property
     def covariance(self) -> FloatArray:
@@ -273,26 +233,9 @@ class PolylineFit:
         page how often it covers the truth. Zero along a direction the
         geometry does not observe (read :attr:`sigma_vu`: ``inf`` there);
         all ``inf`` when degenerate. The drop-in contract's M-estimator
-        pseudoinverse is :attr:`covariance_mestimator`.
+        pseudoinverse is ``lm.covariance``.
         """
-        u = self.uncertainty
-        return self.lm.covariance if u is None else u.covariance
-
-    @property
-    def covariance_mestimator(self) -> FloatArray:
-        """The LM's covariance as :func:`dtalign.lm_subpixel_refine` reports it.
-
-        ``pinvh(J^T W J)`` with ``W`` from the vertex sigmas you passed and the
-        final robust weights (:ref:`contract-lm`): as large as those sigmas
-        say, whatever the image shows, and blind to the edge model's bias.
-        :attr:`covariance_scaled` scales it by the residuals.
-        """
-        return self.lm.covariance
-
-    @property
-    def converged(self) -> bool:
-        """Whether the LM step fell below the step tolerance."""
-        return self.lm.converged
+        return self.uncertainty.covariance
 
     @property
     def settled(self) -> bool:
@@ -302,24 +245,14 @@ class PolylineFit:
         return self.lm.converged or (self.settling is not None and self.settling.settled)
 
     @property
-    def degenerate(self) -> bool:
-        """True when no vertex kept any weight (covariance all ``inf``)."""
-        return self.lm.degenerate
-
-    @property
-    def rms_px(self) -> float:
-        """Weighted RMS DT residual of the inliers, pixels."""
-        return self.lm.rms_px
-
-    @property
-    def inlier_count(self) -> int:
-        """Vertices with a positive final weight."""
-        return self.lm.inlier_count
-
-    @property
     def polarity_rejected(self) -> NDArray[np.bool_]:
         """Vertices whose normal disagreed with the image gradient (residual 1e6)."""
         return np.asarray(self.lm.residuals_px) == POLARITY_PENALTY_RESIDUAL
+
+    @property
+    def tukey_rejected(self) -> NDArray[np.bool_]:
+        """Polarity-accepted vertices the Tukey biweight gave zero weight."""
+        return (np.asarray(self.lm.weights) == 0.0) & ~self.polarity_rejected
 
     @functools.cached_property
     def outside_image(self) -> NDArray[np.bool_]:
@@ -337,75 +270,24 @@ class PolylineFit:
         return _readonly(_status.outside_mask(self))
 
     @property
-    def outside_image_count(self) -> int:
-        """Number of vertices outside the image (see :attr:`outside_image`)."""
-        return int(np.count_nonzero(self.outside_image))
-
-    @property
-    def tukey_rejected(self) -> NDArray[np.bool_]:
-        """Polarity-accepted vertices the Tukey biweight gave zero weight."""
-        return (np.asarray(self.lm.weights) == 0.0) & ~self.polarity_rejected
-
-    @property
     def observable_rank(self) -> int:
         """Number of pose directions the polyline's geometry constrains.
 
-        The rank of :attr:`normal_covariance`, not of :attr:`covariance`
-        (which can look full rank on a digitised diagonal edge): 2 (or 3
-        with rotation) for a limb, 1 for parallel straight edges fitted in
-        translation, 0 when degenerate.
+        The rank of ``uncertainty.normal_covariance``, not of
+        :attr:`covariance` (which can look full rank on a digitised diagonal
+        edge): 2 (or 3 with rotation) for a limb, 1 for parallel straight
+        edges fitted in translation, 0 when degenerate.
         """
-        return observable_rank(self.normal_covariance, self.pinvh_rcond)
+        return observable_rank(self.uncertainty.normal_covariance, self.pinvh_rcond)
 
     @property
     def unobservable_directions(self) -> FloatArray:
         """Unit pose directions the geometry does not constrain, shape (K, P)."""
-        return null_directions(self.normal_covariance, self.pinvh_rcond)
-
-    @property
-    def covariance_unobservable_inf(self) -> FloatArray:
-        """The covariance with the unobservable directions mapped to ``+inf``.
-
-        :attr:`covariance` restricted to the directions the geometry
-        constrains, ``+inf`` along :attr:`unobservable_directions` and along
-        the covariance's own null directions; see
-        :func:`~dtalign.pipeline.observability.covariance_with_unobservable_inf`.
-        """
-        return covariance_with_unobservable_inf(
-            self.covariance, self.pinvh_rcond, null_directions=self.unobservable_directions
-        )
-
-    @property
-    def sigma_vu_unobservable_inf(self) -> tuple[float, float]:
-        """Like :attr:`sigma_vu` (kept for compatibility: :attr:`sigma_vu` is now this reading)."""
-        return self.sigma_vu
-
-    def _sigmas_of(self, cov: FloatArray) -> tuple[float, ...]:
-        """One-sigma of each pose parameter under ``cov``, ``inf`` where a
-        null direction enters: the square roots of its diagonal when no
-        direction is unobservable (the usual limb), else of ``cov`` with its
-        unobservable directions mapped to ``inf``."""
-        if not np.isfinite(cov).all():
-            return (math.inf,) * cov.shape[0]
-        honest = covariance_with_unobservable_inf(
-            cov, self.pinvh_rcond, null_directions=self.unobservable_directions)
-        if np.isfinite(honest).all():
-            return tuple(_sigma_list(cov))
-        return tuple(float(x) for x in _sigmas_from_cov(honest))
-
-    @functools.cached_property
-    def _sigmas(self) -> tuple[float, ...]:
-        """:meth:`_sigmas_of` :attr:`covariance`."""
-        return self._sigmas_of(np.asarray(self.covariance))
-
-    @functools.cached_property
-    def _sigmas_mestimator(self) -> tuple[float, ...]:
-        """:meth:`_sigmas_of` :attr:`covariance_mestimator`."""
-        return self._sigmas_of(np.asarray(self.lm.covariance))
+        return self.uncertainty.unobservable_directions
 
     @property
     def sigma_vu(self) -> tuple[float, float]:
-        """One-sigma uncertainty of ``dv`` and ``du``, pixels.
+        """One-sigma uncertainty of ``dv`` and ``du``, pixels: the one to read.
 
         The square root of the diagonal of :attr:`covariance` (the noise
         measured, neighbours correlated, plus the edge model's floor), **``inf``
@@ -414,70 +296,14 @@ class PolylineFit:
         edge ``(inf, inf)``: read it with :meth:`sigma_along` its normal),
         and ``inf`` for a degenerate fit.
         """
-        sig = self._sigmas
+        sig = self.uncertainty.sigmas
         return sig[0], sig[1]
 
     @property
     def sigma_rotation_rad(self) -> float | None:
         """One-sigma of the rotation (from :attr:`covariance`), ``inf`` when
         unobservable; None when not fitted."""
-        return self._sigmas[2] if self.fit_rotation else None
-
-    @functools.cached_property
-    def variance_factor(self) -> float:
-        """The a-posteriori residual variance factor ``s^2 = sum(w r^2) / (n - P)``.
-
-        Over the ``n`` vertices with a positive final weight ``w`` (prior
-        ``1 / sigma^2`` times the Tukey and polarity factors) and their DT
-        residuals ``r``, with ``P`` pose parameters: what
-        ``scipy.optimize.curve_fit(absolute_sigma=False)`` multiplies its
-        covariance by. 1 when the prior sigmas describe the residuals; the
-        synthetic disc (sigmas 1 px, residuals ~0.23 px) gives ~0.05.
-        ``inf`` when degenerate or ``n <= P``.
-        """
-        if self.lm.degenerate:
-            return math.inf
-        w = np.asarray(self.lm.weights)
-        r = np.asarray(self.lm.residuals_px)
-        kept = w > 0.0
-        dof = int(np.count_nonzero(kept)) - self.n_params
-        if dof <= 0:
-            return math.inf
-        return float(np.dot(w[kept], r[kept] * r[kept]) / dof)
-
-    @property
-    def covariance_scaled(self) -> FloatArray:
-        """The M-estimator's a-posteriori covariance: :attr:`covariance_mestimator` times :attr:`variance_factor`.
-
-        The option beside the prior covariance, as
-        ``curve_fit(absolute_sigma=False)``: use it when the vertex sigmas
-        you passed are only relative weights (the docs' uncertainty page
-        compares it with the fits' real scatter). All ``inf`` when degenerate.
-        """
-        cov = np.asarray(self.lm.covariance)
-        factor = self.variance_factor
-        if not (math.isfinite(factor) and np.isfinite(cov).all()):
-            return _readonly(np.full(cov.shape, np.inf))
-        return _readonly(cov * factor)
-
-    @property
-    def sigma_vu_scaled(self) -> tuple[float, float]:
-        """The M-estimator's one-sigma of ``dv`` and ``du`` times ``sqrt(variance_factor)``
-        (``inf`` stays ``inf``): the square roots of :attr:`covariance_scaled`'s diagonal."""
-        s = math.sqrt(self.variance_factor)
-        return self._sigmas_mestimator[0] * s, self._sigmas_mestimator[1] * s
-
-    @property
-    def sigma_rotation_rad_scaled(self) -> float | None:
-        """The M-estimator's one-sigma of the rotation times ``sqrt(variance_factor)``; None when not fitted."""
-        if not self.fit_rotation:
-            return None
-        return self._sigmas_mestimator[2] * math.sqrt(self.variance_factor)
-
-    @property
-    def polarity_rejected_count(self) -> int:
-        """Number of polarity-rejected vertices (see :attr:`polarity_rejected`)."""
-        return int(np.count_nonzero(self.polarity_rejected))
+        return self.uncertainty.sigmas[2] if self.fit_rotation else None
 
     @functools.cached_property
     def assessment(self) -> Assessment:
@@ -525,7 +351,7 @@ class PolylineFit:
 
         ``sqrt(d^T C d)`` with ``d`` the unit direction and ``C`` the
         translation block of :attr:`covariance` (of the M-estimator's
-        :attr:`covariance_scaled` with ``scaled=True``): for a straight edge, pass its normal to get
+        ``uncertainty.covariance_scaled`` with ``scaled=True``): for a straight edge, pass its normal to get
         the across-edge uncertainty. ``inf`` when ``d`` has a component
         (above 1e-6) along an :attr:`unobservable_directions` entry or a null
         direction of the covariance, and for a degenerate fit.
@@ -542,7 +368,7 @@ class PolylineFit:
         # Components of a null direction below this are rounding, not geometry.
         if any(abs(float(e[0] * d[0] + e[1] * d[1])) > 1e-6 for e in nulls):
             return math.inf
-        factor = self.variance_factor if scaled else 1.0
+        factor = self.uncertainty.variance_factor if scaled else 1.0
         if not math.isfinite(factor):
             return math.inf
         return float(math.sqrt(max(float(d @ cov[:2, :2] @ d), 0.0) * factor))
@@ -688,7 +514,7 @@ class PolylineFit:
         if self.profile is not None:
             ref = self.profile
             lines.append(f"  profile: {'accepted' if ref.accepted else 'rejected'}, DT-LM offset "
-                         f"{_pair(self.dt_offset_vu)}, walk {ref.walk_px:.3g} px")
+                         f"{_pair(self.lm.offset_vu)}, walk {ref.walk_px:.3g} px")
         return "\n".join(lines)
 
     def __str__(self) -> str:
@@ -697,6 +523,174 @@ class PolylineFit:
     def __repr__(self) -> str:
         return (f"<PolylineFit {self.status}: offset_vu={_pair(self.offset_vu)}, "
                 f"sigma_vu={_pair(self.sigma_vu)}, reasons={[str(r) for r in self.reasons]}>")
+
+
+class FitUncertainty:
+    """A fit's covariance, its parts and its other readings (``fit.uncertainty``).
+
+    :attr:`PolylineFit.covariance` and :attr:`PolylineFit.sigma_vu` are the
+    ones to read; this holds what they are made of and the alternatives the
+    docs' uncertainty page compares them with: the drop-in M-estimator's
+    covariance, the same scaled by the residuals, and the geometry's own
+    covariance, which decides what the fit observes. Each is formed on first
+    reading.
+    """
+
+    def __init__(self, fit: PolylineFit) -> None:
+        self._fit = fit
+
+    @functools.cached_property
+    def parts(self) -> PoseUncertainty | None:
+        """The pipeline's covariance in parts (:func:`~dtalign.pipeline.uncertainty.pose_uncertainty`),
+        from the fit's ``evidence``; None for a fit built without it (then
+        :attr:`covariance` is the M-estimator's)."""
+        fit = self._fit
+        return None if fit.evidence is None else pose_uncertainty(fit, fit.evidence)
+
+    @property
+    def covariance(self) -> FloatArray:
+        """:attr:`PolylineFit.covariance`: ``noise + bias + floor``."""
+        parts = self.parts
+        return self._fit.lm.covariance if parts is None else parts.covariance
+
+    @property
+    def noise(self) -> FloatArray | None:
+        """The measured part: the DT-LM sandwich, or the profile refinement's
+        covariance for the translation; None without :attr:`parts`."""
+        return None if self.parts is None else self.parts.noise
+
+    @property
+    def bias(self) -> FloatArray | None:
+        """``beta beta^T``, the second edges' pull; None without :attr:`parts`
+        or when the covariance is all ``inf``."""
+        return None if self.parts is None else self.parts.bias
+
+    @property
+    def floor_px(self) -> float | None:
+        """The floor added along every observed direction, px; None without :attr:`parts`."""
+        return None if self.parts is None else self.parts.floor_px
+
+    @property
+    def source(self) -> str | None:
+        """Which pose and floor (a key of :data:`~dtalign.pipeline.uncertainty.FLOORS_PX`);
+        None without :attr:`parts`."""
+        return None if self.parts is None else self.parts.source
+
+    @functools.cached_property
+    def normal_covariance(self) -> FloatArray:
+        """Pose covariance when each vertex measures only its shift along its normal.
+
+        Formed by :func:`~dtalign.pipeline.observability.normal_information_covariance`
+        from the polyline and the LM's final weights. It decides
+        :attr:`PolylineFit.observable_rank`. All ``inf`` (nothing observed)
+        without vertices, and when the information matrix overflows float64
+        (coordinates or a pivot near the float range).
+        """
+        fit = self._fit
+        unmeasured = _readonly(np.full((fit.n_params, fit.n_params), np.inf))
+        if fit.vertices_vu.shape[0] == 0:
+            return unmeasured
+        try:
+            cov = normal_information_covariance(
+                fit.vertices_vu, fit.normals_vu, np.asarray(fit.lm.weights),
+                offset_vu=fit.lm.offset_vu, rotation_rad=fit.lm.rotation_rad,
+                fit_rotation=fit.fit_rotation, pivot_vu=fit.pivot_vu, rcond=fit.pinvh_rcond)
+        except ValueError:  # J^T W J overflows: no reading of the geometry exists
+            return unmeasured
+        return _readonly(np.asarray(cov))
+
+    @functools.cached_property
+    def unobservable_directions(self) -> FloatArray:
+        """Unit pose directions the geometry does not constrain, shape (K, P)."""
+        return null_directions(self.normal_covariance, self._fit.pinvh_rcond)
+
+    @property
+    def covariance_unobservable_inf(self) -> FloatArray:
+        """:attr:`covariance` with the unobservable directions mapped to ``+inf``
+        (and its own null directions;
+        :func:`~dtalign.pipeline.observability.covariance_with_unobservable_inf`)."""
+        return covariance_with_unobservable_inf(
+            self.covariance, self._fit.pinvh_rcond, null_directions=self.unobservable_directions)
+
+    def sigmas_of(self, cov: FloatArray) -> tuple[float, ...]:
+        """One-sigma of each pose parameter under ``cov``, ``inf`` where a
+        null direction enters: the square roots of its diagonal when no
+        direction is unobservable (the usual limb), else of ``cov`` with its
+        unobservable directions mapped to ``inf``."""
+        if not np.isfinite(cov).all():
+            return (math.inf,) * cov.shape[0]
+        honest = covariance_with_unobservable_inf(
+            cov, self._fit.pinvh_rcond, null_directions=self.unobservable_directions)
+        if np.isfinite(honest).all():
+            return tuple(_sigma_list(cov))
+        return tuple(float(x) for x in _sigmas_from_cov(honest))
+
+    @functools.cached_property
+    def sigmas(self) -> tuple[float, ...]:
+        """:meth:`sigmas_of` :attr:`covariance`: what :attr:`PolylineFit.sigma_vu` reads."""
+        return self.sigmas_of(np.asarray(self.covariance))
+
+    @property
+    def covariance_mestimator(self) -> FloatArray:
+        """The LM's covariance as :func:`dtalign.lm_subpixel_refine` reports it (``lm.covariance``).
+
+        ``pinvh(J^T W J)`` with ``W`` from the vertex sigmas you passed and the
+        final robust weights (:ref:`contract-lm`): as large as those sigmas
+        say, whatever the image shows, and blind to the edge model's bias.
+        """
+        return self._fit.lm.covariance
+
+    @functools.cached_property
+    def variance_factor(self) -> float:
+        """The a-posteriori residual variance factor ``s^2 = sum(w r^2) / (n - P)``.
+
+        Over the ``n`` vertices with a positive final weight ``w`` (prior
+        ``1 / sigma^2`` times the Tukey and polarity factors) and their DT
+        residuals ``r``, with ``P`` pose parameters: what
+        ``scipy.optimize.curve_fit(absolute_sigma=False)`` multiplies its
+        covariance by. 1 when the prior sigmas describe the residuals.
+        ``inf`` when degenerate or ``n <= P``.
+        """
+        lm = self._fit.lm
+        if lm.degenerate:
+            return math.inf
+        w = np.asarray(lm.weights)
+        r = np.asarray(lm.residuals_px)
+        kept = w > 0.0
+        dof = int(np.count_nonzero(kept)) - self._fit.n_params
+        if dof <= 0:
+            return math.inf
+        return float(np.dot(w[kept], r[kept] * r[kept]) / dof)
+
+    @property
+    def covariance_scaled(self) -> FloatArray:
+        """:attr:`covariance_mestimator` times :attr:`variance_factor`, as
+        ``curve_fit(absolute_sigma=False)``: the DT-LM stage's, whatever
+        refined it after. All ``inf`` when degenerate."""
+        cov = np.asarray(self._fit.lm.covariance)
+        factor = self.variance_factor
+        if not (math.isfinite(factor) and np.isfinite(cov).all()):
+            return _readonly(np.full(cov.shape, np.inf))
+        return _readonly(cov * factor)
+
+    @functools.cached_property
+    def _sigmas_mestimator(self) -> tuple[float, ...]:
+        return self.sigmas_of(np.asarray(self._fit.lm.covariance))
+
+    @property
+    def sigma_vu_scaled(self) -> tuple[float, float]:
+        """The M-estimator's one-sigma of ``dv`` and ``du`` times ``sqrt(variance_factor)``
+        (``inf`` stays ``inf``)."""
+        s = math.sqrt(self.variance_factor)
+        return self._sigmas_mestimator[0] * s, self._sigmas_mestimator[1] * s
+
+    @property
+    def sigma_rotation_rad_scaled(self) -> float | None:
+        """The M-estimator's one-sigma of the rotation times ``sqrt(variance_factor)``;
+        None when not fitted."""
+        if not self._fit.fit_rotation:
+            return None
+        return self._sigmas_mestimator[2] * math.sqrt(self.variance_factor)
 
 
 def _pair(x: Any) -> str:
@@ -726,10 +720,10 @@ _LM_FALLBACK = {"dt_offset_vu": "offset_vu", "dt_rotation_rad": "rotation_rad"}
 #: (:meth:`PolylineFit.from_dict` computes them again).
 _READINGS: dict[str, Callable[[PolylineFit], Any]] = {
     "sigma_vu": lambda f: f.sigma_vu,
-    "sigma_vu_unobservable_inf": lambda f: f.sigma_vu_unobservable_inf,
+    "sigma_vu_unobservable_inf": lambda f: f.sigma_vu,
     "sigma_rotation_rad": lambda f: f.sigma_rotation_rad,
-    "variance_factor": lambda f: f.variance_factor,
-    "sigma_vu_scaled": lambda f: f.sigma_vu_scaled,
+    "variance_factor": lambda f: f.uncertainty.variance_factor,
+    "sigma_vu_scaled": lambda f: f.uncertainty.sigma_vu_scaled,
     "status": lambda f: f.status,
     "reasons": lambda f: f.reasons,
     "status_message": lambda f: f.status_message,
@@ -738,13 +732,13 @@ _READINGS: dict[str, Callable[[PolylineFit], Any]] = {
         None if f.ambiguity is None or f.ambiguity.rival is None
         else f.ambiguity.rival.offset_vu),
     "covariance": lambda f: f.covariance,
-    "uncertainty_source": lambda f: None if f.uncertainty is None else f.uncertainty.source,
-    "uncertainty_floor_px": lambda f: None if f.uncertainty is None else f.uncertainty.floor_px,
-    "normal_covariance": lambda f: f.normal_covariance,
+    "uncertainty_source": lambda f: f.uncertainty.source,
+    "uncertainty_floor_px": lambda f: f.uncertainty.floor_px,
+    "normal_covariance": lambda f: f.uncertainty.normal_covariance,
     "observable_rank": lambda f: f.observable_rank,
     "n_vertices": lambda f: len(f.lm.residuals_px),
-    "polarity_rejected": lambda f: f.polarity_rejected_count,
-    "outside_image": lambda f: f.outside_image_count,
+    "polarity_rejected": lambda f: int(np.count_nonzero(f.polarity_rejected)),
+    "outside_image": lambda f: int(np.count_nonzero(f.outside_image)),
     "tukey_rejected": lambda f: int(f.tukey_rejected.sum()),
 }
 
