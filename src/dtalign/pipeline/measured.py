@@ -1,9 +1,11 @@
-"""Which of a fit's vertices measured its pose.
+"""What a fit measured: which of its vertices, and whether its pose settled.
 
 A vertex measures nothing when it lies outside the image (no gradient to
 read, so the polarity test rejects it), when its normal disagrees with
-the gradient, or when it finds no edge; :mod:`dtalign.pipeline.status`
-reads these counts to say why a fit failed. Nothing here imports Numba.
+the gradient, or when it finds no edge; an LM stopped before its step
+tolerance may still have been moving (:class:`Settling`).
+:mod:`dtalign.pipeline.status` reads these to say why a fit failed or
+what it lacks. Nothing here imports Numba.
 """
 
 from __future__ import annotations
@@ -15,9 +17,9 @@ import numpy as np
 
 from ..api.constants import POLARITY_PENALTY_RESIDUAL
 
-__all__ = ["NO_EDGE_GAP", "NO_EDGE_MIN_FRACTION", "NoEdgeRun", "inside_inliers",
-           "n_vertices", "no_edge_hint", "no_edge_run", "outside", "outside_mask",
-           "polarity_rejected_inside"]
+__all__ = ["NO_EDGE_GAP", "NO_EDGE_MIN_FRACTION", "SETTLE_ITERATIONS", "SETTLE_SIGMAS",
+           "NoEdgeRun", "Settling", "inside_inliers", "n_vertices", "no_edge_hint",
+           "no_edge_run", "outside", "outside_mask", "polarity_rejected_inside"]
 
 
 def n_vertices(fit: Any) -> int:
@@ -182,3 +184,44 @@ def inside_inliers(fit: Any) -> int:
     """Inliers among the vertices inside the image (with ``use_polarity=False``
     an outside vertex, on the border's clamped distance transform, may be one)."""
     return int(np.count_nonzero((np.asarray(fit.lm.weights) > 0.0) & ~outside(fit)))
+
+
+#: Iterations over which an unconverged LM's pose movement is judged: enough
+#: to span a few of the damping's rejected steps (which count as
+#: iterations), few enough that a fit stopped early still shows its descent.
+SETTLE_ITERATIONS = 5
+
+#: An unconverged pose has settled when its movement over the last
+#: :data:`SETTLE_ITERATIONS` iterations is at most this many of its own
+#: one-sigma (the Mahalanobis length under the fit's covariance): further
+#: iterations could then move it by a small fraction of its uncertainty.
+SETTLE_SIGMAS = 0.25
+
+
+@dataclass(frozen=True)
+class Settling:
+    """How far an unconverged LM's pose moved over its last iterations.
+
+    Made by :func:`dtalign.pipeline.fit.settle` (which says how) for a fit
+    whose LM stopped before an accepted step fell below ``step_tolerance_px``.
+
+    Attributes
+    ----------
+    iterations : int
+        The iterations the movement spans (``SETTLE_ITERATIONS``, or all of
+        them when the LM ran fewer).
+    shift_px : float
+        The translation's movement plus the rotation's times the pivot
+        distance, pixels.
+    shift_sigmas : float
+        The movement's length in units of the fit's one-sigma
+        (``sqrt(d^T C^+ d)`` with ``C`` the LM covariance): a movement along
+        a direction the geometry does not observe counts zero.
+    settled : bool
+        ``shift_sigmas <= SETTLE_SIGMAS`` or ``shift_px <= step_tolerance_px``.
+    """
+
+    iterations: int
+    shift_px: float
+    shift_sigmas: float
+    settled: bool

@@ -1,23 +1,12 @@
 """Whether a pipeline fit can be trusted: its status, its reasons, the log.
 
 A :class:`~dtalign.pipeline.PolylineFit` always returns a pose, even when
-nothing was measured (a polyline outside the image, normals that point the
-wrong way, a noise sigma so high that no edge survives). :func:`assess`
-reads from what the fit holds whether that happened and why, once per fit,
-into an :class:`Assessment`: the reasons found (:class:`FitReason`, in the
-order of the enum, the likeliest cause first), the worst severity among
-them (:class:`FitStatus`) and one line explaining them. The fit's
-``status``, ``reasons`` and ``status_message``, the command line, the log,
-the campaign's store and the documentation's tables all read that.
-
-One table, :data:`REASONS`, holds what each reason is: its severity, the
-sentence the documentation prints, and the template of its message, whose
-numbers :func:`assess` fills in from the fit.
-
-:data:`logger` (``logging.getLogger("dtalign")``) reports each failed,
-ambiguous or suspect fit of the pipeline, the batch functions and the
-command line at ``WARNING``, a fit with only notes at ``INFO``. The drop-in
-functions never log, exactly as the reference. Nothing here imports Numba.
+nothing was measured. :func:`assess` reads from what the fit holds, once,
+which :class:`FitReason` apply, the worst severity among them
+(:class:`FitStatus`) and one line explaining them, each reason's message
+from its row of :data:`REASONS`. The fit, the command line, the log
+(:func:`log_fit`), the campaign's store and the docs' tables read that.
+Nothing here imports Numba.
 """
 
 from __future__ import annotations
@@ -25,13 +14,21 @@ from __future__ import annotations
 import enum
 import logging
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from . import measured as _m
-from .measured import NO_EDGE_GAP, NO_EDGE_MIN_FRACTION, NoEdgeRun, no_edge_run, outside_mask
+from .measured import (
+    NO_EDGE_GAP,
+    NO_EDGE_MIN_FRACTION,
+    SETTLE_ITERATIONS,
+    SETTLE_SIGMAS,
+    NoEdgeRun,
+    Settling,
+    no_edge_run,
+    outside_mask,
+)
 
 __all__ = [
     "NO_EDGE_GAP", "NO_EDGE_MIN_FRACTION", "REASONS", "SETTLE_ITERATIONS", "SETTLE_SIGMAS", "TERMINATOR_PLAIN_MEDIAN_PX",
@@ -40,9 +37,10 @@ __all__ = [
     "fit_status", "log_fit", "log_fits", "logger", "no_edge_run", "outside_mask",
 ]
 
-#: The package's logger. No handler is attached: without logging
-#: configuration Python prints WARNING and above to standard error, so a
-#: failed fit is never silent; applications configure it as usual.
+#: The package's logger (:func:`log_fit`). No handler is attached: without
+#: logging configuration Python prints WARNING and above to standard error,
+#: so a failed fit is never silent. The drop-in functions never log,
+#: exactly as the reference.
 logger = logging.getLogger("dtalign")
 
 
@@ -54,10 +52,7 @@ class _Text(str, enum.Enum):
 
 
 class FitStatus(_Text):
-    """Overall verdict on a fit, the worst severity of its reasons; equal to its string.
-
-    :data:`STATUS_MEANING` says what each means (the docs' status table).
-    """
+    """A fit's verdict, the worst severity of its reasons (:data:`STATUS_MEANING`)."""
 
     OK = "ok"
     SUSPECT = "suspect"
@@ -66,13 +61,12 @@ class FitStatus(_Text):
 
 
 class FitReason(_Text):
-    """One condition found in a fit; compares equal to its string value.
+    """One condition found in a fit (its row of :data:`REASONS`).
 
     A fit lists its reasons in this order, the likeliest cause first:
     vertices outside the image measure nothing whatever their normals, and
-    normals that point the wrong way make a fit degenerate and can put the
-    coarse seed on the window edge, not the other way round. What each
-    means is its entry of :data:`REASONS` (the docs' reasons table).
+    wrong normals make a fit degenerate and can put the coarse seed on the
+    window edge, not the other way round.
     """
 
     OUTSIDE_IMAGE = "outside_image"
@@ -93,23 +87,20 @@ class FitReason(_Text):
     RANK_DEFICIENT = "rank_deficient"
 
 
-#: The error of plain (profile-less) fits of rendered Lambert terminators,
-#: px, median and 90th percentile (:ref:`profiles-terminator`, which says
-#: on which scenes): what :attr:`FitReason.TERMINATOR_WITHOUT_PROFILE` warns of.
+#: The median error, px, of plain (profile-less) fits of rendered Lambert
+#: terminators (:ref:`profiles-terminator`): what ``terminator_without_profile`` warns of.
 TERMINATOR_PLAIN_MEDIAN_PX = 4.6
+#: Their 90th percentile, px.
 TERMINATOR_PLAIN_P90_PX = 13.8
 
-#: A terminator's accepted profile refinement whose own one-sigma (the
-#: square root of its covariance's largest eigenvalue) exceeds this, px, is
-#: suspect (:attr:`FitReason.TERMINATOR_IMPRECISE`): an ``ok`` terminator
-#: more than 1 px off is then more than three of its sigmas off, which is
-#: what ``ok`` promises for a terminator (docs/profiles.rst, "A barely
-#: measured terminator").
+#: A terminator's accepted profile refinement whose own one-sigma (the root of
+#: its covariance's largest eigenvalue) exceeds this, px, is suspect,
+#: ``terminator_imprecise``: an ``ok`` terminator more than 1 px off is then
+#: more than three of its sigmas off (:ref:`profiles-terminator`).
 TERMINATOR_SIGMA_LIMIT_PX = 1.0 / 3.0
 
 #: What a failed fit's printed summary and the command line show for its
-#: sigmas: its covariance (``inf``, or finite from a few stray inliers) is
-#: no measurement. The numeric fields (``sigma_vu``, ``to_dict``) keep their values.
+#: sigmas, which are no measurement; the numeric fields keep their values.
 UNMEASURED_TEXT = "not measured (failed)"
 
 _OK, _SUSPECT, _AMBIGUOUS, _FAILED = FitStatus
@@ -118,9 +109,8 @@ _ORDER = (_OK, _SUSPECT, _AMBIGUOUS, _FAILED)
 #: What each status tells the caller, one sentence (the docs' status table).
 STATUS_MEANING: dict[FitStatus, str] = {
     _OK: "the pose is a measurement; the fit may carry notes (reasons whose status is ``ok``).",
-    _SUSPECT: "the pose is a measurement that should be checked: an edge profile's refinement "
-    "was discarded, a limb has no usable edge, a terminator was fitted without a profile, or "
-    "vertices outside the image kept weight.",
+    _SUSPECT: "the pose is a measurement that should be checked: its ``suspect`` reasons say "
+    "what to check.",
     _AMBIGUOUS: "another basin across the edge fits the image about as well: the pose may be "
     "the wrong one of two.",
     _FAILED: "the pose is not a measurement of the image: do not use it.",
@@ -128,178 +118,122 @@ STATUS_MEANING: dict[FitStatus, str] = {
 
 
 class Reason(NamedTuple):
-    """One row of :data:`REASONS`."""
+    """One row of :data:`REASONS`: the ``severity`` the reason implies, its ``meaning``
+    (the docs' reasons table: what it means, what to do) and its ``message``, a
+    ``str.format`` template of the ``fit`` and the facts :func:`assess` reads."""
 
-    #: The status the reason implies (a fit's status is the worst of its reasons').
     severity: FitStatus
-    #: What it means and what to do: the docs' reasons table.
     meaning: str
-    #: The message, a :meth:`str.format` template of the facts :func:`assess` reads.
     message: str
 
 
-_HEAD = "{n_out} of {n} vertices lie outside the {h} x {w} image"
+_HEAD = ("{n_out} of {n} vertices lie outside the {fit.image_shape[0]} x "
+         "{fit.image_shape[1]} image")
 
-#: Every reason: its severity, its meaning, its message.
+#: Every reason: its severity, its meaning (one sentence), its message.
 REASONS: dict[FitReason, Reason] = {
     FitReason.OUTSIDE_IMAGE: Reason(
-        _FAILED, "some vertices lie outside the image (the pixel the polarity test reads, the "
-        "vertex shifted by the coarse seed and rounded, is not within rows 0..H-1 and columns "
-        "0..W-1) and fewer than half of those inside kept any weight: too few inside to fit. Is "
-        "the polyline in this image's pixel frame, and the predicted pose within the search "
-        "window of the truth?", _HEAD + "{too_few_inside}"),
+        _FAILED, "some vertices lie outside the image and fewer than half of those inside kept "
+        "any weight, too few to fit: is the polyline in this image's pixel frame, the predicted "
+        "pose within the search window of the truth (:ref:`status-outside-image`)?",
+        _HEAD + "{too_few_inside}"),
     FitReason.OUTSIDE_IMAGE_WEIGHTED: Reason(
-        _SUSPECT, "some vertices lie outside the image and kept weight (``use_polarity=False``: "
-        "nothing rejected them): they sample the distance transform clamped to the image "
-        "border, the border's distance to an edge, not theirs. Pass only the vertices inside, "
-        "or keep the polarity test.",
+        _SUSPECT, "vertices outside the image kept weight (``use_polarity=False``) and read the "
+        "distance transform clamped to the image border, not theirs: pass only the vertices "
+        "inside, or keep the polarity test (:ref:`status-outside-image`).",
         _HEAD + ", and {outside_inliers} of them kept weight beside the {inliers_in} inliers "
         "inside: without the polarity test they sample the distance transform clamped to the "
         "image border, the border's distance to an edge, not theirs (pass only the vertices "
         "inside, or use the polarity test)"),
     FitReason.PARTLY_OUTSIDE_IMAGE: Reason(
         _OK, "some vertices lie outside the image, but at least half of those inside kept their "
-        "weight and none outside did: the pose is measured by the inside ones alone, and its "
-        "sigmas and observable rank are formed from them.",
+        "weight and none outside did: the inside ones alone measure the pose and its sigmas.",
         _HEAD + ": the pose is measured by the {n_in} inside ({inliers_in} inliers), its "
         "sigmas by their geometry"),
     FitReason.ALL_POLARITY_REJECTED: Reason(
         _FAILED, "no vertex inside the image has a normal that points up the image gradient: "
-        "the normals point the wrong way (flip them), or there is no gradient under the "
-        "polyline at all. Comes with ``degenerate``.",
-        "{all_who} polarity-rejected: the normals point the wrong way (they must point up the "
-        "image gradient, toward the brighter side: flip them), or there is no gradient under "
-        "the polyline ({all_where})"),
+        "flip the normals, or there is no gradient under the polyline (comes with "
+        "``degenerate``).",
+        "all {n_in} vertices{inside} polarity-rejected: the normals point the wrong way (they "
+        "must point up the image gradient, toward the brighter side: flip them), or there is no "
+        "gradient under the polyline ({all_where})"),
     FitReason.MOST_POLARITY_REJECTED: Reason(
         _FAILED, "more than half of the vertices inside the image see the gradient the wrong "
-        "way: are the normals pointing to the bright side? (Or the polyline lies on the wrong "
-        "edge, or part of a limb is unlit: the message names a contiguous stretch of vertices "
-        "that find no edge.) The pose rests on the few vertices that happened to agree.",
-        "{most_who} see the gradient the wrong way ({rejected_counts}): {unlit_or}{question}"),
+        "way, so the pose rests on the few that agreed: flip the normals, or the polyline lies "
+        "on the wrong edge or an unlit part of a limb (:ref:`status-unlit-stretch`).",
+        "most vertices{inside} see the gradient the wrong way ({rejected} of {of_inside} "
+        "polarity-rejected, {fit.lm.inlier_count} inliers): {unlit_or}{displaced}are the normals pointing "
+        "to the bright side? (they must point up the image gradient; flip them if not)"),
     FitReason.DEGENERATE: Reason(
-        _FAILED, "no vertex kept any weight; the pose is the coarse seed, the covariance "
-        "``inf``. The polyline may be outside the image, no edge may lie near it, or the noise "
-        "sigma may be so high that no edge passed the threshold.",
+        _FAILED, "no vertex kept any weight, so the pose is the coarse seed and the covariance "
+        "``inf``: the polyline is outside the image, no edge lies near it, or the noise sigma "
+        "is too high for any edge to pass the threshold.",
         "degenerate: no vertex of {n} kept any weight, the pose is the coarse seed {seed} (is "
         "the polyline inside the image? is there an edge near it? noise sigma "
-        "{noise_sigma:.4g}: too high for any edge to pass?)"),
+        "{fit.noise_sigma:.4g}: too high for any edge to pass?)"),
     FitReason.AT_WINDOW_EDGE: Reason(
-        _FAILED, "the coarse seed is on the boundary of the search window: the true offset may "
-        "lie outside it. Widen ``search_window_vu`` (``--window``).",
+        _FAILED, "the coarse seed is on the boundary of the search window, so the true offset "
+        "may lie outside it: widen ``search_window_vu`` (``--window``).",
         "at window edge: the coarse seed {seed} is on the edge of the search window "
         "±{window}; the true offset may lie outside it: widen search_window_vu"),
     FitReason.AMBIGUOUS: Reason(
-        _AMBIGUOUS, "a rival basin across the edge (another coarse peak, or the DT cost's "
-        "competing basin) costs less than 1.5 times this one: two parallel edges of one "
-        "polarity, a decoy edge (an accepted edge-profile refinement that reaches the same pose "
-        "from the rival's start clears it; the message names a contiguous stretch of vertices "
-        "that find no edge, such as a limb's unlit half). See "
-        ":attr:`~dtalign.pipeline.PolylineFit.ambiguity`.", "{rival}{at_pose_unlit}"),
+        _AMBIGUOUS, "a rival basin across the edge costs less than 1.5 times this one (two "
+        "parallel edges of one polarity, a decoy edge, an unlit part of a limb), and no accepted "
+        "edge-profile refinement reaches this pose from the rival's start "
+        "(:attr:`~dtalign.pipeline.PolylineFit.ambiguity`).", "{fit.ambiguity.reason}{at_pose_unlit}"),
     FitReason.PROFILE_REJECTED: Reason(
-        _SUSPECT, "an edge profile was given but its refinement was discarded (it could not be "
-        "computed: too few pixels, a singular or non-finite system; or it did not converge, "
-        "walked more than 2 px from the DT lock, or fitted a non-positive gain; the reason "
-        "says which): the pose is the DT-LM's, with the edge DT's photometric bias (tenths of a "
-        "pixel on a limb). See :attr:`~dtalign.pipeline.PolylineFit.profile`.",
-        "profile refinement rejected: {profile_reason}; the pose is the DT-LM's (biased by the "
+        _SUSPECT, "the edge profile's refinement was discarded (:ref:`profiles-result`), so the "
+        "pose is the DT-LM's, with the edge DT's photometric bias (tenths of a pixel on a limb).",
+        "profile refinement rejected: {fit.profile.reason}; the pose is the DT-LM's (biased by the "
         "edge DT's photometric offset)"),
     FitReason.SOFT_EDGE: Reason(
         _SUSPECT, "the limb profile has no usable edge (its brightness rolls off to the limb, as "
         "a Lambert limb at low phase): the position rests on the modelled roll-off and on the "
         "reflectance law being right.",
-        "soft edge: the profile's step at the edge is {step_jump:.2f} of its contrast (the "
+        "soft edge: the profile's step at the edge is {fit.profile.step_jump:.2f} of its contrast (the "
         "brightness rolls off to the edge, as a limb at low phase): the position rests on the "
         "modelled roll-off and the reflectance law"),
     FitReason.TERMINATOR_WITHOUT_PROFILE: Reason(
-        _SUSPECT, "the polyline is declared a terminator and was fitted without an edge "
-        "profile: the DT puts a terminator (a kink in brightness, not an edge) where the ramp "
-        "crosses the edge threshold: on rendered Lambert terminators the error has median "
-        f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px and 90th percentile {TERMINATOR_PLAIN_P90_PX:g} px. "
-        "Give ``sphere_edge_profile(..., edge=\"terminator\")``. See :ref:`profiles-terminator`.",
+        _SUSPECT, "a declared terminator was fitted without an edge profile, and the DT puts a "
+        "terminator where the brightness ramp crosses the edge threshold (median error "
+        f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px, 90th percentile {TERMINATOR_PLAIN_P90_PX:g} px on "
+        "rendered Lambert terminators, :ref:`profiles-terminator`): give "
+        "``sphere_edge_profile(..., edge=\"terminator\")``.",
         "terminator without a profile: the DT puts a terminator where the brightness ramp "
         "crosses the edge threshold (on rendered Lambert terminators the median error is "
         f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px); fit it with "
         "sphere_edge_profile(..., edge='terminator')"),
     FitReason.TERMINATOR_IMPRECISE: Reason(
         _SUSPECT, "a terminator's profile refinement reports a one-sigma above "
-        f"{TERMINATOR_SIGMA_LIMIT_PX:.2f} px along some direction: the pose is barely measured "
-        "there (a terminator near phase 90 deg is nearly straight). See "
-        ":attr:`~dtalign.pipeline.PolylineFit.profile`.",
+        f"{TERMINATOR_SIGMA_LIMIT_PX:.2f} px along some direction (a terminator near phase 90 deg "
+        "is nearly straight): the pose is barely measured there.",
         "terminator imprecise: the profile refinement's one-sigma is {profile_sigma:.3g} px "
         f"along some direction (above {TERMINATOR_SIGMA_LIMIT_PX:.2f} px): the pose is barely "
         "measured there"),
     FitReason.FLAT_PROFILE_VERTICES: Reason(
-        _OK, "some of a limb's vertices have edge profiles with no contrast across their strips "
-        "(an unlit part of the limb): they were left out of the profile refinement, which "
-        "fitted the others. Pass the sunlit part of a limb.",
-        "{n_flat} of {n_model} vertices' profiles have no contrast (an unlit part of a limb?): "
+        _OK, "vertices whose edge profiles have no contrast (an unlit part of a limb) were left "
+        "out of the profile refinement, which fitted the others: pass the sunlit part of a limb.",
+        "{fit.profile.n_flat_vertices} of {n_model} vertices' profiles have no contrast (an unlit part of a limb?): "
         "left out of the profile refinement"),
     FitReason.NOT_CONVERGED: Reason(
-        _OK, "the pose has not settled: the LM stopped before its step tolerance and its pose "
-        "still moved more than 0.25 sigma over its last 5 iterations. Raise "
-        "``max_iterations``. See `Converged, settled, and the iteration cap`_.",
+        _OK, "the LM stopped before its step tolerance and its pose still moved more than "
+        f"{SETTLE_SIGMAS:g} sigma over its last {SETTLE_ITERATIONS} iterations: raise "
+        "``max_iterations`` (`Converged, settled, and the iteration cap`_).",
         "not converged: {moved} (raise max_iterations)"),
     FitReason.AMBIGUOUS_ALONG_EDGE: Reason(
         _OK, "the rival basin lies along a direction the fit cannot observe (a straight edge's "
-        "along-edge shift): ambiguous along the edge, which its ``inf`` sigma there already "
-        "says, not across it.", "{rival}"),
+        "along-edge shift), where its sigma is already ``inf``: not ambiguous across the edge.",
+        "{fit.ambiguity.reason}"),
     FitReason.RANK_DEFICIENT: Reason(
         _OK, "the geometry leaves a pose direction unmeasured (a straight edge: the along-edge "
-        "shift; a circle: its rotation). The sigmas along it are ``inf``.",
-        "rank deficient: observable rank {rank} of {n_params}; the pose is not measured along "
-        "{null_directions}{inf_there}"),
+        "shift; a circle: its rotation), and the sigmas along it are ``inf``.",
+        "rank deficient: observable rank {fit.observable_rank} of {fit.n_params}; the pose is "
+        "not measured along {null_directions}{inf_there}"),
 }
 
 #: Views of :data:`REASONS`: each reason's severity, and its meaning.
 SEVERITY = {r: row.severity for r, row in REASONS.items()}
 REASON_MEANING = {r: row.meaning for r, row in REASONS.items()}
-
-
-#: Iterations over which an unconverged LM's pose movement is judged: enough
-#: to span a few of the damping's rejected steps (which count as
-#: iterations), few enough that a fit stopped early still shows its descent.
-SETTLE_ITERATIONS = 5
-
-#: An unconverged pose has settled when its movement over the last
-#: :data:`SETTLE_ITERATIONS` iterations is at most this many of its own
-#: one-sigma (the Mahalanobis length under the fit's covariance): further
-#: iterations could then move it by a small fraction of its uncertainty.
-#: (docs/status.rst, "Converged, settled, and the iteration cap", says
-#: what the fits measured moved.)
-SETTLE_SIGMAS = 0.25
-
-
-@dataclass(frozen=True)
-class Settling:
-    """How far an unconverged LM's pose moved over its last iterations.
-
-    Made by the pipeline (:func:`dtalign.pipeline.fit.settle`) for a fit
-    whose LM stopped before an accepted step fell below
-    ``step_tolerance_px``: the LM is run again from the same start for
-    ``iterations - SETTLE_ITERATIONS`` iterations (the same deterministic
-    path, stopped earlier), and the two poses are compared. With fewer
-    iterations than that, the start itself is the earlier pose.
-
-    Attributes
-    ----------
-    iterations : int
-        The iterations the movement spans (``SETTLE_ITERATIONS``, or all of
-        them when the LM ran fewer).
-    shift_px : float
-        The translation's movement plus the rotation's times the pivot
-        distance, pixels.
-    shift_sigmas : float
-        The movement's length in units of the fit's one-sigma
-        (``sqrt(d^T C^+ d)`` with ``C`` the LM covariance): a movement along
-        a direction the geometry does not observe counts zero.
-    settled : bool
-        ``shift_sigmas <= SETTLE_SIGMAS`` or ``shift_px <= step_tolerance_px``.
-    """
-
-    iterations: int
-    shift_px: float
-    shift_sigmas: float
-    settled: bool
 
 
 class Assessment(NamedTuple):
@@ -316,97 +250,72 @@ def fit_status(reasons: Sequence[FitReason]) -> FitStatus:
     return max((SEVERITY[r] for r in reasons), key=_ORDER.index, default=_OK)
 
 
-def _profile_sigma(profile: Any) -> float:
-    """The largest one-sigma of a profile refinement's offset, px (inf when not finite)."""
-    cov = np.asarray(profile.covariance, dtype=np.float64)
-    if not np.isfinite(cov).all():
-        return float("inf")
-    return float(np.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0)))
-
-
-def _reasons(fit: Any) -> list[FitReason]:
-    """The reasons found in ``fit``, in the enum's order."""
-    lm = fit.lm
-    n = _m.n_vertices(fit)
-    n_out = int(np.count_nonzero(_m.outside(fit)))
-    n_in = n - n_out  # the polarity reasons count only these
-    # a polarity-rejected vertex has zero weight: it is the majority only then
-    rejected = _m.polarity_rejected_inside(fit) if 2 * lm.inlier_count < n_in else 0
-    out: list[FitReason] = []
-    if n_out:
-        inliers_in = _m.inside_inliers(fit)
-        if lm.degenerate or 2 * inliers_in < n_in:
-            out.append(FitReason.OUTSIDE_IMAGE)
-        elif lm.inlier_count > inliers_in:  # use_polarity=False: nothing rejected them
-            out.append(FitReason.OUTSIDE_IMAGE_WEIGHTED)
-        else:
-            out.append(FitReason.PARTLY_OUTSIDE_IMAGE)
-    if n_in > 0 and rejected == n_in:
-        out.append(FitReason.ALL_POLARITY_REJECTED)
-    elif 2 * rejected > n_in:
-        out.append(FitReason.MOST_POLARITY_REJECTED)
-    if lm.degenerate:
-        out.append(FitReason.DEGENERATE)
-    if fit.at_window_edge:
-        out.append(FitReason.AT_WINDOW_EDGE)
-    if lm.degenerate:  # nothing was measured: convergence and rank mean nothing
-        return out
-    amb, profile, kind = fit.ambiguity, fit.profile, fit.edge_kind
-    # an accepted refinement that lands on the same pose from the rival's start
-    # has let the image decide between the two basins
-    decided = profile is not None and profile.accepted and profile.rival_agrees is True
-    if amb is not None and amb.ambiguous and not amb.along_unobservable and not decided:
-        out.append(FitReason.AMBIGUOUS)
-    if profile is not None:
-        if not profile.accepted:
-            out.append(FitReason.PROFILE_REJECTED)
-        if profile.soft_edge:
-            out.append(FitReason.SOFT_EDGE)
-        if (profile.accepted and kind == "terminator"
-                and _profile_sigma(profile) > TERMINATOR_SIGMA_LIMIT_PX):
-            out.append(FitReason.TERMINATOR_IMPRECISE)
-        if profile.n_flat_vertices > 0:
-            out.append(FitReason.FLAT_PROFILE_VERTICES)
-    elif kind == "terminator":
-        out.append(FitReason.TERMINATOR_WITHOUT_PROFILE)
-    if not fit.settled:
-        out.append(FitReason.NOT_CONVERGED)
-    if amb is not None and amb.ambiguous and amb.along_unobservable:
-        out.append(FitReason.AMBIGUOUS_ALONG_EDGE)
-    if fit.observable_rank < fit.n_params:
-        out.append(FitReason.RANK_DEFICIENT)
-    return out
-
-
 class _Facts(dict[str, Any]):
-    """The facts of one fit's messages, each read (by :data:`_FACT`) when a template names it."""
+    """What :func:`assess` reads of one fit, each fact by :data:`_FACT` when first asked for."""
 
-    fit: Any
-    status: FitStatus
-
-    def __init__(self, fit: Any, status: FitStatus) -> None:
-        super().__init__()
+    def __init__(self, fit: Any) -> None:
+        super().__init__(fit=fit)
         self.fit = fit
-        self.status = status
 
     def __missing__(self, key: str) -> Any:
         value = self[key] = _FACT[key](self)
         return value
 
 
-def _settling_text(fit: Any) -> str:
-    s, n = fit.settling, fit.lm.iterations
+def _reasons(x: _Facts) -> tuple[FitReason, ...]:
+    """The reasons found in ``x.fit``, in the enum's order."""
+    fit, R = x.fit, FitReason
+    lm, amb, profile = fit.lm, fit.ambiguity, fit.profile
+    n_in, outside = x["n_in"], x["n_out"] > 0
+    too_few = lm.degenerate or 2 * x["inliers_in"] < n_in
+    # a polarity-rejected vertex has zero weight: it is the majority only then
+    rejected = x["rejected"] if 2 * lm.inlier_count < n_in else 0
+    found = {
+        R.OUTSIDE_IMAGE: outside and too_few,
+        # use_polarity=False: nothing rejected those outside
+        R.OUTSIDE_IMAGE_WEIGHTED: outside and not too_few and lm.inlier_count > x["inliers_in"],
+        R.PARTLY_OUTSIDE_IMAGE: outside and not too_few and lm.inlier_count <= x["inliers_in"],
+        R.ALL_POLARITY_REJECTED: n_in > 0 and rejected == n_in,
+        R.MOST_POLARITY_REJECTED: rejected != n_in and 2 * rejected > n_in,
+        R.DEGENERATE: lm.degenerate,
+        R.AT_WINDOW_EDGE: fit.at_window_edge,
+    }
+    if not lm.degenerate:  # nothing was measured: the rest means nothing
+        given = profile is not None
+        # an accepted refinement that lands on the same pose from the rival's
+        # start has let the image decide between the two basins
+        decided = given and profile.accepted and profile.rival_agrees is True
+        rival = amb is not None and amb.ambiguous
+        terminator = fit.edge_kind == "terminator"
+        found.update({
+            R.AMBIGUOUS: rival and not amb.along_unobservable and not decided,
+            R.PROFILE_REJECTED: given and not profile.accepted,
+            R.SOFT_EDGE: given and profile.soft_edge,
+            R.TERMINATOR_WITHOUT_PROFILE: not given and terminator,
+            R.TERMINATOR_IMPRECISE: given and profile.accepted and terminator
+            and x["profile_sigma"] > TERMINATOR_SIGMA_LIMIT_PX,
+            R.FLAT_PROFILE_VERTICES: given and profile.n_flat_vertices > 0,
+            R.NOT_CONVERGED: not fit.settled,
+            R.AMBIGUOUS_ALONG_EDGE: rival and amb.along_unobservable,
+            R.RANK_DEFICIENT: fit.observable_rank < fit.n_params,
+        })
+    return tuple(r for r in FitReason if found.get(r))
+
+
+def _profile_sigma(x: _Facts) -> float:
+    """The largest one-sigma of the profile refinement's offset, px (inf when not finite)."""
+    cov = np.asarray(x.fit.profile.covariance, dtype=np.float64)
+    if not np.isfinite(cov).all():
+        return float("inf")
+    return float(np.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0)))
+
+
+def _moved(x: _Facts) -> str:
+    s, n = x.fit.settling, x.fit.lm.iterations
     if s is None:
         return f"the LM stopped after {n} iterations before its step fell below step_tolerance_px"
     return (f"the pose still moved {s.shift_px:.3g} px ({s.shift_sigmas:.3g} sigma) over the "
             f"LM's last {s.iterations} of {n} iterations")
-
-
-def _question(x: _Facts) -> str:
-    q = ("are the normals pointing to the bright side? (they must point up the image gradient; "
-         "flip them if not)")
-    # a polyline partly off the image is most likely displaced
-    return q if x["n_in"] == x["n"] else "is there an edge under them (is the polyline displaced)? " + q
 
 
 def _too_few_inside(x: _Facts) -> str:
@@ -417,75 +326,48 @@ def _too_few_inside(x: _Facts) -> str:
             "to fit (is the predicted pose off by more than the search window?)")
 
 
-def _rejected_counts(x: _Facts) -> str:
-    k, inliers = _m.polarity_rejected_inside(x.fit), x.fit.lm.inlier_count
-    if x["n_in"] == x["n"]:
-        return f"{k} of {x['n']} polarity-rejected, {inliers} inliers"
-    return f"{k} of the {x['n_in']} inside polarity-rejected, {inliers} inliers"
-
-
-def _null_directions(fit: Any) -> str:
-    return "; ".join("(" + ", ".join(f"{round(float(x), 4) + 0.0:g}" for x in e) + ")"
-                     for e in fit.unobservable_directions)
-
-
-#: How each fact a message template names is read (``x`` is the :class:`_Facts`).
+#: How each fact a message template names is read (``x`` is the :class:`_Facts`;
+#: ``status``, the fit's, is set by :func:`assess`).
 _FACT: dict[str, Callable[[_Facts], Any]] = {
     "n": lambda x: _m.n_vertices(x.fit),
     "n_out": lambda x: int(np.count_nonzero(_m.outside(x.fit))),
     "n_in": lambda x: x["n"] - x["n_out"],
-    "h": lambda x: int(x.fit.image_shape[0]),
-    "w": lambda x: int(x.fit.image_shape[1]),
     "inliers_in": lambda x: _m.inside_inliers(x.fit),
     "outside_inliers": lambda x: x.fit.lm.inlier_count - x["inliers_in"],
+    "rejected": lambda x: _m.polarity_rejected_inside(x.fit),
     "too_few_inside": _too_few_inside,
-    "all_who": lambda x: (f"all {x['n']} vertices" if x["n_in"] == x["n"]
-                          else f"all {x['n_in']} vertices inside the image"),
+    # the polarity messages count the vertices inside, and say so when some are not
+    "inside": lambda x: "" if x["n_in"] == x["n"] else " inside the image",
+    "of_inside": lambda x: x["n"] if x["n_in"] == x["n"] else f"the {x['n_in']} inside",
     "all_where": lambda x: ("outside the image, or no edge there" if x["n_in"] == x["n"]
                             else "no edge there"),
-    "most_who": lambda x: ("most vertices" if x["n_in"] == x["n"]
-                           else "most vertices inside the image"),
-    "rejected_counts": _rejected_counts,
-    "question": _question,
+    # a polyline partly off the image is most likely displaced
+    "displaced": lambda x: ("" if x["n_in"] == x["n"]
+                            else "is there an edge under them (is the polyline displaced)? "),
     "unlit": lambda x: _m.no_edge_hint(x.fit),
     "unlit_or": lambda x: f"{x['unlit']}; if not, " if x["unlit"] else "",
     "at_pose_unlit": lambda x: f"; at this pose {x['unlit']}" if x["unlit"] else "",
     "seed": lambda x: tuple(x.fit.coarse_offset_vu),
     "window": lambda x: tuple(x.fit.search_window_vu),
-    "noise_sigma": lambda x: x.fit.noise_sigma,
-    "rival": lambda x: str(x.fit.ambiguity.reason),
-    "profile_reason": lambda x: str(x.fit.profile.reason),
-    "step_jump": lambda x: x.fit.profile.step_jump,
-    "profile_sigma": lambda x: _profile_sigma(x.fit.profile),
-    "n_flat": lambda x: x.fit.profile.n_flat_vertices,
+    "profile_sigma": _profile_sigma,
     "n_model": lambda x: len(x.fit.vertices_vu),
-    "moved": lambda x: _settling_text(x.fit),
-    "rank": lambda x: x.fit.observable_rank,
-    "n_params": lambda x: x.fit.n_params,
-    "null_directions": lambda x: _null_directions(x.fit),
+    "moved": _moved,
+    "null_directions": lambda x: "; ".join(
+        "(" + ", ".join(f"{round(float(c), 4) + 0.0:g}" for c in e) + ")"
+        for e in x.fit.unobservable_directions),
     # a failed fit's sigmas are no measurement anywhere: no "inf" to read there
-    "inf_there": lambda x: "" if x.status is _FAILED else " (sigma inf there)",
+    "inf_there": lambda x: "" if x["status"] is _FAILED else " (sigma inf there)",
 }
 
 
 def assess(fit: Any) -> Assessment:
-    """The status, the reasons and the message of a fit: what it reports about itself.
-
-    Parameters
-    ----------
-    fit : PolylineFit
-
-    Returns
-    -------
-    Assessment
-    """
-    reasons = tuple(_reasons(fit))
-    status = fit_status(reasons)
-    if not reasons:
-        return Assessment(status, reasons, str(status))
-    facts = _Facts(fit, status)
-    text = "; ".join(REASONS[r].message.format_map(facts) for r in reasons)
-    return Assessment(status, reasons, f"{status}: {text}")
+    """The status, the reasons and the message of a
+    :class:`~dtalign.pipeline.PolylineFit`: what it reports about itself."""
+    x = _Facts(fit)
+    reasons = _reasons(x)
+    x["status"] = status = fit_status(reasons)
+    text = "; ".join(REASONS[r].message.format_map(x) for r in reasons)
+    return Assessment(status, reasons, f"{status}: {text}" if reasons else str(status))
 
 
 def fit_reasons(fit: Any) -> tuple[FitReason, ...]:
@@ -516,12 +398,8 @@ def log_fits(fits: Sequence[Any], label: str = "polylines") -> None:
 
 
 def _doc_tables() -> str:
-    """The documentation's status and reason tables, as reStructuredText.
-
-    Written to ``docs/_generated/status_tables.rst`` by the Sphinx
-    configuration at each build (and compared with that file by the docs
-    tests), so the page lists exactly the enums' members, in their order.
-    """
+    """The docs' status and reason tables, as reStructuredText: ``docs/conf.py``
+    writes them to ``docs/_generated/status_tables.rst`` at each build."""
     lines = [".. list-table::", "   :header-rows: 1", "   :widths: 15 85", "",
              "   * - status", "     - meaning"]
     for status in FitStatus:
