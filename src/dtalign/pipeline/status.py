@@ -19,6 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from . import measured as _m
+from .hypotheses import AMBIGUITY_THRESHOLD
 from .measured import (
     NO_EDGE_GAP,
     NO_EDGE_MIN_FRACTION,
@@ -177,7 +178,7 @@ REASONS: dict[FitReason, Reason] = {
         "at window edge: the coarse seed {seed} is on the edge of the search window "
         "±{window}; the true offset may lie outside it: widen search_window_vu"),
     FitReason.AMBIGUOUS: Reason(
-        _AMBIGUOUS, "a rival basin across the edge costs less than 1.5 times this one (two "
+        _AMBIGUOUS, f"a rival basin across the edge costs less than {AMBIGUITY_THRESHOLD:g} times this one (two "
         "parallel edges of one polarity, a decoy edge, an unlit part of a limb), and no accepted "
         "edge-profile refinement reaches this pose from the rival's start "
         "(:attr:`~dtalign.pipeline.PolylineFit.ambiguity`).", "{fit.ambiguity.reason}{at_pose_unlit}"),
