@@ -1,23 +1,17 @@
 """The ``dtalign`` command line (also ``python -m dtalign``).
 
-Subcommands:
+Subcommands: ``demo`` (fit the synthetic disc scene and report each stage),
+``fit IMAGE POLYLINE ...`` (fit model polylines to images, through
+:func:`dtalign.pipeline.batch.fit_images`), ``overlay PNG`` (split a
+Cassini summary PNG into an image and a polyline CSV), ``bench`` (the quick
+benchmark table) and ``archive MANIFEST --out STORE`` (a campaign on Dask:
+:mod:`dtalign.archive`). :doc:`/cli` describes their options, their output
+and the exit statuses.
 
-* ``demo``: fit the synthetic disc scene and report each stage
-  (``--save DIR`` writes the scene as files ``fit`` reads);
-* ``fit IMAGE POLYLINE [IMAGE POLYLINE ...]``: fit model polylines to
-  images (``--batch LIST`` or ``--glob PATTERN`` for many images, each with
-  the polyline CSV of the same stem), through
-  :func:`dtalign.pipeline.batch.fit_images`;
-* ``overlay PNG``: split a Cassini summary PNG into an image (.npy) and
-  its traced model overlay (polyline CSV), ready for ``fit``;
-* ``bench``: the quick benchmark table;
-* ``archive MANIFEST --out STORE``: a campaign on Dask (:mod:`dtalign.archive`).
-
-:doc:`/cli` describes their options, their output and the exit statuses.
-Each subcommand is a row of the table ``_COMMANDS`` (its help, its
-description, its options and its handler); :func:`main` parses its
-arguments intermixed (options anywhere) and calls its handler, whose
-``CLIError`` (or ``OSError``, ``ValueError`` ...) is printed as one line.
+Each subcommand is a row of the table ``_COMMANDS``: its handler, its help,
+its description and its options. :func:`main` parses its arguments
+intermixed (options anywhere) and calls its handler, whose ``CLIError`` (or
+``OSError``, ``ValueError`` ...) is printed as one line.
 """
 
 from __future__ import annotations
@@ -27,7 +21,6 @@ import contextlib
 import dataclasses
 import functools
 import glob
-import importlib
 import importlib.util
 import json
 import logging
@@ -39,7 +32,6 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Generator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -66,14 +58,6 @@ COMPILE_NOTICE = (
     f"{PROG}: compiling the kernels for first use (about 1-3 minutes, once: "
     "the machine code is then cached on disk) ..."
 )
-
-#: Options that take a pair of numbers, per subcommand: one style
-#: everywhere, the two numbers joined by a comma (``--displace 3,-2``).
-PAIR_OPTIONS: dict[str, frozenset[str]] = {
-    "demo": frozenset({"--zoom"}),
-    "fit": frozenset({"--window", "--zoom"}),
-    "overlay": frozenset({"--displace"}),
-}
 
 _NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
@@ -105,7 +89,7 @@ def _one_line(exc: BaseException) -> str:
 
 class _Messages:
     """Status lines on standard error, through tqdm's writer while a bar is
-    shown (a plain ``print`` would land on the bar's line): :data:`_MESSAGES`."""
+    shown (a plain ``print`` would land on the bar's line): ``_MESSAGES``."""
 
     def __init__(self) -> None:
         self.bar: Any = None
@@ -401,7 +385,7 @@ def _demo_text(scene: Any, fit: Any, noise_est: float, args: argparse.Namespace)
 # ---------------------------------------------------------------------------
 
 
-@dataclass
+@dataclasses.dataclass
 class _Job:
     image: Path
     polyline: Path
@@ -413,6 +397,7 @@ class _Job:
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     from .api.checks import search_window
+    from .api.options import NAMES  # the FitOptions fields, which fit's flags set by name
     from .pipeline.batch import fit_images
 
     window = search_window(args.window, "--window", form="option")
@@ -449,7 +434,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         with _progress(len(jobs), batch and not args.no_progress and not args.json) as progress:
             fit_images([functools.partial(_load, job, args, sphere) for job in jobs],
                        search_window_vu=window, errors="collect", progress=progress,
-                       on_image=report, **_fit_options(args))
+                       on_image=report, **{k: v for k, v in vars(args).items() if k in NAMES})
     except BaseException as exc:
         # A Ctrl-C ends a batch, not the command: the rows reported before it
         # are printed (or written) and fit exits 130. A single fit's Ctrl-C
@@ -554,20 +539,15 @@ def _unique_names(paths: Sequence[Path]) -> list[str]:
     """Short names for ``paths``: the file name, with just enough parent
     folders to tell apart paths that share it (``a/disc.npy``,
     ``b/disc.npy``). Paths naming the same file keep the same name."""
-    resolved = [Path(os.path.abspath(p)) for p in paths]
-
-    def name(p: Path, level: int) -> str:
-        tail = list(p.parent.parts[len(p.parent.parts) - level :]) if level else []
-        return "/".join([*tail, p.name])
-
+    resolved = [Path(os.path.abspath(p)).parts for p in paths]
     levels = [0] * len(paths)
-    while True:
-        names = [name(p, k) for p, k in zip(resolved, levels, strict=True)]
-        groups: dict[str, set[Path]] = {}
-        for n, p in zip(names, resolved, strict=True):
-            groups.setdefault(n, set()).add(p)
+    while True:  # each name its file name and the last ``level`` folders
+        names = ["/".join(parts[len(parts) - 1 - k :]) for parts, k in zip(resolved, levels, strict=True)]
+        groups: dict[str, set[tuple[str, ...]]] = {}
+        for n, parts in zip(names, resolved, strict=True):
+            groups.setdefault(n, set()).add(parts)
         grow = [i for i, n in enumerate(names)
-                if len(groups[n]) > 1 and levels[i] < len(resolved[i].parent.parts)]
+                if len(groups[n]) > 1 and levels[i] < len(resolved[i]) - 1]
         if not grow:
             return names
         for i in grow:
@@ -800,15 +780,13 @@ def _cmd_overlay(args: argparse.Namespace) -> int:
 
     from .io.cassini import load_cassini_overlay_frame, overlay_polylines
     from .io.files import concatenate_polylines, save_polyline_csv
-    from .scenes import Polyline
 
     frame = load_cassini_overlay_frame(args.png)
     lines = overlay_polylines(frame, shape=args.shape, n_lines=args.n_lines)
     model = concatenate_polylines(lines, name=Path(args.png).stem)
     if not all(math.isfinite(x) for x in displace):
         raise CLIError(f"--displace must be finite, got {args.displace!r}")
-    moved = Polyline(model.name, model.vertices_vu - np.asarray(displace), model.normals_vu,
-                     model.sigmas)
+    moved = dataclasses.replace(model, vertices_vu=model.vertices_vu - np.asarray(displace))
     np.save(args.image, frame.image)
     save_polyline_csv(args.polyline, moved)
     print(
@@ -841,13 +819,8 @@ _Option = tuple[str, dict[str, Any]]
 def _fit_field(dest: str, **spec: Any) -> dict[str, Any]:
     """A ``fit`` flag setting :class:`~dtalign.api.options.FitOptions` field
     ``dest``: absent from the arguments unless given, so that the field's own
-    default stands (:func:`_fit_options`)."""
+    default stands."""
     return dict(dest=dest, default=argparse.SUPPRESS, **spec)
-
-
-def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The FitOptions fields the ``fit`` command line sets, as keywords."""
-    return {k: v for k, v in vars(args).items() if k in _FIT_FIELDS}
 
 
 def _plot_options(plot_help: str) -> list[_Option]:
@@ -921,9 +894,6 @@ _FIT: list[_Option] = [
     ("--no-progress", dict(action="store_true", help="no progress bar")),
 ]
 
-#: The FitOptions fields ``fit``'s flags set (:func:`_fit_field`).
-_FIT_FIELDS = frozenset(spec["dest"] for _, spec in _FIT if spec.get("default") is argparse.SUPPRESS)
-
 _OVERLAY: list[_Option] = [
     ("png", dict(metavar="PNG", help="the summary PNG")),
     ("--shape", dict(choices=("limb", "lines"), required=True, help="what the overlay is")),
@@ -954,6 +924,12 @@ _COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], int], str, str, list[_
               "Run dtalign.benchmarking (options are passed through).",
               [("args", dict(nargs=argparse.REMAINDER))]),
 }
+
+#: Options that take a pair of numbers, per subcommand: those whose metavar
+#: is two names joined by a comma, the one style everywhere (``--displace 3,-2``).
+PAIR_OPTIONS = {name: frozenset(flags for flags, spec in options
+                                if str(spec.get("metavar", "")).count(",") == 1)
+                for name, (_, _, _, options) in _COMMANDS.items()}
 
 
 def _build() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
@@ -987,14 +963,10 @@ def _pairs_joined(command: str, argv: list[str], parser: argparse.ArgumentParser
     (``--window 30 20``) are refused with the form to use, instead of
     argparse's or the file pairing's own, misleading, error.
     """
-    options = PAIR_OPTIONS.get(command, frozenset())
-    out: list[str] = []
-    i = 0
+    options, out, i = PAIR_OPTIONS.get(command, frozenset()), [], 0
     while i < len(argv):
-        word = argv[i]
-        if word in options and i + 1 < len(argv) and not argv[i + 1].startswith("--"):
-            value = argv[i + 1]
-            after = argv[i + 2] if i + 2 < len(argv) else None
+        word, (value, after) = argv[i], (argv[i + 1 : i + 3] + [None, None])[:2]
+        if word in options and value is not None and not value.startswith("--"):
             if (_NUMBER.fullmatch(value) and after is not None and _NUMBER.fullmatch(after)
                     and not os.path.exists(after)):
                 parser.error(
@@ -1003,9 +975,9 @@ def _pairs_joined(command: str, argv: list[str], parser: argparse.ArgumentParser
                 )
             out.append(f"{word}={value}")
             i += 2
-            continue
-        out.append(word)
-        i += 1
+        else:
+            out.append(word)
+            i += 1
     return out
 
 
@@ -1053,11 +1025,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        0 on success; 1 on an error (printed as one line) or when any image
-        of a batch failed; 2 for a malformed command line; 3
-        (:data:`EXIT_FIT_FAILED`) when every input was fitted but some fit's
-        status is ``failed``; 4 (:data:`EXIT_FIT_DOUBTFUL`) when none failed
-        but some is ``suspect`` or ``ambiguous``; 130 when interrupted (Ctrl-C).
+        0 on success; 1 on an error or a failed image; 2 for a malformed
+        command line; 3 (:data:`EXIT_FIT_FAILED`) or 4
+        (:data:`EXIT_FIT_DOUBTFUL`) for a failed or doubtful fit; 130 when
+        interrupted (:doc:`/cli` has the table).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
