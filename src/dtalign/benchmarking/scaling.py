@@ -1,0 +1,98 @@
+"""How a scaling row (2 workers against 1) is judged: against its target, or its control.
+
+A scaling row's ratio is one worker's time over two workers' time, both
+measured in the same run, alternated with a control: GIL-free compiled
+work of about a fit's size (:mod:`~dtalign.benchmarking.fpload`) run the
+same two ways on the same pool, whose ratio ``c`` is what the machine
+allowed such work at that moment. On a machine whose second core other
+processes hold, no code reaches a target the control itself cannot reach.
+So a row passes by one of two rules:
+
+* ``target``: its ratio reaches its target;
+* ``control-bound``: its ratio reaches :data:`CONTROL_FRACTION` of what the
+  control's scaling predicts for it, and :data:`FLOOR` whatever the
+  control did.
+
+The prediction is Amdahl's: of a row whose share ``s`` of one worker's
+time can run on both workers (``s`` = 1 unless the row measures it), two
+workers get ``1 / ((1 - s) + s / c)``. A row of 64 fits on one image is
+mostly Python under the GIL (the settling and the conclusions of each
+fit) around a compiled loop, and its share is that loop's time alone
+over the row's, measured in the same run.
+
+A regression that serialises the work (a lock, a kernel holding the GIL)
+reads about 1x: it fails whenever the control scaled past
+``1 / CONTROL_FRACTION`` (1.25x) on a row of share 1. On a loaded machine,
+where the control reads about 1x too, no ratio can tell the two apart, and
+the row passes control-bound. The figures the two constants rest on are
+in docs/benchmarks.rst ("Scaling rows").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["CONTROL_FRACTION", "FLOOR", "Verdict", "expected_ratio", "judge"]
+
+#: A row below its target passes when it reaches this fraction of the
+#: ratio its control predicts: below the lowest fraction healthy runs gave,
+#: above the 1x of serialised work against a control that scaled.
+CONTROL_FRACTION = 0.8
+#: A row below this ratio fails whatever its control read: two workers that
+#: take more than 1/FLOOR times one worker's time contend for something
+#: (a lock, the GIL), which another process's load does not explain.
+FLOOR = 0.7
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A scaling row's judgement.
+
+    Attributes
+    ----------
+    passed : bool
+        Whether the row passed.
+    rule : str
+        ``"target"`` or ``"control-bound"`` (the rule it passed by), else
+        ``"below target"`` (no control), ``"below control"`` or
+        ``"below floor"`` (why it failed).
+    required : float
+        The ratio the row had to reach: its target, or the control-bound
+        bound when that is lower (never below :data:`FLOOR`).
+    """
+
+    passed: bool
+    rule: str
+    required: float
+
+
+def expected_ratio(control: float, share: float = 1.0) -> float:
+    """Two workers' speed-up of work whose ``share`` runs on both, when the
+    control's speed-up was ``control`` (Amdahl's law)."""
+    return 1.0 / ((1.0 - share) + share / control)
+
+
+def judge(ratio: float, target: float, control: float | None, share: float = 1.0) -> Verdict:
+    """Judge a scaling row's ``ratio`` against its ``target`` and the same
+    run's ``control`` ratio (None: the target alone).
+
+    Parameters
+    ----------
+    ratio : float
+        One worker's time over two workers' time.
+    target : float
+        The ratio asked of the row on a machine with two free cores.
+    control : float or None
+        The control's ratio in the same run.
+    share : float
+        The share of one worker's time that can run on both (0 to 1).
+    """
+    if ratio >= target:
+        return Verdict(True, "target", target)
+    if control is None or control <= 0.0:
+        return Verdict(False, "below target", target)
+    bound = CONTROL_FRACTION * expected_ratio(control, min(max(share, 0.0), 1.0))
+    required = max(FLOOR, min(target, bound))
+    if ratio >= required:
+        return Verdict(True, "control-bound", required)
+    return Verdict(False, "below floor" if ratio < FLOOR else "below control", required)
