@@ -170,8 +170,8 @@ def check(rows: list[dict]) -> list[Failure]:
                 failures.append(Failure(
                     row["name"], "ratio",
                     f"{row['name']}: ratio {row['ratio']:.2f}x {row['rule']}: needs "
-                    f"{row['required_ratio']:.2f}x (target {row['target']:g}x, FP-throughput "
-                    f"control {row['fp_control_ratio']:.2f}x)",
+                    f"{row['required_ratio']:.2f}x (target {row['target']:g}x, "
+                    f"{row['judged_by']} {row[row['judged_by']]:.2f}x)",
                 ))
             continue
         lowest = floor(row["name"])

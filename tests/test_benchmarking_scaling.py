@@ -66,21 +66,28 @@ def test_without_a_control_only_the_target_passes():
 
 BATCH = {"name": "batch_images", "kind": "batch", "reference_s": 0.3, "dtalign_s": 0.3,
          "ratio": 1.0, "target": 1.8, "results_agree": True, "control_ratio": 1.02,
-         "fp_control_ratio": 1.05, "loop_control_ratio": 1.1}
+         "fp_control_ratio": 0.9, "loop_control_ratio": 1.1, "judged_by": "control_ratio"}
 
 
-def _row(ratio: float, fp: float) -> dict:
-    verdict = judge(ratio, 1.8, fp)
-    return {**BATCH, "ratio": ratio, "fp_control_ratio": fp, "passed": verdict.passed,
+def _row(ratio: float, control: float) -> dict:
+    """A batch_images row as measure_batch writes it, judged against its SHA-256 control."""
+    verdict = judge(ratio, 1.8, control)
+    return {**BATCH, "ratio": ratio, "control_ratio": control, "passed": verdict.passed,
             "rule": verdict.rule, "required_ratio": verdict.required}
+
+
+def test_each_scaling_row_has_its_own_control():
+    assert set(scaling.CONTROLS) == {"batch_64_fits", "batch_images", "archive_32_frames"}
+    assert set(scaling.CONTROLS.values()) <= {"control_ratio", "fp_control_ratio"}
 
 
 def test_the_table_says_which_rule_a_row_passed_or_failed_by():
     status = timing._cells(_row(1.0, 1.05))[5]
-    assert status == ("pass, control-bound: needs 0.84x (control 1.02x, FP throughput 1.05x, "
-                      "compiled loop alone 1.10x)")
-    assert timing._cells(_row(1.0, 1.6))[5].startswith("FAIL, below control: needs 1.28x (")
-    assert timing._cells(_row(1.9, 1.6))[5].startswith("pass (control 1.02x")
+    assert status == ("pass, control-bound (control): needs 0.84x (control 1.05x, "
+                      "FP throughput 0.90x, compiled loop alone 1.10x)")
+    fp = {**_row(0.9, 1.6), "judged_by": "fp_control_ratio"}
+    assert timing._cells(fp)[5].startswith("FAIL, below control (FP throughput): needs 1.28x (")
+    assert timing._cells(_row(1.9, 1.6))[5].startswith("pass (control 1.60x")
 
 
 @pytest.fixture(scope="module")
@@ -95,6 +102,7 @@ def bench_check():
 def test_ci_fails_the_scaling_rows_the_run_failed(bench_check):
     failures = bench_check.check([_row(1.0, 1.05), _row(1.0, 1.6)])
     assert [f.name for f in failures] == ["batch_images"]
-    assert "below control: needs 1.28x" in failures[0].message
+    assert failures[0].message == ("batch_images: ratio 1.00x below control: needs 1.28x "
+                                   "(target 1.8x, control_ratio 1.60x)")
     assert bench_check.missed_targets([_row(1.0, 1.05)]) == [
         "batch_images 1.00x < target 1.8x (control-bound)"]

@@ -1,11 +1,12 @@
 """How a scaling row (2 workers against 1) is judged: against its target, or its control.
 
 A scaling row's ratio is one worker's time over two workers' time, both
-measured in the same run, alternated with a control: GIL-free compiled
-work of about a fit's size (:mod:`~dtalign.benchmarking.fpload`) run the
-same two ways on the same pool, whose ratio ``c`` is what the machine
-allowed such work at that moment. On a machine whose second core other
-processes hold, no code reaches a target the control itself cannot reach.
+measured in the same run, alternated with controls: GIL-free work run the
+same two ways on the same pool (SHA-256 of 512 KiB; compiled work bound by
+floating-point throughput, :mod:`~dtalign.benchmarking.fpload`). The
+ratio ``c`` of the row's own control (:data:`CONTROLS`) is what the
+machine allowed such work at that moment. On a machine whose second core
+other processes hold, no code reaches a target its control cannot reach.
 So a row passes by one of two rules:
 
 * ``target``: its ratio reaches its target;
@@ -32,7 +33,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CONTROL_FRACTION", "FLOOR", "Verdict", "expected_ratio", "judge"]
+__all__ = ["CONTROLS", "CONTROL_FRACTION", "FLOOR", "Verdict", "expected_ratio", "judge"]
+
+#: Each scaling row's own control, by the row's key of its ratio: the one
+#: whose work scales as the row's does. The 64 fits' compiled loop is bound
+#: by floating-point throughput, as :mod:`~dtalign.benchmarking.fpload` is;
+#: whole images and frames (derivatives, then fits) scale past that control,
+#: and as far as the SHA-256 one.
+CONTROLS = {"batch_64_fits": "fp_control_ratio", "batch_images": "control_ratio",
+            "archive_32_frames": "control_ratio"}
 
 #: A row below its target passes when it reaches this fraction of the
 #: ratio its control predicts: below the lowest fraction healthy runs gave,

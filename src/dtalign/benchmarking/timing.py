@@ -313,7 +313,7 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     and the conclusions: docs/benchmarks.rst, "What was tried").
 
     Each row is judged by :func:`~dtalign.benchmarking.scaling.judge`
-    against its target and the FP-throughput control (``rule``,
+    against its target and its own control (``judged_by``: ``rule``,
     ``required_ratio``); ``batch_64_fits`` with the share of its fits that
     runs GIL-free, the compiled loop's time alone over the row's on one
     worker (``parallel_share``).
@@ -367,15 +367,15 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
         # the 64 fits' share that runs GIL-free: their compiled loop alone
         share = (min(1.0, statistics.median(k1) / statistics.median(t1))
                  if name == "batch_64_fits" else 1.0)
-        verdict = scaling.judge(ratio, target, fp_ratio, share)
+        controls = {"control_ratio": control_ratio, "fp_control_ratio": fp_ratio}
+        verdict = scaling.judge(ratio, target, controls[scaling.CONTROLS[name]], share)
         rows.append({
             "name": name, "kind": "batch", "description": description,
             "reference_s": statistics.median(t1), "dtalign_s": statistics.median(t2),
             "ratio": ratio, "ratio_of_minima": min(t1) / min(t2), "target": target,
             "passed": agree and verdict.passed, "results_agree": agree,
             "rule": verdict.rule, "required_ratio": verdict.required, "parallel_share": share,
-            "control_ratio": control_ratio,
-            "fp_control_ratio": fp_ratio,
+            "judged_by": scaling.CONTROLS[name], **controls,
             "loop_control_ratio": loop_ratio,
             "loop_control_s": statistics.median(k1),
             "reference_times_s": t1, "dtalign_times_s": t2,
@@ -408,6 +408,10 @@ def _mib(b: int | None) -> str:
 HEADER = ("workload", "reference", "dtalign", "ratio", "target", "status", "peak ref", "peak dtalign")
 
 
+#: The table's names of the batch rows' controls, by their keys.
+_CONTROL_NAMES = {"control_ratio": "control", "fp_control_ratio": "FP throughput"}
+
+
 def _cells(row: dict[str, Any]) -> tuple[str, ...]:
     status = "pass" if row["passed"] else "FAIL"
     if row["kind"] == "overhead":  # columns: noise given, noise estimated; ratio est / given
@@ -419,8 +423,9 @@ def _cells(row: dict[str, Any]) -> tuple[str, ...]:
         if not row.get("results_agree", True):
             status = "FAIL (results differ)"
         elif row.get("rule") in ("control-bound", "below control", "below floor"):
-            # below target: the rule of scaling.judge it passed or failed by
-            status += f", {row['rule']}: needs {row['required_ratio']:.2f}x"
+            # below target: the rule of scaling.judge it passed or failed by, and its control
+            by = _CONTROL_NAMES.get(row.get("judged_by", ""), "its control")
+            status += f", {row['rule']} ({by}): needs {row['required_ratio']:.2f}x"
         target = "-" if row["target"] is None else f">= {row['target']:g}x"
         if row["target"] is None:
             status = "info"
