@@ -53,9 +53,11 @@ def test_a_row_mostly_under_the_gil_is_held_to_its_parallel_share():
     # 64 fits, a quarter of one worker's time GIL-free: 2 workers cannot get far past 1x
     assert expected_ratio(2.0, 0.25) == pytest.approx(1 / 0.875)
     assert expected_ratio(1.5, 1.0) == pytest.approx(1.5)
-    assert judge(0.93, 1.5, 1.53, share=0.25).rule == "control-bound"
-    verdict = judge(0.75, 1.5, 1.9, share=0.25)
+    own = scaling.CONTROLS["batch_64_fits"]
+    assert judge(0.93, 1.5, 1.53, 0.25, own.fraction).rule == "control-bound"
+    verdict = judge(0.75, 1.5, 1.9, 0.25, own.fraction)
     assert not verdict.passed and verdict.rule == "below control"
+    assert verdict.required == pytest.approx(own.fraction / (0.75 + 0.25 / 1.9))
     # the same figures against a row whose work all runs on both workers fail
     assert not judge(0.93, 1.5, 1.53).passed
 
@@ -78,7 +80,10 @@ def _row(ratio: float, control: float) -> dict:
 
 def test_each_scaling_row_has_its_own_control():
     assert set(scaling.CONTROLS) == {"batch_64_fits", "batch_images", "archive_32_frames"}
-    assert set(scaling.CONTROLS.values()) <= {"control_ratio", "fp_control_ratio"}
+    for own in scaling.CONTROLS.values():
+        assert own.key in {"control_ratio", "fp_control_ratio"}
+        # serialised work (1x) of share 1 beside a control at 1.5x is below the bound
+        assert 1.0 < own.fraction * 1.5 and own.fraction <= 1.0
 
 
 def test_the_table_says_which_rule_a_row_passed_or_failed_by():

@@ -300,8 +300,8 @@ def _rows(p: _Pairs, n_items: int, t_cold: float, cold_warm_s: float, load_avera
     summary = p.summary
     controls = {"control_ratio": statistics.median(p.c_serial) / statistics.median(p.c_cluster),
                 "fp_control_ratio": statistics.median(p.f_serial) / statistics.median(p.f_cluster)}
-    judged_by = scaling.CONTROLS["archive_32_frames"]
-    verdict = scaling.judge(ratio, ARCHIVE_TARGET, controls[judged_by])
+    own = scaling.CONTROLS["archive_32_frames"]
+    verdict = scaling.judge(ratio, ARCHIVE_TARGET, controls[own.key], fraction=own.fraction)
     rows = [
         {"name": "archive_32_frames", "kind": "batch",
          "description": f"dtalign.archive.run: {ARCHIVE_FRAMES} frames {ARCHIVE_SIZE}^2 x 3 "
@@ -313,7 +313,7 @@ def _rows(p: _Pairs, n_items: int, t_cold: float, cold_warm_s: float, load_avera
          "ratio_of_minima": min(p.t_serial) / min(p.t_cluster), "target": ARCHIVE_TARGET,
          "passed": p.agree and verdict.passed, "results_agree": p.agree,
          "rule": verdict.rule, "required_ratio": verdict.required, "parallel_share": 1.0,
-         "judged_by": judged_by, **controls,
+         "judged_by": own.key, **controls,
          "control_times_s": [p.c_serial, p.c_cluster],
          "fp_control_times_s": [p.f_serial, p.f_cluster],
          "reference_times_s": p.t_serial, "dtalign_times_s": p.t_cluster,

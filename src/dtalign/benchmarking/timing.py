@@ -368,14 +368,15 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
         share = (min(1.0, statistics.median(k1) / statistics.median(t1))
                  if name == "batch_64_fits" else 1.0)
         controls = {"control_ratio": control_ratio, "fp_control_ratio": fp_ratio}
-        verdict = scaling.judge(ratio, target, controls[scaling.CONTROLS[name]], share)
+        own = scaling.CONTROLS[name]
+        verdict = scaling.judge(ratio, target, controls[own.key], share, own.fraction)
         rows.append({
             "name": name, "kind": "batch", "description": description,
             "reference_s": statistics.median(t1), "dtalign_s": statistics.median(t2),
             "ratio": ratio, "ratio_of_minima": min(t1) / min(t2), "target": target,
             "passed": agree and verdict.passed, "results_agree": agree,
             "rule": verdict.rule, "required_ratio": verdict.required, "parallel_share": share,
-            "judged_by": scaling.CONTROLS[name], **controls,
+            "judged_by": own.key, **controls,
             "loop_control_ratio": loop_ratio,
             "loop_control_s": statistics.median(k1),
             "reference_times_s": t1, "dtalign_times_s": t2,
