@@ -88,7 +88,7 @@ def test_each_scaling_row_has_its_own_control():
 
 def test_the_table_says_which_rule_a_row_passed_or_failed_by():
     status = timing._cells(_row(1.0, 1.05))[5]
-    assert status == ("pass, control-bound (control): needs 0.84x (control 1.05x, "
+    assert status == ("pass, control-bound (SHA-256 control): needs 0.84x (control 1.05x, "
                       "FP throughput 0.90x, compiled loop alone 1.10x)")
     fp = {**_row(0.9, 1.6), "judged_by": "fp_control_ratio"}
     assert timing._cells(fp)[5].startswith("FAIL, below control (FP throughput): needs 1.28x (")
