@@ -111,3 +111,22 @@ def test_ci_fails_the_scaling_rows_the_run_failed(bench_check):
                                    "(target 1.8x, control_ratio 1.60x)")
     assert bench_check.missed_targets([_row(1.0, 1.05)]) == [
         "batch_images 1.00x < target 1.8x (control-bound)"]
+
+
+def test_the_campaign_row_is_judged_against_its_sha256_control():
+    from types import SimpleNamespace
+
+    from dtalign.benchmarking.archive import _Pairs, _rows
+
+    def campaign(cluster_s: float) -> dict:
+        pairs = _Pairs(t_serial=[1.0], t_cluster=[cluster_s], t_single=[0.9], cpu_serial=[1.0],
+                       cpu_cluster=[1.1], cpu_single=[1.2], store_s=[0.01],
+                       c_serial=[1.0], c_cluster=[0.625], f_serial=[1.0], f_cluster=[0.9])
+        pairs.summary = SimpleNamespace(items_per_task=4)
+        return _rows(pairs, 32, 2.0, 0.5, 1.0, 0.0)[0]
+
+    # its SHA-256 control scaled 1.6x: 1.3x is 0.8 of it, 1.0x is serialised work
+    row = campaign(1 / 1.3)
+    assert row["passed"] and row["rule"] == "control-bound" and row["judged_by"] == "control_ratio"
+    assert row["required_ratio"] == pytest.approx(1.28)
+    assert campaign(1.0)["rule"] == "below control"
