@@ -10,7 +10,9 @@ Wall time is :func:`time.perf_counter`; peak memory is the
 :mod:`tracemalloc` peak of one call (Numba's allocations are traced too).
 
 Besides the workloads the table has the batch throughput of
-:mod:`dtalign.pipeline.batch` (2 workers against 1), start-up times measured in fresh
+:mod:`dtalign.pipeline.batch` (2 workers against 1: scaling rows, which
+also pass "control-bound" when they reach what their own control allowed,
+:mod:`~dtalign.benchmarking.scaling`), start-up times measured in fresh
 subprocesses (``import dtalign``; the first fit with a warm on-disk cache;
 with ``--startup full`` also the first-run compile time and a check that a
 read-only install still caches), and two memory checks (image-sized
@@ -24,7 +26,8 @@ Nothing global is configured: the kernels are single-threaded.
 
 The package: :mod:`~dtalign.benchmarking.workloads` (targets, inputs, the
 calls timed), :mod:`~dtalign.benchmarking.timing` (timing, the workload and
-batch sections, the table), :mod:`~dtalign.benchmarking.memory` and
+batch sections, the table), :mod:`~dtalign.benchmarking.scaling` (how a
+scaling row is judged), :mod:`~dtalign.benchmarking.memory` and
 :mod:`~dtalign.benchmarking.startup` (those sections); the driver,
 :func:`run` and :func:`main`, is here.
 """

@@ -24,7 +24,9 @@ too).
 the Arrow tables, writing and syncing the part files) per item, against
 the serial time of one item.
 
-The campaign row's control is SHA-256 tasks (GIL-free C code, each about
+The campaign row is judged as the batch rows are
+(:func:`~dtalign.benchmarking.scaling.judge`, against its SHA-256
+control, as whole images are). That control is SHA-256 tasks (GIL-free C code, each about
 a frame's time) run the same two ways, serially here and through the same
 cluster, alternated with the campaign: its ratio is what the machine,
 shared with other processes, and Dask's cost per task allowed two
@@ -59,6 +61,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from . import scaling
 from .timing import _Load, _progress
 
 __all__ = ["ARCHIVE_FRAMES", "ARCHIVE_TARGET", "STORE_OVERHEAD_TARGET", "measure_archive"]
@@ -295,6 +298,10 @@ def _rows(p: _Pairs, n_items: int, t_cold: float, cold_warm_s: float, load_avera
     store_item = statistics.median(p.store_s) / n_items
     fraction = store_item / per_item
     summary = p.summary
+    controls = {"control_ratio": statistics.median(p.c_serial) / statistics.median(p.c_cluster),
+                "fp_control_ratio": statistics.median(p.f_serial) / statistics.median(p.f_cluster)}
+    own = scaling.CONTROLS["archive_32_frames"]
+    verdict = scaling.judge(ratio, ARCHIVE_TARGET, controls[own.key], fraction=own.fraction)
     rows = [
         {"name": "archive_32_frames", "kind": "batch",
          "description": f"dtalign.archive.run: {ARCHIVE_FRAMES} frames {ARCHIVE_SIZE}^2 x 3 "
@@ -304,10 +311,10 @@ def _rows(p: _Pairs, n_items: int, t_cold: float, cold_warm_s: float, load_avera
                         f"a frame per task {serial / statistics.median(p.t_single):.2f}x)",
          "reference_s": serial, "dtalign_s": cluster_t, "ratio": ratio,
          "ratio_of_minima": min(p.t_serial) / min(p.t_cluster), "target": ARCHIVE_TARGET,
-         "passed": p.agree and ratio >= ARCHIVE_TARGET, "results_agree": p.agree,
-         "control_ratio": statistics.median(p.c_serial) / statistics.median(p.c_cluster),
+         "passed": p.agree and verdict.passed, "results_agree": p.agree,
+         "rule": verdict.rule, "required_ratio": verdict.required, "parallel_share": 1.0,
+         "judged_by": own.key, **controls,
          "control_times_s": [p.c_serial, p.c_cluster],
-         "fp_control_ratio": statistics.median(p.f_serial) / statistics.median(p.f_cluster),
          "fp_control_times_s": [p.f_serial, p.f_cluster],
          "reference_times_s": p.t_serial, "dtalign_times_s": p.t_cluster,
          "pair_ratios": [a / b for a, b in zip(p.t_serial, p.t_cluster, strict=True)],

@@ -311,12 +311,18 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
     it is what the machine allows the compiled fits. A batch ratio below
     the loop's is the Python each fit needs under the GIL (the settling
     and the conclusions: docs/benchmarks.rst, "What was tried").
+
+    Each row is judged by :func:`~dtalign.benchmarking.scaling.judge`
+    against its target and its own control (``judged_by``: ``rule``,
+    ``required_ratio``); ``batch_64_fits`` with the share of its fits that
+    runs GIL-free, the compiled loop's time alone over the row's on one
+    worker (``parallel_share``).
     """
     import dtalign.scenes as scenes
 
     from ..pipeline.batch import fit_images, fit_many, map_ordered
     from ..pipeline.products import prepare_image
-    from . import fpload
+    from . import fpload, scaling
     from .compare import results_equal
 
     scene = scenes.navigation_scene()
@@ -358,14 +364,21 @@ def measure_batch(repeats: int) -> list[dict[str, Any]]:
         control_ratio = statistics.median(c1) / statistics.median(c2)
         fp_ratio = statistics.median(f1) / statistics.median(f2)
         loop_ratio = statistics.median(k1) / statistics.median(k2)
+        # the 64 fits' share that runs GIL-free: their compiled loop alone
+        share = (min(1.0, statistics.median(k1) / statistics.median(t1))
+                 if name == "batch_64_fits" else 1.0)
+        controls = {"control_ratio": control_ratio, "fp_control_ratio": fp_ratio}
+        own = scaling.CONTROLS[name]
+        verdict = scaling.judge(ratio, target, controls[own.key], share, own.fraction)
         rows.append({
             "name": name, "kind": "batch", "description": description,
             "reference_s": statistics.median(t1), "dtalign_s": statistics.median(t2),
             "ratio": ratio, "ratio_of_minima": min(t1) / min(t2), "target": target,
-            "passed": agree and (target is None or ratio >= target), "results_agree": agree,
-            "control_ratio": control_ratio,
-            "fp_control_ratio": fp_ratio,
+            "passed": agree and verdict.passed, "results_agree": agree,
+            "rule": verdict.rule, "required_ratio": verdict.required, "parallel_share": share,
+            "judged_by": own.key, **controls,
             "loop_control_ratio": loop_ratio,
+            "loop_control_s": statistics.median(k1),
             "reference_times_s": t1, "dtalign_times_s": t2,
             "pair_ratios": [a / b for a, b in zip(t1, t2, strict=True)],
             "other_load_cores": load.cores,
@@ -396,6 +409,10 @@ def _mib(b: int | None) -> str:
 HEADER = ("workload", "reference", "dtalign", "ratio", "target", "status", "peak ref", "peak dtalign")
 
 
+#: The table's names of the batch rows' controls, by their keys.
+_CONTROL_NAMES = {"control_ratio": "SHA-256 control", "fp_control_ratio": "FP throughput"}
+
+
 def _cells(row: dict[str, Any]) -> tuple[str, ...]:
     status = "pass" if row["passed"] else "FAIL"
     if row["kind"] == "overhead":  # columns: noise given, noise estimated; ratio est / given
@@ -406,6 +423,10 @@ def _cells(row: dict[str, Any]) -> tuple[str, ...]:
     if row["kind"] in ("speed", "batch"):
         if not row.get("results_agree", True):
             status = "FAIL (results differ)"
+        elif row.get("rule") in ("control-bound", "below control", "below floor"):
+            # below target: the rule of scaling.judge it passed or failed by, and its control
+            by = _CONTROL_NAMES.get(row.get("judged_by", ""), "its control")
+            status += f", {row['rule']} ({by}): needs {row['required_ratio']:.2f}x"
         target = "-" if row["target"] is None else f">= {row['target']:g}x"
         if row["target"] is None:
             status = "info"
