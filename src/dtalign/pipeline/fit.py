@@ -766,8 +766,8 @@ def fit_polyline_products(
 ) -> PolylineFit:
     """Fit one polyline against precomputed image products.
 
-    The steps, each once: check the polyline and the options
-    (:func:`~dtalign.pipeline.jobs.plan`); find the integer seed of the
+    The steps, each once: check the options, then the polyline
+    (:func:`~dtalign.pipeline.jobs.check_options`, :func:`~dtalign.pipeline.jobs.item`); find the integer seed of the
     polyline against ``products.edge_mask`` (the polarity-weighted search,
     or the overlap search when ``use_polarity=False``); refine from it with
     the LM of :func:`dtalign.lm_subpixel_refine`; examine the fit against
@@ -822,8 +822,10 @@ def fit_polyline_products(
     vertices_vu, normals_vu, sigmas, edge_profile, kind = polyline_parts(
         vertices_vu, normals_vu, sigmas, edge_profile)
     opts = resolve(options, overrides)
-    shared, item = jobs.plan(products, vertices_vu, normals_vu,
-                             jobs.broadcast_sigmas(vertices_vu, sigmas), opts)
+    if not isinstance(products, ImageProducts):
+        raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
+    shared = jobs.plan(products, jobs.check_options(opts))
+    item = jobs.item(shared, vertices_vu, normals_vu, jobs.broadcast_sigmas(vertices_vu, sigmas))
     profile = None
     if edge_profile is not None:
         profile = check_edge_profile(edge_profile, item.normals)
