@@ -328,6 +328,8 @@ def _fit_run(shared: _jobs.Plan, batch: _jobs.Batch, polylines: list[tuple[Any, 
         _jobs.fit_polylines(args, lo, hi, codes, out)  # (on past a polyline that fails)
         each_s = (time.perf_counter() - t0) / (hi - lo)
         for j, fit in enumerate(wrap(shared, batch, views, lo, hi), lo):
+            if call.stop.is_set():  # (a fit's examination is a few LM fits)
+                raise CancelledError("the batch was stopped")
             try:
                 if codes[j] != _jobs.OK:  # its rows were never written
                     raise _jobs.kernel_error(int(codes[j]))
