@@ -189,7 +189,7 @@ def gated(monkeypatch):
     """Every compiled fit but the first waits (GIL released) until the
     callback has raised: the batch is still running when it raises.
     Returns the list of fits started."""
-    deps = _fitjobs  # the module whose fit_polylines run_loop calls
+    deps = _fitjobs  # the module whose fit_polylines the batch calls
     compiled, started, gate = deps.fit_polylines, [], threading.Event()
 
     def fit_polylines(*args):

@@ -461,14 +461,13 @@ def fit_many(products: ImageProducts, polylines: Iterable[Any], *,
     workers : int, optional
         Threads (default: the CPUs this process may use); 1 fits serially.
     errors : {"raise", "collect"}, optional
-        Raise the first failing polyline's error (its own, with the note
-        ``polylines[i]`` and ``index`` i), or put each failed one's error
-        in its place.
+        Raise the first failing polyline's error (its own, noted
+        ``polylines[i]``, with ``index`` i), or put each failed one's error
+        in its place (:ref:`batch-errors`).
     progress : callable or bool, optional
-        ``progress(done, total)`` once per completed polyline (fitted and
-        concluded; a chunk's polylines together), from the calling thread;
-        if it raises, the batch stops and its exception propagates
-        unchanged. ``True``: a tqdm bar.
+        ``progress(done, total)`` from the calling thread once per polyline
+        fitted and concluded (a chunk's together); ``True``: a tqdm bar
+        (:ref:`batch-progress`).
     options : FitOptions, optional
         Every fit's options, as :func:`~dtalign.pipeline.fit_polyline_products`
         takes them (the search window ``search_window_vu`` among them,
@@ -542,10 +541,10 @@ def fit_images(items: Iterable[Any], *,
     config : ImageDerivativesConfig, optional
         Image-side tunables for every image.
     errors : {"raise", "collect"}, optional
-        Raise the first failing image's error (its own, with the note
-        ``images[i]`` or ``images[i] (path)`` after any of a polyline's,
-        and ``index`` i), or put each failed image's error in its place
-        (and a failed polyline's in its image's list).
+        Raise the first failing image's error (its own, noted ``images[i]``
+        or ``images[i] (path)`` after any note of a polyline's, with
+        ``index`` i), or put each failed image's error in its place (and a
+        failed polyline's in its image's list).
     progress : callable or bool, optional
         As in :func:`fit_many`, once per completed image, with any executor.
     on_image : callable, optional
