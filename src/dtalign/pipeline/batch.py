@@ -48,7 +48,7 @@ from ..api.checks import workers as _check_workers
 from ..api.options import FitOptions, resolve
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
-from .fit import PolylineFit, conclude, finish, needs_settling, wrap
+from .fit import PolylineFit, conclude, edge_of, finish, needs_settling, wrap
 from .products import ImageProducts, prepare_image
 from .status import log_fit, logger
 
@@ -309,8 +309,6 @@ def _fit_run(shared: _jobs.Plan, batch: _jobs.Batch, polylines: list[tuple[Any, 
     :func:`~dtalign.pipeline.fit.conclude` (profile refinement, edge kind,
     evidence). A chunk's polylines are reported done together.
     """
-    from .profile_fit import check_edge_profile, edge_kind_of
-
     k = batch.n
     if k == 0:
         return []
@@ -318,8 +316,6 @@ def _fit_run(shared: _jobs.Plan, batch: _jobs.Batch, polylines: list[tuple[Any, 
     views = _jobs.readonly_views(out)
     size = max(1, min(_MAX_CHUNK, -(-k // (call.workers * _CHUNKS_PER_WORKER))))
     bounds = [*range(0, k, size), k]
-    starts = batch.starts.tolist()
-    options = shared.options
     fits: list[Any] = [None] * k
 
     def chunk(c: int) -> None:
@@ -330,21 +326,15 @@ def _fit_run(shared: _jobs.Plan, batch: _jobs.Batch, polylines: list[tuple[Any, 
         for j, fit in enumerate(wrap(shared, batch, views, lo, hi), lo):
             if call.stop.is_set():  # (a fit's examination is a few LM fits)
                 raise CancelledError("the batch was stopped")
-            try:
+            try:  # (in fit_polyline_products' order: the profile, then the fit)
+                profile, kind = edge_of(shared, polylines[j][3], polylines[j][4],
+                                        fit.normals_vu)
                 if codes[j] != _jobs.OK:  # its rows were never written
                     raise _jobs.kernel_error(int(codes[j]))
                 fit.timings_s["fit"] = each_s
-                if options.examined or needs_settling(fit):
-                    a, b = starts[j], starts[j + 1]
-                    fit = finish(fit, shared, _jobs.Item(
-                        batch.pts[a:b], batch.nrm[a:b], batch.sig[a:b],
-                        (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
-                        float(batch.distances[j])))
-                *_, profile, kind = polylines[j]
-                profile = None if profile is None else check_edge_profile(profile,
-                                                                          fit.normals_vu)
-                kind = options.edge_kind if kind is None else kind
-                fits[j] = conclude(fit, shared.products, profile, edge_kind_of(kind, profile))
+                if shared.options.examined or needs_settling(fit):
+                    fit = finish(fit, shared, batch.item(j))
+                fits[j] = conclude(fit, shared.products, profile, kind)
             except Exception as exc:  # the polyline's own error
                 fits[j] = exc
                 if not collect:

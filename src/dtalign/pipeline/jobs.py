@@ -189,6 +189,13 @@ class Batch(NamedTuple):
     pivots: FloatArray
     distances: FloatArray
 
+    def item(self, j: int) -> Item:
+        """Polyline ``j``'s :class:`Item`: views of its rows."""
+        s, e = int(self.starts[j]), int(self.starts[j + 1])
+        return Item(self.pts[s:e], self.nrm[s:e], self.sig[s:e],
+                    (float(self.pivots[j, 0]), float(self.pivots[j, 1])),
+                    float(self.distances[j]))
+
 
 def _plain(v: Any, n: Any, s: Any) -> bool:
     """Whether a polyline is float64 arrays of the right shapes (no conversion
