@@ -66,8 +66,7 @@ DEFAULT_WORKERS = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinit
 
 _EXECUTORS = ("thread", "process")
 #: Chunks of the compiled loop per worker (a thread on a slower core takes
-#: fewer), of at most this many polylines (an interrupt waits for the chunks
-#: running; progress moves a chunk at a time).
+#: fewer), of at most this many polylines (progress moves a chunk at a time).
 _CHUNKS_PER_WORKER, _MAX_CHUNK = 4, 8
 
 
@@ -213,13 +212,13 @@ class _Call:
                 if not (stop_early and errors):
                     self.advance(1 if sizes is None else sizes[i])
                 done[i] = True
-                while after < n and done[after] and not (stop_early and errors
-                                                         and after > min(errors)):
+                end = min(errors) + 1 if stop_early and errors else n  # the items that count
+                while after < end and done[after]:
                     if ordered is not None:
                         ordered(after, results[after], errors.get(after))
                     after += 1
-                if stop_early and errors and after > min(errors):
-                    break  # the first failure and all before it are in
+                if after == end:
+                    break  # all in (with stop_early, the first failure and all before it)
         finally:
             for future in futures:  # a no-op for those done
                 future.cancel()
