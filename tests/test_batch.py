@@ -259,9 +259,9 @@ def test_fit_many_raises_what_the_serial_loop_raises(products, polylines, kind, 
     assert expected is not None
     with pytest.raises(type(expected)) as info:
         fit_many(products, items, search_window_vu=WINDOW, workers=workers)
-    assert str(info.value) == f"polylines[{position}]: {expected}"
+    assert str(info.value) == str(expected)
+    assert info.value.__notes__ == [f"polylines[{position}]"]
     assert info.value.index == position
-    assert str(info.value.__cause__) == str(expected)
 
 
 def test_fit_many_rotation_pivot_spread_error_in_the_middle(products, polylines):
@@ -277,7 +277,8 @@ def test_fit_many_rotation_pivot_spread_error_in_the_middle(products, polylines)
     fit_polyline_products(products, *items[1], search_window_vu=WINDOW, **options)
     with pytest.raises(type(expected)) as info:
         fit_many(products, items, search_window_vu=WINDOW, workers=2, **options)
-    assert str(info.value) == f"polylines[2]: {expected}"
+    assert str(info.value) == str(expected)
+    assert info.value.__notes__ == ["polylines[2]"]
     assert info.value.index == 2
 
 
@@ -286,8 +287,9 @@ def test_fit_many_first_error_in_input_order_beats_later_ones(products, polyline
     items = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines[:10]]
     items[3] = bad["inf normal"]
     items[8] = bad["nan vertex"]
-    with pytest.raises(ValueError, match=r"^polylines\[3\]: normals_vu must be finite") as info:
+    with pytest.raises(ValueError, match=r"^normals_vu must be finite") as info:
         fit_many(products, items, search_window_vu=WINDOW, workers=2)
+    assert info.value.__notes__ == ["polylines[3]"]
     assert info.value.index == 3
 
 
@@ -301,7 +303,8 @@ def test_fit_many_kernel_error_before_a_bad_polyline_comes_first(wide):
     assert expected is not None and "the fit read a NaN" in str(expected)
     with pytest.raises(ValueError) as info:
         fit_many(products, items, search_window_vu=WINDOW, workers=2)
-    assert str(info.value) == f"polylines[0]: {expected}"
+    assert str(info.value) == str(expected)
+    assert info.value.__notes__ == ["polylines[0]"]
     assert info.value.index == 0
 
 
@@ -353,7 +356,8 @@ def test_fit_many_kernel_failure_in_the_middle_raises_the_serial_error(wide, wor
     assert expected_error is not None and "the fit read a NaN" in str(expected_error)
     with pytest.raises(ValueError) as info:
         fit_many(broken, items, search_window_vu=WINDOW, workers=workers)
-    assert str(info.value) == f"polylines[7]: {expected_error}"
+    assert str(info.value) == str(expected_error)
+    assert info.value.__notes__ == ["polylines[7]"]
     assert info.value.index == 7
 
 
@@ -373,7 +377,8 @@ def test_fit_many_kernel_and_check_errors_come_in_serial_order(
     with pytest.raises(type(expected)) as info:
         fit_many(products, items, search_window_vu=WINDOW, workers=workers)
     first = min(nan_at, bad_at)
-    assert str(info.value) == f"polylines[{first}]: {expected}"
+    assert str(info.value) == str(expected)
+    assert info.value.__notes__ == [f"polylines[{first}]"]
     assert info.value.index == first
 
 
@@ -494,24 +499,29 @@ def test_bulk_shape_check_agrees_with_the_per_polyline_one(kind, position):
         assert got is None
 
 
-def test_lm_checks_given_the_checked_polyline_equal_the_full_ones(products, polylines):
-    """``plan`` hands the LM checks the polyline it already checked; the
-    result must be what the LM's own polyline check gives."""
-    from dtalign.api import checks as _validation
+def test_the_pipelines_lm_arguments_equal_the_drop_ins_checks(products, polylines):
+    """A fit's LM arguments are the call's checked options with the polyline's
+    checked item (what ``fit_from`` passes): field for field what
+    ``lm_subpixel_refine``'s own checks make of the same keywords."""
     from dtalign.api.checks import check_lm_inputs
+    from dtalign.api.options import FitOptions
+    from dtalign.pipeline import jobs
 
     p = polylines[1]
-    kw = {
+    options = FitOptions(fit_rotation=True, pivot_distance_px=40.0, max_iterations=7,
+                         damping=1e-3, step_tolerance_px=1e-4, tukey_c=4.685, pinvh_rcond=1e-12,
+                         trust_region_px=1.0, initial_rotation_rad=0.01)
+    shared = jobs.plan(products, jobs.check_options(options))
+    it = jobs.item(shared, p.vertices_vu, p.normals_vu, p.sigmas)
+    given = shared.lm._replace(vertices=it.vertices, normals=it.normals, sigmas=it.sigmas,
+                               offset=(1.0, -2.0), pivot=it.pivot, pivot_distance=it.distance)
+    full = check_lm_inputs({
         "vertices_vu": p.vertices_vu, "normals_vu": p.normals_vu,
         "sigma_normal_per_vertex_px": p.sigmas, "image_edge_dt": products.edge_dt,
         "image_gradient_vu": products.gradient_vu, "initial_offset_vu": (1.0, -2.0),
         "fit_rotation": True, "pivot_vu": None, "pivot_distance_px": 40.0,
-        "use_polarity": True, "max_iterations": 7, "damping": 1e-3, "step_tolerance_px": 1e-4,
-        "tukey_c": 4.685, "pinvh_rcond": 1e-12, "trust_region_px": 1.0,
-        "tikhonov_alpha": 0.0, "final_gradient_ridge": False, "initial_rotation_rad": 0.01,
-    }
-    checked = _validation.polyline(p.vertices_vu, p.normals_vu, p.sigmas)
-    full, given = check_lm_inputs(kw), check_lm_inputs(kw, checked)
+        **options.lm_keywords(),
+    })
     assert full._fields == given._fields
     for name, a, b in zip(full._fields, full, given, strict=True):
         if isinstance(a, np.ndarray):
@@ -519,4 +529,3 @@ def test_lm_checks_given_the_checked_polyline_equal_the_full_ones(products, poly
             np.testing.assert_array_equal(a, b, err_msg=name)
         else:
             assert a == b, name
-    assert given.pivot == checked[3]  # the centroid pivot, from the checked pass

@@ -1,4 +1,5 @@
-"""dtalign.pipeline.batch errors: named items, an index attribute, and errors="collect" (issue 18.6/18.4)."""
+"""dtalign.pipeline.batch errors: an item's own error noted with its name, an index
+attribute, and errors="collect" (issue 18.6/18.4)."""
 
 from __future__ import annotations
 
@@ -66,10 +67,9 @@ def test_nan_polyline_at_31_of_64_is_named_and_carries_its_index(products, items
     for workers in (1, 2, 3):
         with pytest.raises(ValueError) as info:
             fit_many(products, bad, search_window_vu=WINDOW, workers=workers)
-        assert str(info.value) == f"polylines[31]: {alone}"
+        assert type(info.value) is type(alone) and str(info.value) == str(alone)
+        assert info.value.__notes__ == ["polylines[31]"]
         assert info.value.index == 31
-        assert type(info.value.__cause__) is ValueError
-        assert str(info.value.__cause__) == str(alone)
 
 
 @pytest.mark.parametrize("workers", [1, 2, 3])
@@ -87,7 +87,7 @@ def test_collect_returns_every_good_fit_and_each_error(products, items, nav, wor
         if i in bad_at:
             assert isinstance(alone, ValueError), i
             assert type(result) is type(alone), i
-            assert str(result) == f"polylines[{i}]: {alone}"
+            assert str(result) == str(alone) and result.__notes__ == [f"polylines[{i}]"]
             assert result.index == i
         else:
             assert not isinstance(alone, Exception), i
@@ -119,14 +119,15 @@ def test_collect_still_raises_the_calls_own_errors(products, items):
 
 
 def test_raise_mode_names_the_first_polyline_but_not_a_shared_error(products, items):
-    with pytest.raises(ValueError, match=r"^polylines\[0\]: vertices_vu") as info:
+    with pytest.raises(ValueError, match=r"^vertices_vu") as info:
         fit_many(products, [_nan(items[0])] + items[1:3], search_window_vu=WINDOW)
+    assert info.value.__notes__ == ["polylines[0]"]
     assert info.value.index == 0
     expected = _alone(products, items[0], tukey_c=-1.0)
     with pytest.raises(ValueError) as info:
         fit_many(products, items[:3], search_window_vu=WINDOW, tukey_c=-1.0)
     assert str(info.value) == str(expected)  # as fit_polyline_products says it
-    assert not hasattr(info.value, "index")
+    assert not hasattr(info.value, "index") and not hasattr(info.value, "__notes__")
 
 
 def test_fit_images_names_the_image_and_the_path(nav, tmp_path):
@@ -151,26 +152,28 @@ def test_fit_images_names_the_image_and_the_path(nav, tmp_path):
         assert len(got) == len(jobs)
         assert results_equal(got[0], expected_good)  # loaded from the file: the same fits
         assert isinstance(got[1], Exception) and got[1].index == 1
-        assert str(got[1]).startswith(f"images[1] ({missing}): ")
+        assert got[1].__notes__ == [f"images[1] ({missing})"]
         assert isinstance(got[2], list) and len(got[2]) == 3
         assert results_equal(got[2][0], expected_good[0])
         assert results_equal(got[2][2], expected_good[2])
         assert isinstance(got[2][1], ValueError) and got[2][1].index == 1
-        assert str(got[2][1]).startswith("polylines[1]: vertices_vu")
+        assert str(got[2][1]).startswith("vertices_vu")
+        assert got[2][1].__notes__ == ["polylines[1]"]
         assert isinstance(got[3], Exception) and got[3].index == 3  # an empty .npy
-        assert str(got[3]).startswith(f"images[3] ({empty}): ")
+        assert got[3].__notes__ == [f"images[3] ({empty})"]
         assert isinstance(got[4], TypeError) and got[4].index == 4
-        assert str(got[4]).startswith("images[4]: ") and "2-D" in str(got[4])
+        assert got[4].__notes__ == ["images[4]"] and "2-D" in str(got[4])
         assert results_equal(got[5], fit_images([jobs[5]], search_window_vu=WINDOW)[0])
-        # raising: the first failing image, named, its own error as the cause
+        # raising: the first failing image's own error, noted
         with pytest.raises(Exception) as info:
             fit_images(jobs, search_window_vu=WINDOW, workers=workers)
-        assert str(info.value).startswith(f"images[1] ({missing}): ")
+        assert info.value.__notes__ == [f"images[1] ({missing})"]
         assert info.value.index == 1
         with pytest.raises(ValueError) as info:
             fit_images(jobs[2:3], search_window_vu=WINDOW, workers=workers)
-        assert str(info.value).startswith("images[0]: polylines[1]: vertices_vu")
-        assert info.value.index == 0 and info.value.__cause__.index == 1
+        assert str(info.value).startswith("vertices_vu")
+        assert info.value.__notes__ == ["polylines[1]", "images[0]"]
+        assert info.value.index == 0
 
 
 def test_fit_images_on_a_callers_executor(nav):
@@ -184,8 +187,9 @@ def test_fit_images_on_a_callers_executor(nav):
         got = fit_images(bad, search_window_vu=WINDOW, executor=pool, errors="collect")
         assert results_equal(got[:3], expected)
         assert isinstance(got[3], TypeError) and got[3].index == 3
-        with pytest.raises(TypeError, match=r"^images\[3\]: "):
+        with pytest.raises(TypeError, match="2-D") as info:
             fit_images(bad, search_window_vu=WINDOW, executor=pool)
+        assert info.value.__notes__ == ["images[3]"]
         assert pool.submit(abs, -1).result() == 1  # left running
 
 
@@ -195,15 +199,21 @@ def test_fit_images_in_a_process_pool_names_the_item(nav, tmp_path):
     got = fit_images(jobs, search_window_vu=WINDOW, workers=2, executor="process",
                      errors="collect")
     assert results_equal(got[0], fit_images([nav], search_window_vu=WINDOW, workers=1)[0])
-    assert str(got[1]).startswith(f"images[1] ({missing}): ") and got[1].index == 1
+    assert got[1].__notes__ == [f"images[1] ({missing})"] and got[1].index == 1
     assert len(got[2]) == 1
 
 
-def test_an_exception_whose_type_formats_its_own_message_keeps_it(products, items):
-    from dtalign.pipeline.batch import _named
+def test_an_images_error_is_the_very_exception_its_task_raised(nav):
+    raised = [KeyError("k"), OSError(2, "No such file")]
 
-    exc = _named(KeyError("k"), "images[2]", 2)
-    assert isinstance(exc, KeyError) and exc.index == 2 and str(exc) == "'k'"
-    exc = _named(OSError(2, "No such file"), "images[0] (a.png)", 0)
-    assert isinstance(exc, OSError) and exc.index == 0
-    assert str(exc) == "images[0] (a.png): [Errno 2] No such file"
+    def loader(k):
+        def load():
+            raise raised[k]
+        return load
+
+    got = fit_images([loader(0), nav, loader(1)], search_window_vu=WINDOW, workers=2,
+                     errors="collect")
+    assert got[0] is raised[0] and str(got[0]) == "'k'"  # KeyError formats its own message
+    assert got[0].__notes__ == ["images[0]"] and got[0].index == 0
+    assert got[2] is raised[1] and got[2].errno == 2
+    assert str(got[2]) == "[Errno 2] No such file" and got[2].__notes__ == ["images[2]"]

@@ -72,7 +72,7 @@ SCRIPT = textwrap.dedent(
     sys.unraisablehook = lambda u: unraisable.append(type(u.exc_value).__name__)
 
     # Every start of the compiled loop of fit_many / fit_images, timed.
-    deps = _fitjobs  # the module whose fit_polylines run_loop calls
+    deps = _fitjobs  # the module whose fit_polylines the batch calls
     compiled, starts = deps.fit_polylines, []
 
 

@@ -176,8 +176,9 @@ def test_raise_mode_stops_reporting_at_the_first_failure(products, polylines):
     bad[5] = _nan(bad[5])
     for workers in (1, 2):
         rec = Recorder()
-        with pytest.raises(ValueError, match=r"^polylines\[5\]: vertices_vu"):
+        with pytest.raises(ValueError, match=r"^vertices_vu") as info:
             fit_many(products, bad, search_window_vu=WINDOW, workers=workers, progress=rec)
+        assert info.value.__notes__ == ["polylines[5]"]
         done = [d for d, _ in rec.counts()]
         assert done == list(range(1, len(done) + 1))  # monotone, from 1
         assert len(done) <= 5  # the polylines before the bad one, at most
@@ -188,7 +189,7 @@ def gated(monkeypatch):
     """Every compiled fit but the first waits (GIL released) until the
     callback has raised: the batch is still running when it raises.
     Returns the list of fits started."""
-    deps = _fitjobs  # the module whose fit_polylines run_loop calls
+    deps = _fitjobs  # the module whose fit_polylines the batch calls
     compiled, started, gate = deps.fit_polylines, [], threading.Event()
 
     def fit_polylines(*args):

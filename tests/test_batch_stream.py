@@ -70,14 +70,15 @@ def test_a_loader_item_is_called_in_the_task_and_its_error_is_the_images(nav):
     assert len(calls) == 3 and threading.get_ident() not in calls  # in the tasks
     assert results_equal([got[0], got[2]], expected)
     assert isinstance(got[1], OSError) and got[1].index == 1
-    assert str(got[1]) == "images[1]: frame 1 is unreadable"
-    assert str(got[1].__cause__) == "frame 1 is unreadable"
+    assert str(got[1]) == "frame 1 is unreadable" and got[1].__notes__ == ["images[1]"]
     assert [i for i, _, _ in handed.calls] == [0, 1, 2] and handed.calls[1][1] is got[1]
-    with pytest.raises(OSError, match=r"^images\[1\]: frame 1"):
+    with pytest.raises(OSError, match=r"^frame 1") as info:
         fit_images(items, search_window_vu=WINDOW, workers=2, on_image=(raising := Handed()))
+    assert info.value.__notes__ == ["images[1]"]
     assert [i for i, _, _ in raising.calls] == [0]  # the images before the failure only
-    with pytest.raises(TypeError, match=r"^images\[0\]: items\[0\] must be"):
+    with pytest.raises(TypeError, match=r"^items\[0\] must be") as info:
         fit_images([lambda: "no item"], search_window_vu=WINDOW, workers=1)
+    assert info.value.__notes__ == ["images[0]"]
 
 
 def test_a_raising_on_image_stops_the_batch_and_keeps_what_was_handed(nav):

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["Progress", "tqdm_bar", "tqdm_progress"]
+__all__ = ["Progress", "reporter", "tqdm_bar", "tqdm_progress"]
 
 
 def tqdm_bar(total: int, *, unit: str, **options: Any) -> Any:
@@ -66,3 +66,20 @@ def tqdm_progress(total: int, *, unit: str) -> Iterator[Progress | None]:
     finally:
         compile_listeners.remove(note)
         bar.close()
+
+
+@contextmanager
+def reporter(progress: Callable[[int, int], Any] | bool | None, total: int,
+             unit: str) -> Iterator[Progress | None]:
+    """The :class:`Progress` of a batch's checked ``progress`` argument: None
+    without one, a tqdm bar for True, else the callback's."""
+    if progress is None or progress is False:
+        yield None
+    elif progress is True:
+        with tqdm_progress(total, unit=unit) as report:
+            if report is None:
+                raise ModuleNotFoundError("progress=True needs tqdm (pip install tqdm); or "
+                                          "pass a callable progress(done, total)")
+            yield report
+    else:
+        yield Progress(progress, total)

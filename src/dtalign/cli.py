@@ -453,9 +453,8 @@ def _reported(job: _Job, result: Any, messages: _Messages) -> Any:
 
     ``result`` is :func:`~dtalign.pipeline.batch.fit_images`' for the image:
     its one fit in a list, or its error (a file that could not be read, a
-    polyline that could not be fitted), raised without the batch's
-    ``images[i]: polylines[0]: `` naming (the error itself is its cause):
-    the row names the file.
+    polyline that could not be fitted), raised as it is (the batch names
+    the item in a note only): the row names the file.
     """
     from .pipeline.status import log_fit
 
@@ -464,12 +463,8 @@ def _reported(job: _Job, result: Any, messages: _Messages) -> Any:
         messages.say(f"{PROG}: {'warning' if job.colour.luma else 'note'}: {job.colour.text}")
     if not isinstance(result, Exception):
         result = result[0]
-    while isinstance(result, Exception):
-        cause = result.__cause__
-        named = getattr(result, "index", None) is not None and cause is not None
-        if not (named and str(result).endswith(str(cause))):
-            raise result
-        result = cause
+    if isinstance(result, Exception):
+        raise result
     log_fit(result, "fit")
     return result
 

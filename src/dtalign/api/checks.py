@@ -450,14 +450,19 @@ def pose(
     else:
         pivot = resolve_pivot(verts, pivot_vu)
     if pivot_vu is not None and (fit_rotation or rotation != 0.0):
-        # rotating about a pivot needs (vertex - pivot) to stay finite
-        with np.errstate(over="ignore", invalid="ignore"):
-            spread = 2.0 * (verts - np.asarray(pivot))
-        if not np.isfinite(spread).all():
-            raise ValueError(
-                "pivot_vu is so far from vertices_vu that the rotated positions overflow"
-            )
+        pivot_spread(verts, pivot)
     return offset, rotation, pivot, distance
+
+
+def pivot_spread(verts: FloatArray, pivot: tuple[float, float]) -> None:
+    """Refuse a pivot so far from the vertices that rotating about it overflows
+    (``vertex - pivot`` must stay finite, with a factor 2 to spare)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        spread = 2.0 * (verts - np.asarray(pivot))
+    if not np.isfinite(spread).all():
+        raise ValueError(
+            "pivot_vu is so far from vertices_vu that the rotated positions overflow"
+        )
 
 
 def resolve_pivot(verts: FloatArray, pivot_vu: Any) -> tuple[float, float]:
@@ -778,28 +783,12 @@ class LMArgs(NamedTuple):
     final_gradient_ridge: bool
 
 
-def check_lm_inputs(
-    kw: Mapping[str, Any],
-    checked: tuple[FloatArray, FloatArray, FloatArray, tuple[float, float]] | None = None,
-    *,
-    trusted_images: bool = False,
-) -> LMArgs:
-    """Check ``lm_subpixel_refine``'s keywords in the contract's order (:ref:`contract-errors`).
-
-    ``checked``, when given, is :func:`polyline`'s
-    result for the three per-vertex keywords, which a caller has already
-    checked (the pipeline checks them first, for its own messages): it
-    stands for that check, which is then not run twice.
-    ``trusted_images``: the DT and gradient are an image's products, whose
-    arrays were checked when the products were made (the pipeline's
-    ``ImageProducts``); they are taken as they are.
-    """
-    if checked is None:
-        checked = polyline(
-            kw["vertices_vu"], kw["normals_vu"], kw["sigma_normal_per_vertex_px"]
-        )
-    verts, norms, sig, centroid = checked
-    dt = kw["image_edge_dt"] if trusted_images else image2d(kw["image_edge_dt"], "image_edge_dt")
+def check_lm_inputs(kw: Mapping[str, Any]) -> LMArgs:
+    """Check ``lm_subpixel_refine``'s keywords in the contract's order (:ref:`contract-errors`)."""
+    verts, norms, sig, centroid = polyline(
+        kw["vertices_vu"], kw["normals_vu"], kw["sigma_normal_per_vertex_px"]
+    )
+    dt = image2d(kw["image_edge_dt"], "image_edge_dt")
     fit_rotation = bool(kw["fit_rotation"])
     offset, rotation, pivot, distance = _pose_keywords(verts, kw, fit_rotation, centroid)
     has_gradient = kw["image_gradient_vu"] is not None
@@ -807,30 +796,32 @@ def check_lm_inputs(
         raise ValueError("final_gradient_ridge=True requires image_gradient_vu")
     if kw["use_polarity"] and not has_gradient:
         raise ValueError("use_polarity=True requires image_gradient_vu")
-    grad = kw["image_gradient_vu"] if trusted_images or not has_gradient else gradient(
-        kw["image_gradient_vu"])
-    trust = kw["trust_region_px"]
+    grad = gradient(kw["image_gradient_vu"]) if has_gradient else None
     return LMArgs(
-        vertices=verts,
-        normals=norms,
-        sigmas=sig,
-        dt=dt,
-        gradient=grad,
-        offset=offset,
-        rotation=rotation,
-        fit_rotation=fit_rotation,
-        pivot=pivot,
-        pivot_distance=distance,
-        use_polarity=bool(kw["use_polarity"]),
-        max_iterations=iteration_count(kw["max_iterations"], "max_iterations"),
-        damping=nonnegative_real(kw["damping"], "damping"),
-        step_tolerance=nonnegative_real(kw["step_tolerance_px"], "step_tolerance_px"),
-        tukey_c=tukey_c_value(kw["tukey_c"], "tukey_c"),
-        pinvh_rcond=nonnegative_real(kw["pinvh_rcond"], "pinvh_rcond"),
-        trust_region_px=None if trust is None else _nonnegative_or_inf(trust, "trust_region_px"),
-        tikhonov_alpha=nonnegative_real(kw["tikhonov_alpha"], "tikhonov_alpha"),
-        final_gradient_ridge=bool(kw["final_gradient_ridge"]),
+        vertices=verts, normals=norms, sigmas=sig, dt=dt, gradient=grad, offset=offset,
+        rotation=rotation, fit_rotation=fit_rotation, pivot=pivot, pivot_distance=distance,
+        **lm_options(kw),
     )
+
+
+def lm_options(kw: Mapping[str, Any]) -> dict[str, Any]:
+    """The LM's options among ``kw`` (``lm_subpixel_refine``'s keywords from
+    ``use_polarity`` on), checked in the contract's order, as :class:`LMArgs`
+    fields: the last of :func:`check_lm_inputs`' checks, and the part of them
+    that needs no polyline and no image."""
+    trust = kw["trust_region_px"]
+    return {
+        "use_polarity": bool(kw["use_polarity"]),
+        "max_iterations": iteration_count(kw["max_iterations"], "max_iterations"),
+        "damping": nonnegative_real(kw["damping"], "damping"),
+        "step_tolerance": nonnegative_real(kw["step_tolerance_px"], "step_tolerance_px"),
+        "tukey_c": tukey_c_value(kw["tukey_c"], "tukey_c"),
+        "pinvh_rcond": nonnegative_real(kw["pinvh_rcond"], "pinvh_rcond"),
+        "trust_region_px": None if trust is None else _nonnegative_or_inf(trust,
+                                                                          "trust_region_px"),
+        "tikhonov_alpha": nonnegative_real(kw["tikhonov_alpha"], "tikhonov_alpha"),
+        "final_gradient_ridge": bool(kw["final_gradient_ridge"]),
+    }
 
 
 class RidgeArgs(NamedTuple):

@@ -6,8 +6,8 @@ LM's, the ridge polish's, the polarity test's, the multi-start and
 ambiguity examination's. What belongs to one polyline (its arrays, its
 kind of edge, its edge profile) is the :class:`~dtalign.Polyline`'s.
 Each field has its default and its doc here, and its check where the fit
-runs it (:func:`resolve` and :func:`dtalign.pipeline.jobs.plan`, in the
-order that fixes which error a bad call raises). The public functions take
+runs it (:func:`resolve` and :func:`dtalign.pipeline.jobs.check_options`,
+once per call, in the order that fixes which error a bad call raises). The public functions take
 a record (``options=``), keywords (``trust_region_px=1.0``), or both (the
 keywords replace the record's fields); :func:`resolve` turns them into one
 record, once per call.
@@ -164,8 +164,8 @@ def resolve(options: Any = None, overrides: dict[str, Any] | None = None) -> Fit
     the defaults) with ``overrides`` (keywords) in place of its fields.
 
     Checks the names and ``seeds`` (the first option a fit checks); the
-    other values are checked by :func:`dtalign.pipeline.jobs.plan` in the
-    fit's order.
+    other values are checked by :func:`dtalign.pipeline.jobs.check_options`
+    in the fit's order.
     """
     if options is None:
         options = _DEFAULTS

@@ -247,11 +247,9 @@ def _fit_polylines(item: Item, products: Any, polylines: list[Any]) -> list[Any]
             return fit_many(products, parts, search_window_vu=item.window, workers=1,
                             **item.options)
     except (TypeError, ValueError) as exc:
-        # a polyline's error (named polylines[k], its own as the cause), or the
-        # call's (a bad option), which the first polyline met first
+        # a polyline's error (its index the batch's), or the call's (a bad option)
         k = getattr(exc, "index", 0)
-        own = exc.__cause__ if hasattr(exc, "index") and exc.__cause__ is not None else exc
-        raise type(exc)(f"polyline {item.polylines[k]}: {own}") from None
+        raise type(exc)(f"polyline {item.polylines[k]}: {exc}") from None
 
 
 def _fit_seconds(fit: Any, products: Any) -> float:

@@ -273,10 +273,9 @@ def _loop_call(products: Any, polylines: Any, workers: int) -> Callable[[], Any]
     parts = [(p.vertices_vu, p.normals_vu, p.sigmas) for p in polylines]
     # fit_many's defaults with the production trust region; the examination
     # after the loop is not the loop
-    shared, first = jobs.plan(products, *parts[0],
-                              FitOptions(search_window_vu=(30, 30), trust_region_px=1.0,
-                                         ambiguity=False))
-    batch, error = jobs.prepare(shared, parts, first)
+    shared = jobs.plan(products, jobs.check_options(
+        FitOptions(search_window_vu=(30, 30), trust_region_px=1.0, ambiguity=False)))
+    batch, error = jobs.prepare(shared, parts)
     if error is not None:
         raise error
     args, codes, out = jobs.loop_inputs(shared, batch)

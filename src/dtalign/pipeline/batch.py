@@ -1,21 +1,16 @@
 """Batch fitting on several cores: many polylines per image, many images.
 
 The compiled kernels release the GIL, so threads fit truly in parallel.
-:func:`fit_many` checks its polylines once, fits them in chunks of a few
-(one call of the compiled loop each), then settles or examines and
-concludes each fit as one task. :func:`fit_images` fits one image per
-task, on threads, a process pool or an executor of the caller's;
-:func:`map_ordered` is ``[fn(x) for x in items]`` on threads. Results come
-in input order, equal to the serial calls'. Nothing global is configured.
-
-Each call makes its own executor (``submit``, ``as_completed``,
-``shutdown(cancel_futures=True)``), driven by one more thread of the
-call's; the calling thread waits on a queue and runs what the driver sends
-it (the progress callback, ``on_image``, the result), so that an interrupt
-lands there, never inside an item or the executor's locks
-(docs/benchmarks.rst, "Batch driver thread"). Errors name their item (``polylines[31]: ...``) and carry
-its ``index``; ``errors="collect"`` puts each failed item's error in its
-place (:ref:`batch-errors`, :ref:`batch-progress`).
+:func:`fit_many` checks the call's options once and each polyline once,
+then fits them in chunks of a few, one task each (``_fit_run``);
+:func:`fit_images` fits one image per task, on threads, a process pool or
+an executor of the caller's; :func:`map_ordered` is ``[fn(x) for x in
+items]`` on threads. Results come in input order, equal to the serial
+calls'; nothing global is configured. Each call makes its own executor
+(``submit``, ``as_completed``, ``result()``,
+``shutdown(cancel_futures=True)``), driven by a thread of its own
+(``_Call.run``). An item's error propagates as it is, with a note
+naming the item (:ref:`batch-errors`, :ref:`batch-progress`).
 
 >>> from dtalign import scenes
 >>> from dtalign.pipeline import prepare_image
@@ -34,7 +29,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import (
     CancelledError,
     Executor,
@@ -43,22 +38,19 @@ from concurrent.futures import (
     ThreadPoolExecutor,
     as_completed,
 )
-from contextlib import contextmanager
 from queue import SimpleQueue
 from typing import Any, Literal, TypeVar, overload
 
-import numpy as np
-
-from .._progress import Progress, tqdm_progress
+from .._progress import Progress, reporter
 from ..api.checks import collect_errors as _check_errors
 from ..api.checks import progress_callback as _check_progress
 from ..api.checks import workers as _check_workers
 from ..api.options import FitOptions, resolve
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
-from .fit import PolylineFit, conclude, finish, needs_settling, wrap
+from .fit import PolylineFit, conclude, edge_of, finish, needs_settling, wrap
 from .products import ImageProducts, prepare_image
-from .status import log_fit, log_fits, logger
+from .status import log_fit, logger
 
 __all__ = ["DEFAULT_WORKERS", "fit_images", "fit_many", "map_ordered"]
 
@@ -66,71 +58,31 @@ _T = TypeVar("_T")
 _R = TypeVar("_R")
 
 
-def _usable_cpus() -> int:
-    """The CPUs this process may run on (its affinity mask where the OS has one)."""
-    try:
-        return len(os.sched_getaffinity(0)) or 1
-    except (AttributeError, OSError):  # no affinity mask on this OS (macOS, Windows)
-        return os.cpu_count() or 1
-
-
-#: Default workers: the CPUs this process may use, read at import (a
-#: container or ``taskset`` limits them below ``os.cpu_count()``).
-DEFAULT_WORKERS = _usable_cpus()
+#: Default workers: the CPUs this process may run on, read at import (its
+#: affinity mask where the OS has one: a container or ``taskset`` limits
+#: them below ``os.cpu_count()``).
+DEFAULT_WORKERS = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                   else os.cpu_count()) or 1
 
 _EXECUTORS = ("thread", "process")
 #: Chunks of the compiled loop per worker (a thread on a slower core takes
-#: fewer), of at most this many polylines (an interrupt waits for the chunks
-#: running; progress moves a chunk at a time).
+#: fewer), of at most this many polylines (progress moves a chunk at a time).
 _CHUNKS_PER_WORKER, _MAX_CHUNK = 4, 8
 
 
-@contextmanager
-def _reporter(progress: Callable[[int, int], Any] | bool | None, total: int,
-              unit: str) -> Iterator[Progress | None]:
-    """The call's :class:`~dtalign._progress.Progress` (None without ``progress``)."""
-    if progress is None or progress is False:
-        yield None
-    elif progress is True:
-        with tqdm_progress(total, unit=unit) as report:
-            if report is None:
-                raise ModuleNotFoundError("progress=True needs tqdm (pip install tqdm); or "
-                                          "pass a callable progress(done, total)")
-            yield report
-    else:
-        yield Progress(progress, total)
-
-
-def _named(exc: Exception, label: str, index: int) -> Exception:
-    """``exc`` as item ``index``'s error: same type, message ``f"{label}: {exc}"``,
-    ``index`` set, ``exc`` its cause; a type that cannot be rebuilt from one
-    message (or formats it, like ``KeyError``) is kept, with ``index`` and a note."""
-    message = f"{label}: {exc}"
-    try:
-        named = type(exc)(message)
-        same = str(named) == message
-    except Exception:  # a constructor that wants other arguments
-        same = False
-    if same:
-        named.__cause__ = exc
-    else:
-        named = exc
-        named.add_note(f"in {label}")
-    named.index = index  # type: ignore[attr-defined]
-    return named
-
-
-def _ignore_sigint() -> None:
-    """A process-pool worker's start: a terminal's Ctrl-C (sent to the whole
-    process group) is the parent's to act on; the worker finishes its image."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _noted(exc: Exception, label: str, index: int) -> Exception:
+    """``exc``, item ``index``'s error, with the note ``label`` naming the item
+    and ``index`` set: its type and message stay its own."""
+    exc.add_note(label)
+    exc.index = index  # type: ignore[attr-defined]
+    return exc
 
 
 class _Call:
     """One batch call, as the thread that runs its work sees it: ``pool`` runs
     :meth:`each`'s items (None: this thread, looking at ``stop`` before each);
     with ``guard``, each item on the pool looks at ``stop`` before it starts;
-    ``posts`` is the calling thread's queue when a driver runs the work."""
+    ``posts`` is the calling thread's queue while :meth:`run` drives the work."""
 
     def __init__(self, report: Progress | None = None, workers: int = 1,
                  stop: threading.Event | None = None) -> None:
@@ -139,6 +91,56 @@ class _Call:
         self.pool: Executor | None = None
         self.guard = False
         self.posts: SimpleQueue[Any] | None = None
+
+    def run(self, work: Callable[[_Call], _R], pool: Executor | Callable[[], Executor] | None,
+            ) -> _R:
+        """``work(self)`` on ``pool`` (an executor of the caller's, or how to make
+        one of the call's own, shut down at the end), in a driver thread;
+        in this thread without a pool.
+
+        The one device of the batch: the calling thread, where a signal
+        handler's exception (an interrupt, a timeout) lands, never touches
+        the executor, whose ``submit`` and waits are Python code that such
+        an exception can leave with a lock held (docs/benchmarks.rst, "Batch
+        driver thread"). The driver makes the pool, runs ``work`` and shuts
+        the pool down; the calling thread waits on a ``SimpleQueue`` (C code)
+        and runs what the driver posts. On an exception there (an interrupt,
+        a raising callback) it stops the call and waits for the driver
+        before propagating, so that no fit starts afterwards (:func:`_join`).
+        """
+        if pool is None:
+            return work(self)
+        posts: SimpleQueue[Any] = SimpleQueue()
+        self.posts = posts
+
+        def drive() -> None:
+            try:
+                executor = pool if isinstance(pool, Executor) else pool()  # type: ignore[misc]
+                self.pool, self.guard = executor, isinstance(executor, ThreadPoolExecutor)
+                try:  # (items on this process's threads look at the stop)
+                    outcome: tuple[bool, Any] = (True, work(self))
+                finally:
+                    if executor is not pool:
+                        _join(functools.partial(executor.shutdown, wait=True,
+                                                cancel_futures=True))
+            except BaseException as exc:  # the calling thread's to raise
+                outcome = (False, exc)
+            posts.put((None, outcome))
+
+        driver = threading.Thread(target=drive, name="dtalign-batch-driver")
+        try:
+            driver.start()
+            while (got := posts.get())[0] is not None:  # the wait an interrupt lands in
+                got[0](*got[1])
+            driver.join()
+        except BaseException:
+            self.stop.set()
+            _join(driver.join, lambda: driver in threading.enumerate())
+            raise
+        returned, value = got[1]
+        if returned:
+            return value  # type: ignore[no-any-return]
+        raise value
 
     def post(self, fn: Callable[..., Any], *args: Any) -> None:
         """``fn(*args)`` in the calling thread."""
@@ -210,90 +212,31 @@ class _Call:
                 if not (stop_early and errors):
                     self.advance(1 if sizes is None else sizes[i])
                 done[i] = True
-                while after < n and done[after] and not (stop_early and errors
-                                                         and after > min(errors)):
+                end = min(errors) + 1 if stop_early and errors else n  # the items that count
+                while after < end and done[after]:
                     if ordered is not None:
                         ordered(after, results[after], errors.get(after))
                     after += 1
-                if stop_early and errors and after > min(errors):
-                    break  # the first failure and all before it are in
+                if after == end:
+                    break  # all in (with stop_early, the first failure and all before it)
         finally:
             for future in futures:  # a no-op for those done
                 future.cancel()
         return results, errors
 
 
-def _shutdown(executor: Executor) -> None:
-    """``executor.shutdown(wait=True, cancel_futures=True)``; retried for up to
-    5 s while it raises "cannot join thread before it is started": an
-    interrupt landed in a process pool's ``Thread.start``, whose manager
-    thread then starts a moment later (and must be joined, so that its
-    worker processes stop)."""
-    for _ in range(50):
-        try:
-            executor.shutdown(wait=True, cancel_futures=True)
-            return
-        except RuntimeError:
-            time.sleep(0.1)
-    executor.shutdown(wait=True, cancel_futures=True)
-
-
-def _run(work: Callable[[_Call], _R], call: _Call,
-         pool: Executor | Callable[[], Executor] | None) -> _R:
-    """``work(call)`` on ``pool`` (an executor of the caller's, or how to make one
-    of the call's own, shut down at the end), in a driver thread; ``work(call)``
-    in this thread without a pool.
-
-    The device: the calling thread never touches the executor. The driver
-    makes the pool, runs ``work`` and shuts the pool down; the calling
-    thread waits on a ``SimpleQueue`` (C code: a signal handler's exception
-    leaves no lock behind) and runs what the driver posts. On an exception
-    there (an interrupt, a raising callback) it stops the call and waits for
-    the driver before propagating, so that no fit starts afterwards.
-    """
-    if pool is None:
-        return work(call)
-    posts: SimpleQueue[Any] = SimpleQueue()
-    call.posts = posts
-
-    def drive() -> None:
-        try:
-            executor = pool if isinstance(pool, Executor) else pool()  # type: ignore[misc]
-            call.pool, call.guard = executor, isinstance(executor, ThreadPoolExecutor)
-            try:  # (items on this process's threads look at the stop)
-                outcome: tuple[bool, Any] = (True, work(call))
-            finally:
-                if executor is not pool:
-                    _shutdown(executor)
-        except BaseException as exc:  # the calling thread's to raise
-            outcome = (False, exc)
-        posts.put((None, outcome))
-
-    driver = threading.Thread(target=drive, name="dtalign-batch-driver")
-    try:
-        driver.start()
-        while (got := posts.get())[0] is not None:  # the wait an interrupt lands in
-            got[0](*got[1])
-        driver.join()
-    except BaseException:
-        call.stop.set()
-        _join(driver)
-        raise
-    returned, value = got[1]
-    if returned:
-        return value  # type: ignore[no-any-return]
-    raise value
-
-
-def _join(thread: threading.Thread) -> None:
-    """``thread.join()``, also after an exception interrupted ``thread.start()``:
-    ``join`` refuses a thread still starting; one not started in 5 s never will."""
+def _join(join: Callable[[], Any], starting: Callable[[], bool] = lambda: True) -> None:
+    """``join()``, tried again for up to 5 s while it raises "cannot join thread
+    before it is started" and the thread is ``starting()``: an exception
+    interrupted a ``Thread.start`` (the driver's, or a process pool's manager
+    thread's, whose worker processes stop once it is joined), and the
+    thread starts a moment later; one not started by then never will."""
     deadline = time.monotonic() + 5.0
     while True:
         try:
-            return thread.join()
-        except RuntimeError:  # "cannot join thread before it is started"
-            if thread not in threading.enumerate() or time.monotonic() > deadline:
+            return join()
+        except RuntimeError:
+            if not starting() or time.monotonic() > deadline:
                 return
             time.sleep(0.01)
 
@@ -327,181 +270,93 @@ def _polyline(item: Any, index: int) -> tuple[Any, Any, Any, Any, str | None]:
     return (*parts, getattr(item, "edge_profile", None), getattr(item, "edge_kind", None))
 
 
-def _fit_and_conclude(products: ImageProducts, polylines: list[tuple[Any, ...]],
-                      options: FitOptions, collect: bool, call: _Call) -> list[Any]:
-    """One image's fits (:func:`_polyline`'s tuples), each then concluded
-    (:func:`dtalign.pipeline.fit.conclude`: profile refinement, edge kind,
-    evidence) as one task (a refinement is compiled, several times a fit).
-    A polyline with a profile is reported done once concluded."""
-    from .profile_fit import check_edge_profile, edge_kind_of
-
-    late = [p[3] is not None for p in polylines]
-    fits = _fit_parts(products, [p[:3] for p in polylines], options, collect, call,
-                      late)
-
-    def one(i: int) -> Any:
-        *_, profile, kind = polylines[i]
-        checked = None if profile is None else check_edge_profile(profile, fits[i].normals_vu)
-        kind = options.edge_kind if kind is None else kind
-        return conclude(fits[i], products, checked, edge_kind_of(kind, checked))
-
-    todo = [i for i, fit in enumerate(fits) if not isinstance(fit, Exception)]
-    call.advance(sum(late[i] for i, fit in enumerate(fits) if isinstance(fit, Exception)))
-    done, failed = call.each(one, todo, stop_early=not collect, sizes=[late[i] for i in todo])
-    for k, i in enumerate(todo):  # in input order: the first bad polyline's error is raised
-        if (exc := failed.get(k)) is None:
-            fits[i] = done[k]
-        elif not isinstance(exc, (TypeError, ValueError)):
-            raise exc
-        elif collect:
-            fits[i] = _named(exc, f"polylines[{i}]", i)
-        else:
-            raise _named(exc, f"polylines[{i}]", i) from exc
+def _fit_polylines(products: ImageProducts, polylines: list[tuple[Any, ...]],
+                   checked: _jobs.Checked, collect: bool, call: _Call) -> list[Any]:
+    """One image's fits of :func:`_polyline`'s tuples, in input order: each run
+    of polylines up to the next bad one (:func:`~dtalign.pipeline.jobs.prepare`)
+    fitted by :func:`_fit_run`. A failed polyline's error, noted
+    ``polylines[i]``, is raised (the first in input order, after the fits
+    before it), or collecting put in its place (and reported done)."""
+    shared = _jobs.plan(products, checked)
+    fits: list[Any] = []
+    while len(fits) < len(polylines):
+        s = len(fits)
+        batch, error = _jobs.prepare(shared, [p[:3] for p in polylines[s:]])
+        done = _fit_run(shared, batch, polylines[s : s + batch.n], call, collect)
+        if error is not None:
+            done.append(error)
+        for i, result in enumerate(done, s):
+            if isinstance(result, Exception):
+                _noted(result, f"polylines[{i}]", i)
+                if not collect:
+                    raise result
+        call.advance(int(error is not None))
+        fits += done
     return fits
 
 
-def _fit_parts(products: ImageProducts, parts: list[tuple[Any, Any, Any]],
-               options: FitOptions, collect: bool, call: _Call, late: Sequence[bool],
-               ) -> list[Any]:
-    """The fits of checked polylines (collecting, a failed one's error in its
-    place), reported done but those marked ``late``. Raising, the first
-    polyline is checked with the shared arguments (:func:`~dtalign.pipeline.jobs.plan`,
-    whose order fixes which error a bad call raises; an error the probe of
-    :func:`_probe_plan` gets too is the call's, not named); collecting, the
-    probe alone. Then each run of good polylines up to the next bad one
-    (:func:`~dtalign.pipeline.jobs.prepare`) is fitted."""
-    if not parts:
-        return []
-    first = None
-    if collect:
-        shared = _probe_plan(products, options)
-    else:
-        try:
-            shared, first = _jobs.plan(products, *parts[0], options)
-        except (TypeError, ValueError) as exc:  # what a bad polyline or option raises
-            if _call_error(products, options, exc):
-                raise
-            raise _named(exc, "polylines[0]", 0) from exc
-    out: list[Any] = []
-    while len(out) < len(parts):
-        s = len(out)
-        batch, error = _jobs.prepare(shared, parts[s:], first)
-        fits, fit_errors = _fit_batch(shared, batch, call, not collect, late[s:])
-        if fit_errors and not collect:  # a kernel error, before the first bad polyline
-            j = min(fit_errors)
-            raise _named(fit_errors[j], f"polylines[{j}]", j)
-        for j, fit_error in fit_errors.items():
-            fits[j] = _named(fit_error, f"polylines[{s + j}]", s + j)
-        out += fits
-        if error is not None:
-            out.append(_named(error, f"polylines[{len(out)}]", len(out)))
-            if not collect:
-                raise out[-1]
-            call.advance(int(not late[len(out) - 1]))
-        first = None
-    return out
+def _fit_run(shared: _jobs.Plan, batch: _jobs.Batch, polylines: list[tuple[Any, ...]],
+             call: _Call, collect: bool) -> list[Any]:
+    """The fits of checked ``polylines`` (their arrays ``batch``): an ``Exception``
+    where one failed, None where none ran once one failed (unless collecting).
 
-
-def _probe_plan(products: ImageProducts, options: FitOptions) -> Any:
-    """A call's shared plan, checked with a probe polyline: one vertex at the
-    image centre, which fails no check of its own."""
-    h, w = products.shape
-    probe = (np.array([[(h - 1) / 2.0, (w - 1) / 2.0]]), np.array([[1.0, 0.0]]), np.ones(1))
-    return _jobs.plan(products, *probe, options)[0]
-
-
-def _call_error(products: ImageProducts, options: FitOptions,
-                exc: Exception) -> bool:
-    """Whether the first polyline's ``exc`` is a shared argument's: the probe gets it too."""
-    try:
-        _probe_plan(products, options)
-    except Exception as probe_exc:
-        return type(probe_exc) is type(exc) and str(probe_exc) == str(exc)
-    return False
-
-
-def _fit_batch(shared: Any, batch: Any, call: _Call, stop_early: bool, late: Sequence[bool],
-               ) -> tuple[list[Any], dict[int, Exception]]:
-    """Fit ``batch``: one compiled loop call per chunk, the result objects in
-    one pass over the shared outputs (``timings_s["fit"]``: the compiled time
-    divided evenly), then :func:`dtalign.pipeline.fit.finish` (examination,
-    settling) one task a fit where there is any. Returns the fits (None where
-    one failed; none at all once one failed, with ``stop_early``) and the
-    errors by polyline. Reported done after the examination, else the chunk."""
+    They are fitted in chunks of a few, one task each: one call of the
+    compiled loop (GIL released), the chunk's result objects
+    (:func:`dtalign.pipeline.fit.wrap`; ``timings_s["fit"]`` the chunk's
+    compiled time divided evenly), then for each fit
+    :func:`~dtalign.pipeline.fit.finish` (examination, settling) and
+    :func:`~dtalign.pipeline.fit.conclude` (profile refinement, edge kind,
+    evidence). A chunk's polylines are reported done together.
+    """
     k = batch.n
     if k == 0:
-        return [], {}
-    examine = shared.options.examined
+        return []
     args, codes, out = _jobs.loop_inputs(shared, batch)
+    views = _jobs.readonly_views(out)
     size = max(1, min(_MAX_CHUNK, -(-k // (call.workers * _CHUNKS_PER_WORKER))))
     bounds = [*range(0, k, size), k]
-    chunks = range(len(bounds) - 1)
-    busy = [0.0] * len(chunks)
+    fits: list[Any] = [None] * k
 
-    def fit(c: int) -> None:
+    def chunk(c: int) -> None:
         lo, hi = bounds[c], bounds[c + 1]
         t0 = time.perf_counter()
-        first = int(_jobs.fit_polylines(args, lo, hi, codes, out))  # (GIL released)
-        busy[c] = time.perf_counter() - t0
-        if first < hi:  # a polyline failed (the loop went on with the chunk's others)
-            _jobs.raise_for(int(codes[first]))
+        _jobs.fit_polylines(args, lo, hi, codes, out)  # (on past a polyline that fails)
+        each_s = (time.perf_counter() - t0) / (hi - lo)
+        for j, fit in enumerate(wrap(shared, batch, views, lo, hi), lo):
+            if call.stop.is_set():  # (a fit's examination is a few LM fits)
+                raise CancelledError("the batch was stopped")
+            try:  # (in fit_polyline_products' order: the profile, then the fit)
+                profile, kind = edge_of(shared, polylines[j][3], polylines[j][4],
+                                        fit.normals_vu)
+                if codes[j] != _jobs.OK:  # its rows were never written
+                    raise _jobs.kernel_error(int(codes[j]))
+                fit.timings_s["fit"] = each_s
+                if shared.options.examined or needs_settling(fit):
+                    fit = finish(fit, shared, batch.item(j))
+                fits[j] = conclude(fit, shared.products, profile, kind)
+            except Exception as exc:  # the polyline's own error
+                fits[j] = exc
+                if not collect:
+                    raise  # (the batch stops)
 
-    sizes = [0 if examine else sum(not late[j] for j in range(bounds[c], bounds[c + 1]))
-             for c in chunks]
-    _, failed = call.each(fit, chunks, stop_early=stop_early, sizes=sizes)
-    errors: dict[int, Exception] = {}
-    for c, exc in failed.items():  # each failed polyline's own error
-        bad = [j for j in range(bounds[c], bounds[c + 1]) if codes[j] != _jobs.OK] or [bounds[c]]
-        errors[bad[0]] = exc
-        errors.update({j: _kernel_error(int(codes[j])) for j in bad[1:]})
-    if errors and stop_early:
-        return [], errors
-    fits: list[Any] = wrap(shared, batch, _jobs.readonly_views(out), 0, k)
+    chunks = range(len(bounds) - 1)
+    _, failed = call.each(chunk, chunks, stop_early=not collect,
+                          sizes=[bounds[c + 1] - bounds[c] for c in chunks])
+    for c, exc in failed.items():  # raised outside a polyline's own work
+        if not any(isinstance(f, Exception) for f in fits[bounds[c] : bounds[c + 1]]):
+            fits[bounds[c]] = exc
     for arr in out:  # lock the outputs whose rows the fits' read-only views share
         arr.flags.writeable = False
-    for j in range(k):
-        fits[j].timings_s["fit"] = sum(busy) / k
-        if j in errors:  # its rows were never written
-            fits[j] = None
-    if examine:  # failed fits are not examined
-        call.advance(sum(not late[j] for j in errors))
-    good = [j for j, f in enumerate(fits) if f is not None and (examine or needs_settling(f))]
-    starts = batch.starts.tolist()
-
-    def one(j: int) -> Any:
-        s, e = starts[j], starts[j + 1]
-        item = _jobs.Item(batch.pts[s:e], batch.nrm[s:e], batch.sig[s:e],
-                          (float(batch.pivots[j, 0]), float(batch.pivots[j, 1])),
-                          float(batch.distances[j]))
-        return finish(fits[j], shared, item)
-
-    examined, failures = call.each(one, good, stop_early=stop_early,
-                                   sizes=[int(examine and not late[j]) for j in good])
-    for i, j in enumerate(good):
-        fits[j] = examined[i]
-        if i in failures:
-            errors[j] = failures[i]
-    return ([], errors) if errors and stop_early else (fits, errors)
-
-
-def _kernel_error(code: int) -> Exception:
-    """The ValueError of a compiled loop's error code."""
-    try:
-        _jobs.raise_for(code)
-    except ValueError as exc:
-        return exc
-    raise AssertionError(f"error code {code} raised nothing")  # pragma: no cover
+    return fits
 
 
 def _log(results: list[Any], label: str) -> None:
-    """Log each failed or suspect fit (:func:`~dtalign.pipeline.status.log_fits`),
-    each collected error at WARNING, an image's fits as ``label[i].polylines``."""
-    if not any(isinstance(r, (Exception, list)) for r in results):
-        log_fits(results, label)
-        return
+    """Log each failed or suspect fit (:func:`~dtalign.pipeline.status.log_fit`)
+    as ``label[i]`` (an image's fits as ``label[i].polylines``), each collected
+    error at WARNING with its last note, the batch's."""
     for i, r in enumerate(results):
         if isinstance(r, Exception):
-            logger.warning("%s", r)
+            logger.warning("%s: %s", r.__notes__[-1], r)
         elif isinstance(r, list):
             _log(r, f"{label}[{i}].polylines")
         else:
@@ -533,7 +388,7 @@ def _fit_image(job: tuple[Any, ...], abort: threading.Event | None = None) -> li
     """One image's task: its loader called, its path loaded, its products, its
     polylines serially, stopping between them once ``abort`` (the batch's
     stop) is set. Module level: a process pool pickles it."""
-    image, noise, parts, config, options, collect, index = job
+    image, noise, parts, config, checked, collect, index = job
     if parts is None:  # a loader (fit_images' callable item): the item is made here
         image, noise, parts = _image_parts(image(), index)
     if _is_path(image):
@@ -541,7 +396,7 @@ def _fit_image(job: tuple[Any, ...], abort: threading.Event | None = None) -> li
 
         image = load_image(image)
     products = prepare_image(image, noise, config=config)
-    return _fit_and_conclude(products, parts, options, collect, _Call(stop=abort))
+    return _fit_polylines(products, parts, checked, collect, _Call(stop=abort))
 
 
 def map_ordered(fn: Callable[[_T], _R], items: Iterable[_T], *,
@@ -563,22 +418,19 @@ def map_ordered(fn: Callable[[_T], _R], items: Iterable[_T], *,
             raise errors[min(errors)]
         return results
 
-    return _run(work, _Call(), _threads(n, None))
+    return _Call().run(work, _threads(n, None))
 
 
 _Progress = Callable[[int, int], Any] | bool | None
 
 
 @overload
-def fit_many(products: ImageProducts, polylines: Iterable[Any], *,
-             workers: int = ...,
+def fit_many(products: ImageProducts, polylines: Iterable[Any], *, workers: int = ...,
              errors: Literal["raise"] = ..., progress: _Progress = ...,
              options: FitOptions | None = ..., **overrides: Any) -> list[PolylineFit]: ...
 @overload
-def fit_many(products: ImageProducts, polylines: Iterable[Any], *,
-             workers: int = ...,
-             errors: Literal["collect"], progress: _Progress = ...,
-             options: FitOptions | None = ...,
+def fit_many(products: ImageProducts, polylines: Iterable[Any], *, workers: int = ...,
+             errors: Literal["collect"], progress: _Progress = ..., options: FitOptions | None = ...,
              **overrides: Any) -> list[PolylineFit | Exception]: ...
 def fit_many(products: ImageProducts, polylines: Iterable[Any], *,
              workers: int = DEFAULT_WORKERS, errors: str = "raise", progress: _Progress = None,
@@ -598,13 +450,13 @@ def fit_many(products: ImageProducts, polylines: Iterable[Any], *,
     workers : int, optional
         Threads (default: the CPUs this process may use); 1 fits serially.
     errors : {"raise", "collect"}, optional
-        Raise the first failing polyline's error (``polylines[i]: ...``,
-        with ``index`` i), or put each failed one's error in its place.
+        Raise the first failing polyline's error (its own, noted
+        ``polylines[i]``, with ``index`` i), or put each failed one's error
+        in its place (:ref:`batch-errors`).
     progress : callable or bool, optional
-        ``progress(done, total)`` once per completed polyline, from the
-        calling thread (a chunk's polylines together, one with a profile
-        once refined); if it raises, the batch stops and its exception
-        propagates unchanged. ``True``: a tqdm bar.
+        ``progress(done, total)`` from the calling thread once per polyline
+        fitted and concluded (a chunk's together); ``True``: a tqdm bar
+        (:ref:`batch-progress`).
     options : FitOptions, optional
         Every fit's options, as :func:`~dtalign.pipeline.fit_polyline_products`
         takes them (the search window ``search_window_vu`` among them,
@@ -626,28 +478,25 @@ def fit_many(products: ImageProducts, polylines: Iterable[Any], *,
     n = _check_workers(workers)
     collect = _check_errors(errors)
     progress = _check_progress(progress)
-    opts = resolve(options, overrides)
+    checked = _jobs.check_options(resolve(options, overrides))
     items = [_polyline(item, i) for i, item in enumerate(polylines)]
 
     def work(call: _Call) -> list[Any]:
-        out = _fit_and_conclude(products, items, opts, collect, call)
+        out = _fit_polylines(products, items, checked, collect, call)
         _log(out, "polylines")
         return out
 
-    with _reporter(progress, len(items), "polyline") as report:
-        return _run(work, _Call(report, n), _threads(n, report))
+    with reporter(progress, len(items), "polyline") as report:
+        return _Call(report, n).run(work, _threads(n, report))
 
 
 @overload
-def fit_images(items: Iterable[Any], *,
-               workers: int = ..., executor: str | Executor = ...,
+def fit_images(items: Iterable[Any], *, workers: int = ..., executor: str | Executor = ...,
                config: ImageDerivativesConfig | None = ..., errors: Literal["raise"] = ...,
                progress: _Progress = ..., on_image: Callable[[int, Any], Any] | None = ...,
-               options: FitOptions | None = ...,
-               **overrides: Any) -> list[list[PolylineFit]]: ...
+               options: FitOptions | None = ..., **overrides: Any) -> list[list[PolylineFit]]: ...
 @overload
-def fit_images(items: Iterable[Any], *,
-               workers: int = ..., executor: str | Executor = ...,
+def fit_images(items: Iterable[Any], *, workers: int = ..., executor: str | Executor = ...,
                config: ImageDerivativesConfig | None = ..., errors: Literal["collect"],
                progress: _Progress = ..., on_image: Callable[[int, Any], Any] | None = ...,
                options: FitOptions | None = ...,
@@ -681,10 +530,10 @@ def fit_images(items: Iterable[Any], *,
     config : ImageDerivativesConfig, optional
         Image-side tunables for every image.
     errors : {"raise", "collect"}, optional
-        Raise the first failing image's error (``images[i]: ...``,
-        ``images[i] (path): ...``, with ``index`` i and the image's own
-        error as its cause), or put each failed image's error in its place
-        (and a failed polyline's in its image's list).
+        Raise the first failing image's error (its own, noted ``images[i]``
+        or ``images[i] (path)`` after any note of a polyline's, with
+        ``index`` i), or put each failed image's error in its place (and a
+        failed polyline's in its image's list).
     progress : callable or bool, optional
         As in :func:`fit_many`, once per completed image, with any executor.
     on_image : callable, optional
@@ -712,9 +561,9 @@ def fit_images(items: Iterable[Any], *,
     if config is not None and not isinstance(config, ImageDerivativesConfig):
         raise TypeError(f"config must be an ImageDerivativesConfig, got {type(config).__name__}")
     progress = _check_progress(progress)
-    opts = resolve(options, overrides)
+    checked = _jobs.check_options(resolve(options, overrides))
     jobs = [((item, None, None) if callable(item) else _image_parts(item, i))
-            + (config, opts, collect, i) for i, item in enumerate(items)]
+            + (config, checked, collect, i) for i, item in enumerate(items)]
 
     def work(call: _Call) -> list[Any]:
         out: list[Any] = [None] * len(jobs)
@@ -722,7 +571,7 @@ def fit_images(items: Iterable[Any], *,
         def hand(i: int, fits: Any, exc: Exception | None) -> None:  # in input order
             image: Any = jobs[i][0]  # an image's error is named with its path if it has one
             label = f"images[{i}] ({os.fspath(image)})" if _is_path(image) else f"images[{i}]"
-            out[i] = fits if exc is None else _named(exc, label, i)
+            out[i] = fits if exc is None else _noted(exc, label, i)
             if on_image is not None and (exc is None or collect):
                 call.post(on_image, i, out[i])
 
@@ -736,9 +585,12 @@ def fit_images(items: Iterable[Any], *,
             _log(out, "items")
         return out
 
-    with _reporter(progress, len(jobs), "image") as report:
+    with reporter(progress, len(jobs), "image") as report:
         pool = (executor if isinstance(executor, Executor)
                 else _threads(n, report) if executor == "thread" or n == 1 or len(jobs) < 2
+                # (a terminal's Ctrl-C, sent to the whole process group, is the
+                # parent's to act on: each worker finishes its image)
                 else functools.partial(ProcessPoolExecutor, min(n, len(jobs)),
-                                       initializer=_ignore_sigint))
-        return _run(work, _Call(report), pool)
+                                       initializer=signal.signal,
+                                       initargs=(signal.SIGINT, signal.SIG_IGN)))
+        return _Call(report).run(work, pool)

@@ -760,8 +760,8 @@ def fit_polyline_products(
 ) -> PolylineFit:
     """Fit one polyline against precomputed image products.
 
-    The steps, each once: check the polyline and the options
-    (:func:`~dtalign.pipeline.jobs.plan`); find the integer seed of the
+    The steps, each once: check the options, then the polyline
+    (:func:`~dtalign.pipeline.jobs.check_options`, :func:`~dtalign.pipeline.jobs.item`); find the integer seed of the
     polyline against ``products.edge_mask`` (the polarity-weighted search,
     or the overlap search when ``use_polarity=False``); refine from it with
     the LM of :func:`dtalign.lm_subpixel_refine`; examine the fit against
@@ -816,15 +816,11 @@ def fit_polyline_products(
     vertices_vu, normals_vu, sigmas, edge_profile, kind = polyline_parts(
         vertices_vu, normals_vu, sigmas, edge_profile)
     opts = resolve(options, overrides)
-    shared, item = jobs.plan(products, vertices_vu, normals_vu,
-                             jobs.broadcast_sigmas(vertices_vu, sigmas), opts)
-    profile = None
-    if edge_profile is not None:
-        profile = check_edge_profile(edge_profile, item.normals)
-        if products.image is None:
-            raise ValueError("edge_profile needs the image: these products were built "
-                             "without it (use prepare_image)")
-    kind = edge_kind_of(opts.edge_kind if kind is None else kind, profile)
+    if not isinstance(products, ImageProducts):
+        raise TypeError(f"products must be an ImageProducts, got {type(products).__name__}")
+    shared = jobs.plan(products, jobs.check_options(opts))
+    item = jobs.item(shared, vertices_vu, normals_vu, jobs.broadcast_sigmas(vertices_vu, sigmas))
+    profile, kind = edge_of(shared, edge_profile, kind, item.normals)
     # the seed (with its score surface, when the fit is to be examined), the LM
     # from it, then the examination and the settling
     t1 = time.perf_counter()
@@ -928,6 +924,18 @@ def _evidence_from(found: dict[str, Any], n: int) -> Evidence:
         None if found.get("curvature") is None else read("curvature", (-1,)),
         None if found.get("second_edge_vu") is None else read("second_edge_vu", (-1, 2)),
     )
+
+
+def edge_of(shared: jobs.Plan, profile: Any, kind: str | None, normals: FloatArray,
+            ) -> tuple[Any, str | None]:
+    """A polyline's checked edge profile (None without one) and its edge kind:
+    its own ``kind``, else the call's option, as the profile allows."""
+    if profile is not None:
+        profile = check_edge_profile(profile, normals)
+        if shared.products.image is None:
+            raise ValueError("edge_profile needs the image: these products were built "
+                             "without it (use prepare_image)")
+    return profile, edge_kind_of(shared.options.edge_kind if kind is None else kind, profile)
 
 
 def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
