@@ -192,9 +192,10 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
         ``error`` names the file or polyline.
     """
     import dtalign.io as io
-    import dtalign.pipeline as pipeline
 
     from ..api.results import ImageDerivativesConfig
+    from ..pipeline.products import products_of
+    from ..pipeline.region import image_region, refit_outside
 
     worker = _worker_name()
     t0 = time.perf_counter()
@@ -205,10 +206,14 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
         t1 = time.perf_counter()
         stage = "prepare"
         config = ImageDerivativesConfig(**item.config) if item.config else None
-        products = pipeline.prepare_image(image, item.noise_sigma, config=config)
+        # the products of the region the polylines reach (dtalign.pipeline.region)
+        region = image_region(image, [p.vertices_vu for p in polylines],
+                              _options(item), config)
+        products = products_of(image, item.noise_sigma, config, region)
         t2 = time.perf_counter()
         stage = "fit"
-        fits = _fit_polylines(item, products, polylines)
+        fits = refit_outside(region, _fit_polylines(item, products, polylines),
+                             lambda redo: _refit(item, image, products, polylines, redo))
         t3 = time.perf_counter()
     except Exception as exc:  # the item's own error: recorded, the campaign goes on
         return {"item_id": item.id, "results": [],
@@ -250,6 +255,30 @@ def _fit_polylines(item: Item, products: Any, polylines: list[Any]) -> list[Any]
         # a polyline's error (its index the batch's), or the call's (a bad option)
         k = getattr(exc, "index", 0)
         raise type(exc)(f"polyline {item.polylines[k]}: {exc}") from None
+
+
+def _options(item: Item) -> Any:
+    """The item's fit options as a :class:`~dtalign.FitOptions` (None when
+    malformed: its fit then says why)."""
+    from ..api.options import resolve
+
+    try:
+        return resolve(None, {"search_window_vu": item.window, **item.options})
+    except (TypeError, ValueError):
+        return None
+
+
+def _refit(item: Item, image: Any, products: Any, polylines: list[Any],
+           redo: list[int]) -> list[Any]:
+    """Polylines ``redo`` fitted again on the frame's products, with the
+    noise their region's fits used (their fits left the region)."""
+    import dtalign.pipeline as pipeline
+
+    full = pipeline.prepare_image(image, products.noise_sigma, config=products.config)
+    sub = dataclasses.replace(item, polylines=tuple(item.polylines[i] for i in redo),
+                              spheres=tuple(item.spheres[i] for i in redo) if item.spheres
+                              else ())
+    return _fit_polylines(sub, full, [polylines[i] for i in redo])
 
 
 def _fit_seconds(fit: Any, products: Any) -> float:

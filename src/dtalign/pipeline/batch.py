@@ -49,7 +49,8 @@ from ..api.options import FitOptions, resolve
 from ..api.results import ImageDerivativesConfig
 from . import jobs as _jobs
 from .fit import PolylineFit, conclude, edge_of, finish, needs_settling, wrap
-from .products import ImageProducts, prepare_image
+from .products import ImageProducts, prepare_image, products_of
+from .region import image_region, refit_outside
 from .status import log_fit, logger
 
 __all__ = ["DEFAULT_WORKERS", "fit_images", "fit_many", "map_ordered"]
@@ -395,8 +396,15 @@ def _fit_image(job: tuple[Any, ...], abort: threading.Event | None = None) -> li
         from ..io.files import load_image
 
         image = load_image(image)
-    products = prepare_image(image, noise, config=config)
-    return _fit_polylines(products, parts, checked, collect, _Call(stop=abort))
+    # the products of the region its polylines reach (dtalign.pipeline.region);
+    # a fit that left it is fitted again on the frame's, with the same noise
+    region = image_region(image, [p[0] for p in parts], checked.options, config)
+    products = products_of(image, noise, config, region)
+    call = _Call(stop=abort)
+    fits = _fit_polylines(products, parts, checked, collect, call)
+    return refit_outside(region, fits, lambda redo: _fit_polylines(
+        prepare_image(image, products.noise_sigma, config=config), [parts[i] for i in redo],
+        checked, collect, call))
 
 
 def map_ordered(fn: Callable[[_T], _R], items: Iterable[_T], *,

@@ -58,7 +58,7 @@ from .observability import (
     null_directions,
     observable_rank,
 )
-from .products import ImageProducts, _readonly, prepare_image
+from .products import ImageProducts, _readonly, prepare_image, products_of
 from .profile_fit import (
     RIVAL_AGREEMENT_SIGMAS,
     ProfileRefinement,
@@ -67,6 +67,7 @@ from .profile_fit import (
     refine_with_profile,
 )
 from .records import from_json, to_json
+from .region import holds, image_region
 from .status import (
     SETTLE_ITERATIONS,
     SETTLE_SIGMAS,
@@ -903,9 +904,19 @@ def fit_polyline(
     >>> [round(x, 1) for x in fit.offset_vu]
     [7.3, -4.6]
     """
-    products = prepare_image(image, noise_sigma, config=config)
-    return fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
-                                 edge_profile=edge_profile, options=options, **overrides)
+    try:  # (a malformed polyline or option: the full frame, and the fit's checks say so)
+        verts = polyline_parts(vertices_vu, normals_vu, sigmas)[0]
+        region = image_region(image, [verts], resolve(options, overrides), config)
+    except (TypeError, ValueError):
+        region = None
+    products = products_of(image, noise_sigma, config, region)
+    fit = fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
+                                edge_profile=edge_profile, options=options, **overrides)
+    if not holds(region, fit):  # it left the region: the frame's products, the same noise
+        products = prepare_image(image, products.noise_sigma, config=config)
+        fit = fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
+                                    edge_profile=edge_profile, options=options, **overrides)
+    return fit
 
 
 # ---------------------------------------------------------------------------
@@ -946,10 +957,28 @@ def conclude(fit: PolylineFit, products: ImageProducts, profile: Any,
     which :attr:`PolylineFit.covariance` is formed, and last its
     :func:`~dtalign.pipeline.status.assess`-ment, stored on the result (on
     the batch's threads, for a batch)."""
-    fit = _measured(fit, products, profile, kind)
+    fit = _in_frame(_measured(fit, products, profile, kind), products)
     # what cached_property stores on first reading, stored now, once
     fit.__dict__["assessment"] = assess(fit)
     return fit
+
+
+def _in_frame(fit: PolylineFit, products: ImageProducts) -> PolylineFit:
+    """``fit``, made on a region's products (:mod:`dtalign.pipeline.region`),
+    in the frame's pixels: its vertices, pivot and evidence points moved by
+    the crop's origin (exactly: a whole number), and the frame's shape;
+    ``fit`` itself on the full frame's products."""
+    region = products.region
+    if region is None:
+        return fit
+    origin = np.asarray(region.origin_vu, dtype=np.float64)
+    found = fit.evidence
+    if found is not None:
+        found = found._replace(points_vu=_readonly(found.points_vu + origin))
+    return dataclasses.replace(
+        fit, vertices_vu=_readonly(np.asarray(fit.vertices_vu) + origin),
+        pivot_vu=(fit.pivot_vu[0] + region.origin_vu[0], fit.pivot_vu[1] + region.origin_vu[1]),
+        evidence=found, image_shape=region.frame_shape)
 
 
 def _measured(fit: PolylineFit, products: ImageProducts, profile: Any,

@@ -123,10 +123,14 @@ def check_options(options: FitOptions) -> Checked:
 
 
 def plan(products: ImageProducts, checked: Checked) -> Plan:
-    """The call's ``Plan`` on one image's ``products``."""
+    """The call's ``Plan`` on one image's ``products``; on a region's
+    (:mod:`dtalign.pipeline.region`), a given pivot in the crop's pixels."""
     h, w = products.shape
     window = checked.window
     lm = checked.lm._replace(dt=products.edge_dt, gradient=products.gradient_vu)
+    if products.region is not None and checked.options.pivot_vu is not None:
+        v0, u0 = products.region.origin_vu
+        lm = lm._replace(pivot=(lm.pivot[0] - v0, lm.pivot[1] - u0))
     return Plan(products=products, window=window, mv=min(window[0], max(h - 1, 0)),
                 mu=min(window[1], max(w - 1, 0)), lm=lm, options=checked.options)
 
@@ -136,8 +140,22 @@ def _distance(shared: Plan, pivot: tuple[float, float]) -> float:
     with rotation the pivot's distance to the image centre, floored at 1."""
     if shared.options.pivot_distance_px is not None or not shared.lm.fit_rotation:
         return shared.lm.pivot_distance
-    h, w = shared.products.shape
-    return max(math.hypot(pivot[0] - (h - 1) / 2.0, pivot[1] - (w - 1) / 2.0), 1.0)
+    region = shared.products.region
+    if region is None:
+        h, w = shared.products.shape
+        return max(math.hypot(pivot[0] - (h - 1) / 2.0, pivot[1] - (w - 1) / 2.0), 1.0)
+    (h, w), (v0, u0) = region.frame_shape, region.origin_vu  # the frame's centre, in the crop
+    return max(math.hypot(pivot[0] - ((h - 1) / 2.0 - v0), pivot[1] - ((w - 1) / 2.0 - u0)),
+               1.0)
+
+
+def _in_crop(shared: Plan, points: FloatArray) -> FloatArray:
+    """Frame pixels ``points`` in the pixels of the products' crop (exact:
+    the crop's origin is a whole number below every point it holds)."""
+    region = shared.products.region
+    if region is None:
+        return points
+    return check.readonly(points - np.asarray(region.origin_vu, dtype=np.float64))
 
 
 def _rotating(shared: Plan) -> bool:
@@ -159,7 +177,14 @@ def item(shared: Plan, vertices_vu: Any, normals_vu: Any, sigmas: Any) -> Item:
     if status != loop.OK:
         raise polyline_error(vertices_vu, normals_vu, sigmas)
     # the compiled centroid is bit-identical to NumPy's mean (resolve_pivot)
-    pivot = (c_v, c_u) if shared.options.pivot_vu is None else shared.lm.pivot
+    verts = _in_crop(shared, verts)
+    if shared.options.pivot_vu is not None:
+        pivot = shared.lm.pivot
+    elif shared.products.region is None:
+        pivot = (c_v, c_u)
+    else:
+        v0, u0 = shared.products.region.origin_vu
+        pivot = (c_v - v0, c_u - u0)
     if _rotating(shared):
         check.pivot_spread(verts, pivot)
     return Item(verts, norms, sig, pivot, _distance(shared, pivot))
@@ -286,7 +311,10 @@ def prepare(shared: Plan, parts: Sequence[tuple[Any, Any, Any]]) -> tuple[Batch,
     starts = np.fromiter(itertools.accumulate(lens, initial=0), np.int64, len(lens) + 1)
     n_ok, _, centroids = loop.polylines_status(pts, nrm, sig, starts)
     bad = min(bad, int(n_ok))
+    pts = _in_crop(shared, pts)
     pivots = centroids[:bad]
+    if shared.products.region is not None:
+        pivots = pivots - np.asarray(shared.products.region.origin_vu, dtype=np.float64)
     if shared.options.pivot_vu is not None:
         pivots[:] = shared.lm.pivot
     distances = np.full(bad, shared.lm.pivot_distance)

@@ -28,6 +28,7 @@ from ..api.checks import check_image, check_noise_sigma, resolve_config
 from ..api.colour import grey_image, log_note
 from ..api.loop import noise_statistics
 from ..api.results import ImageDerivativesConfig
+from .region import Region
 
 __all__ = [
     "ImageProducts",
@@ -230,6 +231,11 @@ class ImageProducts:
         :func:`prepare_image` for the profile refinement
         (:mod:`dtalign.pipeline.profile_fit`); None in products built
         without it.
+    region : Region or None
+        None for the whole frame; else the crop of the frame the arrays
+        cover (:mod:`dtalign.pipeline.region`): ``shape`` is then the
+        crop's, and the fits on these products work in its pixels and
+        report the frame's.
 
     Instances compare by identity (the arrays have no single truth value).
     """
@@ -244,6 +250,7 @@ class ImageProducts:
     noise_sigma_estimated: bool = False
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
     image: FloatArray | None = field(default=None, repr=False)
+    region: Region | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.image is not None:
@@ -305,10 +312,25 @@ def prepare_image(
         If ``image`` is empty or not finite, or ``noise_sigma`` is negative
         or not finite.
     """
-    # colour: the rule of dtalign.api.colour, said on the logger
-    image, note = grey_image(image)
-    log_note(note)
-    arr = check_image(image, "image")
+    return products_of(image, noise_sigma, config, None)
+
+
+def products_of(image: ArrayLike, noise_sigma: float | None,
+                config: ImageDerivativesConfig | None, region: Region | None) -> ImageProducts:
+    """:func:`prepare_image` of ``image``, or of ``region``'s crop of a 2-D
+    ``image`` (:func:`dtalign.pipeline.region.fit_region`): the crop alone
+    is converted, checked and estimated, so pixels outside it are never
+    read."""
+    frame = np.asarray(image) if region is not None else None
+    if region is not None and frame is not None and frame.shape == region.frame_shape:
+        (v0, u0), (h, w) = region.origin_vu, region.shape
+        arr = check_image(frame[v0 : v0 + h, u0 : u0 + w], "image")
+    else:
+        # colour: the rule of dtalign.api.colour, said on the logger
+        grey, note = grey_image(image)
+        log_note(note)
+        arr = check_image(grey, "image")
+        region = None
     cfg = resolve_config(config)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -335,4 +357,5 @@ def prepare_image(
         noise_sigma_estimated=estimated,
         timings_s=timings,
         image=arr,
+        region=region,
     )
