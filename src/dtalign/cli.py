@@ -309,9 +309,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
                       f"{image} {polyline} --window {args.window}{' --rotation' if rotating else ''}")
     _compile_notice(_MESSAGES)
     for _ in range(args.repeat):
-        products = pipeline.prepare_image(scene.image, scene.noise_sigma)
-        fit = pipeline.fit_polyline_products(
-            products, poly.vertices_vu, poly.normals_vu, poly.sigmas,
+        fit = pipeline.fit_polyline(
+            scene.image, poly.vertices_vu, poly.normals_vu, poly.sigmas,
+            noise_sigma=scene.noise_sigma,
             search_window_vu=scene.search_window_vu, fit_rotation=rotating,
             pivot_vu=scene.pivot_vu, pivot_distance_px=scene.pivot_distance_px if rotating else None,
             trust_region_px=1.0)

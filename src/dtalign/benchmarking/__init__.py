@@ -57,6 +57,7 @@ from .timing import (
     measure_batch,
     measure_noise_overhead,
     measure_profile_overhead,
+    measure_region,
     measure_workloads,
     replace_readme_table,
 )
@@ -146,6 +147,8 @@ def run(
                 rows.append(measure_noise_overhead(inputs, repeats, min_sample))
             if "profile_overhead" in wanted:
                 rows.append(measure_profile_overhead(repeats, min_sample))
+            if "region" in wanted:
+                rows += measure_region(inputs, repeats, min_sample)
             if "batch" in wanted:
                 rows += measure_batch(max(repeats, 9))
             memory = measure_memory() if "memory" in wanted else None

@@ -53,7 +53,8 @@ DESCRIPTIONS = {
     "fit_polyline": "fit_polyline, noise estimated, disc N=200, +-30, tr=1",
 }
 #: Section names accepted by ``--only`` besides the workloads.
-SECTIONS = ("noise_overhead", "profile_overhead", "batch", "startup", "memory", "archive")
+SECTIONS = ("noise_overhead", "profile_overhead", "region", "batch", "startup", "memory",
+            "archive")
 #: ``fit_polyline`` with the noise estimated may take at most this many
 #: times the same call with the noise given (the estimate must be cheap
 #: beside the derivatives it feeds).
@@ -63,6 +64,14 @@ NOISE_OVERHEAD_TARGET = 1.3
 #: the same scene: the refinement reads each vertex's strip of pixels, which
 #: should cost about as much as the fit it refines.
 PROFILE_OVERHEAD_TARGET = 2.0
+#: The one-call fit of the 1024 x 1024 disc (noise estimated, or given),
+#: which reads only the region its polyline can reach
+#: (:mod:`dtalign.pipeline.region`), may take at most this fraction of one
+#: full-frame ``compute_all_image_derivatives`` call of the same image ...
+REGION_FIT_TARGET = 0.4
+#: ... and with an edge profile (a rendered 1024 x 1024 sphere's limb, the
+#: PSF estimated), at most this.
+REGION_PROFILE_FIT_TARGET = 1.0
 #: Batch rows, 2 workers against 1 in the same run (so that both see the
 #: same machine load): fit_many of BATCH_FITS polylines on one image,
 #: fit_images of BATCH_IMAGES images.

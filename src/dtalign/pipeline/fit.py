@@ -863,11 +863,15 @@ def fit_polyline(
 ) -> PolylineFit:
     """Fit a model polyline to an image in one call.
 
-    Equivalent to ``fit_polyline_products(prepare_image(image, noise_sigma,
-    config=config), vertices_vu, ...)``. To fit several polylines to one image,
-    call :func:`~dtalign.pipeline.products.prepare_image` once and
-    :func:`fit_polyline_products` per polyline (or
-    :func:`~dtalign.pipeline.batch.fit_many`) instead.
+    The answer of ``fit_polyline_products(prepare_image(image, noise_sigma,
+    config=config), vertices_vu, ...)`` (offsets within 1e-9 px, the same
+    status), computed on the region of the frame the polyline can reach
+    (:mod:`dtalign.pipeline.region`, :ref:`region`), with the noise
+    estimated on the region's pixels when not given. To fit several
+    polylines to one image, use :func:`~dtalign.pipeline.batch.fit_images`
+    (their one region), or :func:`~dtalign.pipeline.products.prepare_image`
+    once and :func:`fit_polyline_products` per polyline (or
+    :func:`~dtalign.pipeline.batch.fit_many`) on the full frame.
 
     Parameters
     ----------
@@ -879,8 +883,9 @@ def fit_polyline(
         The model polyline: its arrays (and profile), or a
         :class:`~dtalign.Polyline` alone; see :func:`fit_polyline_products`.
     noise_sigma : float, optional
-        Image noise sigma; estimated by
-        :func:`~dtalign.pipeline.products.estimate_noise_sigma` when None.
+        Image noise sigma; estimated on the region's pixels
+        (:func:`~dtalign.pipeline.products.estimate_noise_sigma` of the
+        crop) when None.
     config : ImageDerivativesConfig, optional
         Image-side tunables.
     options : FitOptions, optional
