@@ -93,6 +93,10 @@ RESULT_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("prepare_s", "float64", "item: image products (noise, gradient, DT), s"),
     ("fit_s", "float64", "this polyline's coarse search and LM, s"),
     ("item_s", "float64", "item: the whole task on the worker, s"),
+    ("polyline_s", "float64", "this polyline's cost: its share of the item's reading and "
+     "products (read_s + prepare_s over the item's polylines) plus fit_s, s"),
+    ("region_fraction", "float64", "the fraction of the frame the image products covered "
+     "(1: the whole frame; dtalign.pipeline.region)"),
     ("worker", "string", "the worker that ran the task"),
     ("dtalign_version", "string", "dtalign version on the worker"),
     ("item_fingerprint", "string", "hash of the item's files, noise, window and options"),

@@ -118,7 +118,8 @@ def fit_rows(item: Item, fits: list[Any], timings: dict[str, Any], *, run_id: st
         One per polyline of ``item``.
     timings : dict
         ``read_s``, ``prepare_s``, ``item_s``, ``fit_s`` (a list, one per
-        fit), ``worker``, ``noise_sigma_estimated``, ``finished_at``.
+        fit), ``worker``, ``noise_sigma_estimated``, ``region_fraction``,
+        ``finished_at``.
     run_id : str
         The run writing the rows.
     """
@@ -155,11 +156,23 @@ def fit_rows(item: Item, fits: list[Any], timings: dict[str, Any], *, run_id: st
             "window_v": int(item.window[0]), "window_u": int(item.window[1]),
             "read_s": timings.get("read_s"), "prepare_s": timings.get("prepare_s"),
             "fit_s": timings["fit_s"][k] if "fit_s" in timings else None,
-            "item_s": timings.get("item_s"), "worker": timings.get("worker"),
+            "item_s": timings.get("item_s"),
+            "polyline_s": _share(timings, len(fits), k),
+            "region_fraction": timings.get("region_fraction"), "worker": timings.get("worker"),
             "dtalign_version": version, "item_fingerprint": item.fingerprint,
             "run_id": run_id, "finished_at": timings.get("finished_at"),
         })
     return rows
+
+
+def _share(timings: dict[str, Any], n: int, k: int) -> float | None:
+    """Polyline ``k``'s cost of its item: ``fit_s[k]`` plus its ``1/n`` share of
+    ``read_s + prepare_s`` (None when a part is missing)."""
+    read, prepare = timings.get("read_s"), timings.get("prepare_s")
+    fit = timings["fit_s"][k] if "fit_s" in timings else None
+    if read is None or prepare is None or fit is None:
+        return None
+    return float((read + prepare) / n + fit)
 
 
 def _failure(item: Item, stage: str, exc: BaseException, run_id: str, worker: str | None,
@@ -222,6 +235,8 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
         "read_s": t1 - t0, "prepare_s": t2 - t1,
         "fit_s": [_fit_seconds(fit, products) for fit in fits], "item_s": t3 - t0,
         "worker": worker, "noise_sigma_estimated": products.noise_sigma_estimated,
+        "region_fraction": 1.0 if region is None
+        else region.shape[0] * region.shape[1] / (region.frame_shape[0] * region.frame_shape[1]),
         "finished_at": _now(),
     }
     return {"item_id": item.id, "results": fit_rows(item, fits, timings, run_id=run_id),
