@@ -31,6 +31,10 @@ OFFSET_TOL_PX = 1e-9
 def _cases():
     s = scenes.disc_scene()
     yield "disc", s.image, s.noise_sigma, s.polyline, {"search_window_vu": (30, 30)}
+    # a limb half off the frame's top: the region keeps the frame's border
+    cut = np.ascontiguousarray(s.image[420:])
+    off = dataclasses.replace(s.polyline, vertices_vu=s.polyline.vertices_vu - [420.0, 0.0])
+    yield "disc off the top", cut, s.noise_sigma, off, {"search_window_vu": (30, 30)}
     nav = scenes.navigation_scene()
     for k, p in enumerate(nav.polylines):
         yield f"navigation[{k}]", nav.image, nav.noise_sigma, p, {"search_window_vu": (30, 30)}

@@ -182,16 +182,23 @@ def holds(region: Region | None, fit: Any) -> bool:
     rel = verts - np.asarray(fit.pivot_vu)
     poses = {(*fit.lm.offset_vu, fit.lm.rotation_rad), (*fit.offset_vu, fit.rotation_rad)}
     poses.update((*h.offset_vu, h.rotation_rad) for h in fit.hypotheses)
+    # the limits on the crop's sides inside the frame; its sides on the
+    # frame's border are the frame's own (a vertex beyond them is outside
+    # the image on either products)
+    (v0, u0), (h, w), (fh, fw) = region.origin_vu, region.shape, region.frame_shape
     v_lo, v_hi, u_lo, u_hi = region.exact
     m = READ_MARGIN_PX
+    lo_v = v_lo + m if v0 > 0 else -math.inf
+    hi_v = v_hi - 1 - m if v0 + h < fh else math.inf
+    lo_u = u_lo + m if u0 > 0 else -math.inf
+    hi_u = u_hi - 1 - m if u0 + w < fw else math.inf
     for dv, du, theta in poses:
         if not (math.isfinite(dv) and math.isfinite(du) and math.isfinite(theta)):
             return False
         c, s = math.cos(theta), math.sin(theta)
         pv = c * rel[:, 0] - s * rel[:, 1] + fit.pivot_vu[0] + dv
         pu = s * rel[:, 0] + c * rel[:, 1] + fit.pivot_vu[1] + du
-        if (pv.min() < v_lo + m or pv.max() > v_hi - 1 - m
-                or pu.min() < u_lo + m or pu.max() > u_hi - 1 - m):
+        if pv.min() < lo_v or pv.max() > hi_v or pu.min() < lo_u or pu.max() > hi_u:
             return False
     return True
 
