@@ -134,7 +134,8 @@ def report(key: str, r: dict) -> str:
         f"rms {moved.lm.rms_px:.3f} px"
     )
     sv, su = moved.sigma_vu
-    out.append(f"DT covariance (pinvh, the contract's): sigma_v {sv:.4f}, sigma_u {su:.4f} px")
+    out.append(f"sigma_vu (noise, correlated neighbours, edge-model floor): "
+               f"sigma_v {sv:.4f}, sigma_u {su:.4f} px")
     cn = np.asarray(moved.uncertainty.normal_covariance)
     out.append(
         f"geometry (normals): observable rank {moved.observable_rank} of 2; "
@@ -147,8 +148,6 @@ def report(key: str, r: dict) -> str:
             f"  unobservable direction ({t[0]:+.4f}, {t[1]:+.4f}): pinvh variance {along:.1e} "
             f"(zero: no information); sigma across the edge {moved.sigma_along(n):.4f} px"
         )
-        iv, iu = moved.sigma_vu
-        out.append(f"  inf reading: sigma_v {iv}, sigma_u {iu}")
     if moved.at_window_edge:
         out.append("WARNING: coarse seed on the search-window edge")
     return "\n".join(out)
@@ -408,6 +407,10 @@ def _reasons(fit) -> str:
     return ", ".join(str(r) for r in fit.reasons) or "-"
 
 
+def _verdict(p) -> str:
+    return "accepted" if p.accepted else f"rejected ({p.reason})"
+
+
 def _pair(x, fmt="+.3f") -> str:
     return "(" + ", ".join("inf" if not math.isfinite(v) else format(v, fmt) for v in x) + ")"
 
@@ -439,7 +442,7 @@ def profile_report(runs: dict) -> str:
         for r in rows:
             fit, p = r["fit"], r["fit"].profile
             extra = "" if p is None else (
-                f" | accepted {p.accepted}, psf {p.psf_sigma_px:.2f}{'' if p.psf_estimated else ' (given)'}"
+                f" | {_verdict(p)}, psf {p.psf_sigma_px:.2f}{'' if p.psf_estimated else ' (given)'}"
                 f", wings {p.wing_fraction:.2f}, law amp {p.shape_amplitude:+.3f}, walk {p.walk_px:.2f}")
             out.append(f"  d={_pair(r['displacement'], '+.2f'):16s} offset {_pair(fit.offset_vu)} "
                        f"err {_pair(r['error'], '+.4f')} /sigma {_pair(r['error_sigmas'], '.2f')} "
@@ -449,11 +452,20 @@ def profile_report(runs: dict) -> str:
     names = sorted({n for n, _ in runs["halves"]}, key=list(runs["tethys"]).index)
     for name in names:
         h = {half: runs["halves"][(name, half)] for half in ("left", "right", "top", "bottom")}
-        cells = "  ".join(f"{k} {_pair(f.offset_vu)} {f.status}" for k, f in h.items())
+        out.append(f"-- {name}")
+        for half, f in h.items():
+            p = f.profile
+            extra = "" if p is None else (
+                f" | {_verdict(p)}, gain {p.gain:.0f}, law amp {p.shape_amplitude:+.3f}"
+                f", walk {p.walk_px:.2f}")
+            out.append(f"   {half:6s} offset {_pair(f.offset_vu)} {f.status} [{_reasons(f)}]{extra}")
         du = h["left"].offset_vu[1] - h["right"].offset_vu[1]
         dv = h["top"].offset_vu[0] - h["bottom"].offset_vu[0]
-        out.append(f"-- {name}: {cells}")
-        out.append(f"   left - right du {du:+.3f} px; top - bottom dv {dv:+.3f} px")
+        mean_u = 0.5 * (h["left"].offset_vu[1] + h["right"].offset_vu[1])
+        mean_v = 0.5 * (h["top"].offset_vu[0] + h["bottom"].offset_vu[0])
+        full = runs["tethys"][name][0]["fit"].offset_vu
+        out.append(f"   left - right du {du:+.3f} px; top - bottom dv {dv:+.3f} px; halves' means "
+                   f"(v {mean_v:+.3f}, u {mean_u:+.3f}) against the full limb's {_pair(full)}")
     out.append("")
     out.append(f"== Tethys: Minnaert k={geo['k']:.3f} at the sidecar's phase "
                f"{geo['phase']} deg, Sun direction scanned (drawn pose) ==")
