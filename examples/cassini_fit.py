@@ -428,10 +428,12 @@ def profile_report(runs: dict) -> str:
                "the limb on the far side: none to fit")
     out.append("Minnaert k from the disc's radial medians: " + ", ".join(
         f"{lo}-{hi}: {k:.3f}" for (lo, hi), k in zip(MINNAERT_RANGES, geo["k_ranges"], strict=True)))
-    out.append(f"disc first harmonic: {sun['harmonic_amplitude']:.1f} DN toward "
-               f"ill {sun['harmonic_ill_deg']:.0f} deg in every annulus; the phase's predicted "
-               f"{sun['predicted_amplitude'][0]:.1f}-{sun['predicted_amplitude'][-1]:.1f} DN "
-               "(growing toward the limb)")
+    amp = np.hypot(*sun["harmonic_vu"].T)
+    out.append(f"disc first harmonic: {amp.min():.1f}-{amp.max():.1f} DN over the annuli "
+               f"{SUN_ANNULI[0]:.2f}-{SUN_ANNULI[-1]:.3f} R (mean {sun['harmonic_amplitude']:.1f}), "
+               f"toward ill {sun['harmonic_ill_deg']:.0f} deg; the phase's predicted "
+               f"{sun['predicted_amplitude'][0]:.1f}-{sun['predicted_amplitude'][-1]:.1f} DN, "
+               "growing toward the limb")
     out.append(f"fitted illumination component |s| = {sun['s_norm']:.2f} of the predicted "
                f"(direction {sun['s_ill_deg']:.0f} deg): the Sun's direction is not seen")
     out.append("")
@@ -443,7 +445,8 @@ def profile_report(runs: dict) -> str:
             fit, p = r["fit"], r["fit"].profile
             extra = "" if p is None else (
                 f" | {_verdict(p)}, psf {p.psf_sigma_px:.2f}{'' if p.psf_estimated else ' (given)'}"
-                f", wings {p.wing_fraction:.2f}, law amp {p.shape_amplitude:+.3f}, walk {p.walk_px:.2f}")
+                f", wings {p.wing_fraction:.2f}, law amp {p.shape_amplitude:+.3f}, gain {p.gain:.0f}"
+                f", step {p.step_jump:.2f}, walk {p.walk_px:.2f}")
             out.append(f"  d={_pair(r['displacement'], '+.2f'):16s} offset {_pair(fit.offset_vu)} "
                        f"err {_pair(r['error'], '+.4f')} /sigma {_pair(r['error_sigmas'], '.2f')} "
                        f"sigma {_pair(fit.sigma_vu, '.4f')} {fit.status} [{_reasons(fit)}]{extra}")
