@@ -18,10 +18,31 @@ Tolerances, from the data:
   measure ~0.5 px).
 * Keeler ring, 0.5 px across the edge: only the normal component is
   observable. Along the edge nothing is measured (rank 1).
+
+The profile comparison (``examples/cassini_fit.py --profile``, whose
+functions these tests call; docs/cassini.rst, "Fitting with the profile")
+holds what was measured there:
+
+* Recovery with a profile: within one sigma of the difference of the
+  displaced and the base fit, ``hypot`` of their two sigmas per axis
+  (measured: at most 0.34 of it).
+* Statuses: the plain fit ``ok`` declared or not, its sigma grown by the
+  declared limb's floor; a Lambert profile at phase 0 ``suspect`` with
+  ``soft_edge`` alone; Minnaert's ``ok``, both accepted.
+* The disc: Minnaert's exponent 0.55 within 0.01 on every annulus range
+  (measured 0.548-0.551); the Sun's in-image direction not seen, an
+  illumination component under half the predicted (measured 0.13).
+* Opposite halves of the limb fitted alone: top and bottom 1.50 px apart
+  in ``v`` plain and 0.06 px with Minnaert's profile (held: above 1 and
+  below 0.25 px); left and right 1.66 and 1.47 px apart in ``u`` (held:
+  both above 1.2 px), the drawn model's shape, which no profile removes.
+* The Keeler ring with a step profile: refused (``profile_rejected``), the
+  pose exactly the plain fit's.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 from pathlib import Path
@@ -158,3 +179,104 @@ def test_keeler_covariance_reports_the_along_edge_direction_unobservable(keeler)
     assert np.all(np.isinf(fit.uncertainty.covariance_unobservable_inf))
     # The across-edge uncertainty stays finite and sub-pixel.
     assert 0.0 < fit.sigma_along(n) < 0.2
+
+
+def _example():
+    """``examples/cassini_fit.py`` as a module (the comparison's own functions)."""
+    path = Path(__file__).resolve().parents[1] / "examples" / "cassini_fit.py"
+    spec = importlib.util.spec_from_file_location("cassini_fit_example", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def example():
+    return _example()
+
+
+@pytest.fixture(scope="module")
+def tethys_geo(example, tethys):
+    return example.tethys_geometry(DATA)
+
+
+def _reasons(fit):
+    return [str(r) for r in fit.reasons]
+
+
+def test_tethys_profile_geometry(example, tethys_geo):
+    geo = tethys_geo
+    assert geo["phase"] == pytest.approx(1.532)
+    # At that phase the terminator hugs the far limb: nothing to fit.
+    assert geo["radius"] * (1.0 - math.cos(math.radians(geo["phase"]))) < 0.2
+    assert all(abs(k - 0.55) < 0.01 for k in geo["k_ranges"])
+    sun = geo["sun"]
+    assert sun["harmonic_amplitude"] > 10.0  # an albedo pattern, flat across the annuli
+    assert sun["s_norm"] < 0.5  # the phase's limb-ward growth is not there
+
+
+@pytest.mark.parametrize(
+    ("method", "status", "reasons", "accepted"),
+    [
+        ("plain, edge_kind undeclared", "ok", [], None),
+        ("plain, edge_kind='limb'", "ok", [], None),
+        ("Lambert, phase 0", "suspect", ["soft_edge"], True),
+        ("Minnaert k={k:.3f}, phase 0", "ok", [], True),
+    ],
+)
+def test_tethys_profile_and_plain_fits(example, tethys, tethys_geo, method, status, reasons,
+                                       accepted):
+    products = tethys[3]
+    kw = example.tethys_methods(tethys_geo)[method.format(k=tethys_geo["k"])]
+    limb, window = tethys_geo["limb"], example.FRAMES["tethys"]["window"]
+    base = example._fit(products, limb, (0.0, 0.0), window, **kw)
+    d = example.PROFILE_DISPLACEMENTS["tethys"][-1]
+    row = example._row(example._fit(products, limb, d, window, **kw), base, d)
+    for fit in (base, row["fit"]):
+        assert fit.status == status and _reasons(fit) == reasons
+        assert (fit.profile is None) == (accepted is None)
+        if accepted is not None:
+            assert fit.profile.accepted is accepted
+    assert np.all(row["error_sigmas"] <= 1.0), row["error"]
+    plain = example._fit(products, limb, (0.0, 0.0), window)
+    if method == "plain, edge_kind='limb'":
+        assert min(base.sigma_vu) > max(plain.sigma_vu)  # the declared limb's floor
+    if accepted:
+        assert max(base.sigma_vu) < min(plain.sigma_vu)
+
+
+def test_tethys_opposite_halves(example, tethys, tethys_geo):
+    products, geo = tethys[3], tethys_geo
+    limb, window = geo["limb"], example.FRAMES["tethys"]["window"]
+    rel = limb.vertices_vu - np.asarray(geo["center"])
+    halves = {"left": rel[:, 1] < 0, "right": rel[:, 1] >= 0,
+              "top": rel[:, 0] < 0, "bottom": rel[:, 0] >= 0}
+
+    def gaps(law):
+        fits = {}
+        for half, sel in halves.items():
+            kw = {} if law is None else dict(
+                edge_profile=example.limb_profile(geo, sel, law=law))
+            fits[half] = example._fit(products, limb, (0.0, 0.0), window, sel, **kw)
+        return (fits["top"].offset_vu[0] - fits["bottom"].offset_vu[0],
+                fits["left"].offset_vu[1] - fits["right"].offset_vu[1])
+
+    plain_dv, plain_du = gaps(None)
+    prof_dv, prof_du = gaps("minnaert")
+    assert abs(plain_dv) > 1.0 and abs(prof_dv) < 0.25
+    assert plain_du > 1.2 and prof_du > 1.2
+
+
+def test_keeler_step_profile_is_refused_and_the_plain_fit_stands(example):
+    runs = example.keeler_runs(DATA)
+    n = runs["normal"]
+    plain = runs["methods"]["plain, edge_kind undeclared"]
+    for name, rows in runs["methods"].items():
+        for row, ref in zip(rows, plain, strict=True):
+            fit = row["fit"]
+            assert fit.status == "ambiguous" and "rank_deficient" in _reasons(fit)
+            assert fit.offset_vu == ref["fit"].offset_vu
+            assert abs(float(row["error"] @ n)) <= fit.sigma_along(n)
+            if name.startswith("step"):
+                assert not fit.profile.accepted and "profile_rejected" in _reasons(fit)

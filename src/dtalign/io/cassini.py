@@ -3,7 +3,8 @@
 Each is a grey image with the navigation model drawn over it in pure red.
 :func:`load_cassini_overlay_frame` splits it into a clean image and the
 overlay; :func:`overlay_polylines` traces the overlay into model polylines
-with normals. This module reads the PNG through :mod:`dtalign.io.files`.
+with normals; :func:`overlay_circle` gives a limb overlay's circle (the
+centre and radius a sphere model of the body starts from). This module reads the PNG through :mod:`dtalign.io.files`.
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ from numpy.typing import NDArray
 from ..scenes import Polyline
 
 __all__ = [
+    "CIRCLE_BAND_PX",
     "CassiniFrame",
     "load_cassini_overlay_frame",
+    "overlay_circle",
     "overlay_polylines",
 ]
 
@@ -175,6 +178,47 @@ def _ransac_circle(
     return _circle_fit(pts[inliers])
 
 
+#: Overlay pixels within this of a candidate circle (pixels) count for it in
+#: the RANSAC search of a limb: the drawn line is 1-2 px wide, an oblate or
+#: tilted body's limb departs from its best circle by a few pixels, and the
+#: label text lies farther off.
+CIRCLE_BAND_PX = 8.0
+
+
+def overlay_circle(frame: CassiniFrame) -> tuple[tuple[float, float], float]:
+    """The circle a limb overlay is traced about: its centre ``(v, u)`` and radius, pixels.
+
+    The RANSAC circle of the overlay's pixels (:data:`CIRCLE_BAND_PX`),
+    refitted on its inliers: the one :func:`overlay_polylines` orders a
+    limb's vertices by and takes its radial normals from, so a sphere built
+    on it (:func:`dtalign.sphere_edge_profile`) has the traced polyline's
+    normals. It is the drawn model's best circle, not the body: the traced
+    vertices follow the drawn limb (an ellipsoid's, for a non-spherical
+    body) within a few pixels of it.
+
+    Parameters
+    ----------
+    frame : CassiniFrame
+        From :func:`load_cassini_overlay_frame`.
+
+    Returns
+    -------
+    center_vu : tuple of float
+    radius_px : float
+
+    Raises
+    ------
+    ValueError
+        If the overlay has fewer than 10 pixels or no circle.
+    """
+    vv, uu = np.nonzero(frame.overlay_mask)
+    if len(vv) < 10:
+        raise ValueError(f"frame {frame.path} has no overlay to trace ({len(vv)} pixels)")
+    pts = np.column_stack([vv, uu]).astype(np.float64)
+    cv, cu, radius = _ransac_circle(pts, band=CIRCLE_BAND_PX, rng=np.random.default_rng(0))
+    return (cv, cu), radius
+
+
 def _fourier_design(theta: FloatArray, order: int) -> FloatArray:
     cols = [np.ones_like(theta)]
     for k in range(1, order + 1):
@@ -194,11 +238,11 @@ def _limb_polyline(
     one bin per ``spacing`` pixels of arc, and each bin gives the
     strength-weighted mean position: the overlay's sub-pixel centre line.
     """
-    cv, cu, radius = _ransac_circle(pts, band=8.0, rng=np.random.default_rng(0))
+    cv, cu, radius = _ransac_circle(pts, band=CIRCLE_BAND_PX, rng=np.random.default_rng(0))
     rel = pts - (cv, cu)
     theta = np.arctan2(rel[:, 0], rel[:, 1])
     rad = np.hypot(rel[:, 0], rel[:, 1])
-    keep = np.abs(rad - radius) <= 8.0
+    keep = np.abs(rad - radius) <= CIRCLE_BAND_PX
     # Shrinking bands: an ellipse (order 2) first, then order 4, so label
     # text near the limb cannot pull the curve toward itself.
     for order, band in ((2, 3.0), (4, 2.0 * tolerance), (4, tolerance)):
