@@ -175,6 +175,12 @@ class PolylineFit:
         ``(H, W)`` of the image fitted against: what :attr:`outside_image`
         is read against; None for a fit built without it (a dict written
         before it was recorded), which then counts no vertex outside.
+    masked_vertices : int or None
+        How many vertices, at the fitted pose, lie on a bad pixel of the
+        image's mask (:func:`~dtalign.pipeline.products.prepare_image`'s
+        ``mask``): the edge was not measured there
+        (:attr:`~dtalign.pipeline.status.FitReason.MASKED_PIXELS`); None
+        when the image had no bad pixel.
 
     Whether to trust the fit is read by :attr:`status`, :attr:`reasons` and
     :attr:`status_message` (:mod:`dtalign.pipeline.status`); its uncertainty
@@ -208,6 +214,7 @@ class PolylineFit:
     edge_kind: str | None = None
     evidence: Evidence | None = field(default=None, repr=False)
     image_shape: tuple[int, int] | None = field(default=None, repr=False)
+    masked_vertices: int | None = field(default=None, repr=False)
 
     @property
     def n_params(self) -> int:
@@ -421,6 +428,8 @@ class PolylineFit:
             are computed again on loading.
         """
         out = {name: to_json(getattr(self, name)) for name in _WRITTEN}
+        if self.masked_vertices is not None:  # only a masked image's fit has the key
+            out["masked_vertices"] = int(self.masked_vertices)
         out.update((key, to_json(getattr(self.lm, name))) for key, name in _LM_KEYS.items())
         out.update((key, to_json(read(self))) for key, read in _READINGS.items())
         if arrays:  # as they are: their values are finite, or NaN where nothing is
@@ -705,7 +714,8 @@ def _inf(x: Any) -> float:
 #: The fields :meth:`PolylineFit.to_dict` writes as they are (the LM's go by
 #: :data:`_LM_KEYS`; the arrays only with ``arrays=True``).
 _WRITTEN = tuple(f.name for f in dataclasses.fields(PolylineFit)
-                 if f.name not in ("lm", "vertices_vu", "normals_vu", "evidence"))
+                 if f.name not in ("lm", "vertices_vu", "normals_vu", "evidence",
+                                   "masked_vertices"))
 
 #: The LM result's fields in :meth:`PolylineFit.to_dict`, by key.
 _LM_KEYS = {"dt_offset_vu": "offset_vu", "dt_rotation_rad": "rotation_rad",
@@ -858,12 +868,13 @@ def fit_polyline(
     config: ImageDerivativesConfig | None = None,
     edge_profile: Any = None,
     options: FitOptions | None = None,
+    mask: ArrayLike | None = None,
     **overrides: Any,
 ) -> PolylineFit:
     """Fit a model polyline to an image in one call.
 
     Equivalent to ``fit_polyline_products(prepare_image(image, noise_sigma,
-    config=config), vertices_vu, ...)``. To fit several polylines to one image,
+    config=config, mask=mask), vertices_vu, ...)``. To fit several polylines to one image,
     call :func:`~dtalign.pipeline.products.prepare_image` once and
     :func:`fit_polyline_products` per polyline (or
     :func:`~dtalign.pipeline.batch.fit_many`) instead.
@@ -885,6 +896,9 @@ def fit_polyline(
     options : FitOptions, optional
         The call's options (:class:`~dtalign.api.options.FitOptions`);
         the defaults when None.
+    mask : array_like of bool, shape (H, W), optional
+        Bad pixels (True = bad), which the fit ignores; NaN and inf pixels
+        are then bad too (:func:`~dtalign.pipeline.products.prepare_image`).
     **overrides
         Any field of :class:`~dtalign.api.options.FitOptions` by name
         (``search_window_vu``, ``fit_rotation``, ``use_polarity``,
@@ -903,7 +917,7 @@ def fit_polyline(
     >>> [round(x, 1) for x in fit.offset_vu]
     [7.3, -4.6]
     """
-    products = prepare_image(image, noise_sigma, config=config)
+    products = prepare_image(image, noise_sigma, config=config, mask=mask)
     return fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
                                  edge_profile=edge_profile, options=options, **overrides)
 
@@ -978,7 +992,13 @@ def _measured(fit: PolylineFit, products: ImageProducts, profile: Any,
                                     lm.offset_vu[1] - float(beta[1]))
             if beta.shape[0] == 3:
                 changes["rotation_rad"] = lm.rotation_rad - float(beta[2])
-    return dataclasses.replace(fit, **changes)
+    out = dataclasses.replace(fit, **changes)
+    if products.mask is not None:
+        from .masked import masked_vertex_count  # SciPy: only for a masked image
+
+        out = dataclasses.replace(out, masked_vertices=masked_vertex_count(
+            out.transform(out.vertices_vu), products.mask))
+    return out
 
 
 def refined(fit: PolylineFit, products: ImageProducts, profile: Any,
@@ -990,13 +1010,13 @@ def refined(fit: PolylineFit, products: ImageProducts, profile: Any,
     assert products.image is not None
     ref = refine_with_profile(
         products.image, profile, np.asarray(fit.vertices_vu), fit.lm.offset_vu,
-        rotation_rad=fit.rotation_rad, pivot_vu=fit.pivot_vu,
+        rotation_rad=fit.rotation_rad, pivot_vu=fit.pivot_vu, mask=products.mask,
     )
-    return rival_check(fit, ref, products.image, profile, kind)
+    return rival_check(fit, ref, products.image, profile, kind, products.mask)
 
 
 def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, profile: Any,
-                kind: str | None) -> ProfileRefinement:
+                kind: str | None, mask: NDArray[np.bool_] | None = None) -> ProfileRefinement:
     """``ref`` with where the refinement lands from the rival basin's start,
     when ``fit``'s DT stage was ambiguous across the edge and ``ref`` was
     accepted; ``ref`` itself otherwise.
@@ -1014,7 +1034,7 @@ def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, pro
         return ref
     rival = refine_with_profile(image, profile, np.asarray(fit.vertices_vu),
                                 amb.rival.offset_vu, rotation_rad=amb.rival.rotation_rad,
-                                pivot_vu=fit.pivot_vu)
+                                pivot_vu=fit.pivot_vu, mask=mask)
     floor = floor_px("profile_terminator" if kind == "terminator" else "profile", ref)
     cov = np.asarray(ref.covariance, dtype=np.float64) + floor**2 * np.eye(2)
     sigma = math.sqrt(float(np.linalg.eigvalsh(cov).max())) if np.isfinite(cov).all() else math.inf

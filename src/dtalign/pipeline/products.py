@@ -230,6 +230,11 @@ class ImageProducts:
         :func:`prepare_image` for the profile refinement
         (:mod:`dtalign.pipeline.profile_fit`); None in products built
         without it.
+    mask : ndarray of bool, shape (H, W), or None
+        The bad pixels (read-only): the ``mask`` given to
+        :func:`prepare_image` and the image's NaN or inf pixels, which
+        the products were computed without (:mod:`dtalign.pipeline.masked`)
+        and the profile refinement leaves out; None when no pixel is bad.
 
     Instances compare by identity (the arrays have no single truth value).
     """
@@ -244,8 +249,13 @@ class ImageProducts:
     noise_sigma_estimated: bool = False
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
     image: FloatArray | None = field(default=None, repr=False)
+    mask: NDArray[np.bool_] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
+        if self.mask is not None:
+            from .masked import check_mask
+
+            object.__setattr__(self, "mask", _readonly(check_mask(self.mask, self.shape)))
         if self.image is not None:
             if not isinstance(self.image, np.ndarray) or self.image.shape != tuple(self.shape):
                 raise ValueError(f"image must be an ndarray of shape {tuple(self.shape)}")
@@ -274,7 +284,8 @@ class ImageProducts:
 
 
 def prepare_image(
-    image: ArrayLike, noise_sigma: float | None = None, *, config: ImageDerivativesConfig | None = None
+    image: ArrayLike, noise_sigma: float | None = None, *, config: ImageDerivativesConfig | None = None,
+    mask: ArrayLike | None = None,
 ) -> ImageProducts:
     """Compute an image's fitting products once.
 
@@ -291,6 +302,13 @@ def prepare_image(
     config : ImageDerivativesConfig, optional
         Gradient smoothing, edge threshold and DT truncation; defaults when
         None.
+    mask : array_like of bool, shape (H, W), optional
+        Bad pixels (True = bad: saturated, cosmic rays, missing lines). With
+        a mask, NaN and inf pixels are bad too, and the products are
+        computed from the other pixels only (:mod:`dtalign.pipeline.masked`):
+        no edge on a bad pixel, derivatives by normalised convolution, the
+        noise from responses clear of them. An all-False mask on a finite
+        image gives the products of no mask, bit for bit.
 
     Returns
     -------
@@ -299,15 +317,22 @@ def prepare_image(
     Raises
     ------
     TypeError
-        If ``image`` is not a 2-D (or colour) numeric array, or ``config`` is not an
-        :class:`~dtalign.ImageDerivativesConfig`.
+        If ``image`` is not a 2-D (or colour) numeric array, ``config`` is not an
+        :class:`~dtalign.ImageDerivativesConfig`, or ``mask`` is not boolean.
     ValueError
-        If ``image`` is empty or not finite, or ``noise_sigma`` is negative
-        or not finite.
+        If ``image`` is empty or (without a mask) not finite, ``noise_sigma`` is
+        negative or not finite, or ``mask`` does not have the image's shape
+        or masks every pixel.
     """
     # colour: the rule of dtalign.api.colour, said on the logger
     image, note = grey_image(image)
     log_note(note)
+    if mask is not None:
+        from . import masked
+
+        found = masked.bad_pixels(image, mask)
+        if found is not None:
+            return masked.prepare_masked(*found, noise_sigma, resolve_config(config))
     arr = check_image(image, "image")
     cfg = resolve_config(config)
     timings: dict[str, float] = {}
