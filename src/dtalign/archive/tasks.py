@@ -200,12 +200,20 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
     t0 = time.perf_counter()
     stage = "read"
     try:
-        image = io.load_image(item.image_path)
+        masked = item.mask_path is not None or item.mask_nonfinite
+        image = io.load_image(item.image_path, nonfinite=masked)
+        mask = None
+        if item.mask_path is not None:
+            from ..pipeline.masked import load_mask
+
+            mask = load_mask(item.mask_path)
+        elif masked:  # the NaN and inf pixels only
+            mask = np.zeros(image.shape, dtype=bool)
         polylines = [io.load_polyline_csv(p) for p in item.polyline_paths]
         t1 = time.perf_counter()
         stage = "prepare"
         config = ImageDerivativesConfig(**item.config) if item.config else None
-        products = pipeline.prepare_image(image, item.noise_sigma, config=config)
+        products = pipeline.prepare_image(image, item.noise_sigma, config=config, mask=mask)
         t2 = time.perf_counter()
         stage = "fit"
         fits = _fit_polylines(item, products, polylines)
