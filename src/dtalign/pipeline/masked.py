@@ -2,7 +2,7 @@
 
 A mask (``True`` = bad: saturated, a cosmic ray, a missing line, a dead
 column) and every NaN or inf pixel of an image given with one are
-*unmeasured*: :func:`masked_products` computes the products of
+*unmeasured*: :func:`prepare_masked` computes the products of
 :func:`~dtalign.pipeline.products.prepare_image` from the other pixels
 only, so a masked pixel never becomes an edge and does not distort the
 derivatives, the noise estimate or the profile strips around it:
@@ -117,7 +117,7 @@ def bad_pixels(image: Any, mask: ArrayLike | None) -> tuple[FloatArray, BoolArra
     Raises
     ------
     TypeError, ValueError
-        As :func:`check_image` for the image; as :func:`check_mask` for the
+        As ``check_image`` for the image; as :func:`check_mask` for the
         mask; ValueError when every pixel is bad.
     """
     if mask is None:
