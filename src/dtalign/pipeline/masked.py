@@ -2,7 +2,7 @@
 
 A mask (``True`` = bad: saturated, a cosmic ray, a missing line, a dead
 column) and every NaN or inf pixel of an image given with one are
-*unmeasured*: :func:`prepare_masked` computes the products of
+*unmeasured*: :func:`masked_parts` computes the products of
 :func:`~dtalign.pipeline.products.prepare_image` from the other pixels
 only, so a masked pixel never becomes an edge and does not distort the
 derivatives, the noise estimate or the profile strips around it:
@@ -50,9 +50,10 @@ from numpy.typing import ArrayLike, NDArray
 from ..api.checks import check_image, check_noise_sigma
 from ..api.image import edge_threshold
 from ..api.results import ImageDerivativesConfig
-from ..reference.image import _edge_dt, _edge_mask
+from ..reference.image import clipped_edge_dt, thinned_edges
 from ..reference.noise import MAD_TO_SIGMA, NOISE_KERNEL, NOISE_KERNEL_NORM
-from .products import ImageProducts, _quantised_note, logger
+
+logger = logging.getLogger("dtalign")
 
 __all__ = [
     "MIN_VALID_WEIGHT",
@@ -62,7 +63,7 @@ __all__ = [
     "masked_derivatives",
     "masked_noise_sigma",
     "masked_vertex_count",
-    "prepare_masked",
+    "masked_parts",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -184,16 +185,16 @@ def masked_derivatives(image: FloatArray, bad: BoolArray, noise: float,
     g_u = np.where(measured, scipy.ndimage.sobel(smooth, axis=1, mode="constant", cval=0.0), 0.0)
     magnitude = np.hypot(g_v, g_u)
     # an undefined neighbour may be the larger: no edge is confirmed next to one
-    edges = _edge_mask(g_v, g_u, np.where(measured, magnitude, np.inf),
+    edges = thinned_edges(g_v, g_u, np.where(measured, magnitude, np.inf),
                        edge_threshold(cfg, noise))
     edges &= measured & valid
-    return magnitude, _edge_dt(edges, cfg.dt_half_width_px), np.stack([g_v, g_u], axis=-1)
+    return magnitude, clipped_edge_dt(edges, cfg.dt_half_width_px), np.stack([g_v, g_u], axis=-1)
 
 
-def prepare_masked(image: FloatArray, bad: BoolArray, noise_sigma: float | None,
-                   cfg: ImageDerivativesConfig) -> ImageProducts:
-    """:func:`~dtalign.pipeline.products.prepare_image`'s products of ``image``
-    (bad pixels zeroed, :func:`bad_pixels`) without its ``bad`` pixels.
+def masked_parts(image: FloatArray, bad: BoolArray, noise_sigma: float | None,
+                 cfg: ImageDerivativesConfig) -> dict[str, Any]:
+    """The fields of the :class:`~dtalign.pipeline.products.ImageProducts` of
+    ``image`` (bad pixels zeroed, :func:`bad_pixels`) without its ``bad`` pixels.
 
     The noise is :func:`masked_noise_sigma` unless given, the derivatives
     :func:`masked_derivatives`; the products keep the zero-filled image
@@ -201,16 +202,12 @@ def prepare_masked(image: FloatArray, bad: BoolArray, noise_sigma: float | None,
     """
     t0 = time.perf_counter()
     estimated = noise_sigma is None
-    if estimated:
-        sigma = masked_noise_sigma(image, bad)
-        if logger.isEnabledFor(logging.INFO):
-            _quantised_note(sigma)
-    else:
-        sigma = check_noise_sigma(noise_sigma, "noise_sigma")
+    sigma = (masked_noise_sigma(image, bad) if noise_sigma is None
+             else check_noise_sigma(noise_sigma, "noise_sigma"))
     t1 = time.perf_counter()
     magnitude, edge_dt, gradient_vu = masked_derivatives(image, bad, sigma, cfg)
     logger.debug("masked %d of %d pixels", int(bad.sum()), bad.size)
-    return ImageProducts(
+    return dict(
         shape=(image.shape[0], image.shape[1]), noise_sigma=float(sigma),
         gradient_magnitude=magnitude, edge_dt=edge_dt, gradient_vu=gradient_vu,
         edge_mask=edge_dt <= 0.5, config=cfg, noise_sigma_estimated=estimated,

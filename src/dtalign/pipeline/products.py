@@ -332,7 +332,10 @@ def prepare_image(
 
         found = masked.bad_pixels(image, mask)
         if found is not None:
-            return masked.prepare_masked(*found, noise_sigma, resolve_config(config))
+            parts = masked.masked_parts(*found, noise_sigma, resolve_config(config))
+            if parts["noise_sigma_estimated"] and logger.isEnabledFor(logging.INFO):
+                _quantised_note(parts["noise_sigma"])
+            return ImageProducts(**parts)
     arr = check_image(image, "image")
     cfg = resolve_config(config)
     timings: dict[str, float] = {}
