@@ -5,7 +5,8 @@ in a fresh namespace (a reader copies one block, not the page), and what
 the text around it promises is checked: the guide's builder example fits
 the rendered limb within a few tenths of a pixel and its polyline is the
 scene's, the profiles page's example refines to the planted offset, the
-guide's batch example finds the ring edge of rank 1. ``pycon`` blocks (a
+guide's batch example finds the ring edge of rank 1, the guide's masked fit
+prints what its text says. ``pycon`` blocks (a
 printed result) are not run. ``tests/test_docs_upstream.py`` runs
 docs/upstream.rst's example the same way.
 """
@@ -88,3 +89,11 @@ def test_example_runs_as_written(page, index, code, capsys):
         assert math.dist(fit.lm.offset_vu, scene.true_offset_vu) > 0.1
     elif "navigation_scene" in code:
         assert ns["fits"]["ring"].observable_rank == 1
+    elif "add_defects" in code:
+        # the guide's masked fit: it prints what the text after it says
+        text = " ".join((DOCS / page).read_text(encoding="utf-8").split())
+        promised = re.search(r"It prints ``(.+?)`` \(the error, px\) and ``(.+?)``", text)
+        assert promised is not None
+        assert printed.splitlines() == [promised.group(1), promised.group(2)]
+        fit, scene = ns["fit"], ns["scene"]
+        assert fit.status == "ok" and fit.masked_vertices > 0

@@ -187,6 +187,8 @@ def test_status_values_are_documented_strings():
         "terminator_without_profile", "terminator_imprecise",
         # vertices outside the image
         "outside_image", "outside_image_weighted", "partly_outside_image",
+        # vertices on the image's bad pixels
+        "masked_pixels",
     }
     assert str(FitReason.DEGENERATE) == "degenerate" and FitStatus.FAILED == "failed"
 

@@ -402,6 +402,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
     window = search_window(args.window, "--window", form="option")
     sphere = _sphere_model(args)  # a malformed --sphere is the command's error, before any image
+    mask = _mask(args)  # as is an unreadable --mask
     jobs, batch = _jobs(args)
     zooms, plot_path, output = _outputs(args)
     rows: list[dict[str, Any]] = []  # one per image reported: its fit's to_dict(), or its error
@@ -432,7 +433,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     interrupted = False
     try:
         with _progress(len(jobs), batch and not args.no_progress and not args.json) as progress:
-            fit_images([functools.partial(_load, job, args, sphere) for job in jobs],
+            fit_images([functools.partial(_load, job, args, sphere, mask) for job in jobs],
                        search_window_vu=window, errors="collect", progress=progress,
                        on_image=report, **{k: v for k, v in vars(args).items() if k in NAMES})
     except BaseException as exc:
@@ -588,22 +589,41 @@ def _label_jobs(jobs: list[_Job]) -> None:
         job.plot_name = re.sub(r"[^\w.+-]+", "_", stem)
 
 
-def _load(job: _Job, args: argparse.Namespace, sphere: dict[str, Any] | None,
-          ) -> tuple[Any, float | None, list[Any]]:
+def _mask(args: argparse.Namespace) -> Any:
+    """``--mask FILE`` read (nonzero pixels are bad), None without it."""
+    if args.mask is None:
+        return None
+    from .pipeline.masked import load_mask
+
+    try:
+        return load_mask(args.mask)
+    except (OSError, ValueError) as exc:
+        raise CLIError(f"--mask: {_one_line(exc)}") from None
+
+
+def _load(job: _Job, args: argparse.Namespace, sphere: dict[str, Any] | None, mask: Any = None,
+          ) -> tuple[Any, float | None, list[Any], Any]:
     """Job ``job``'s files read, as an item of :func:`~dtalign.pipeline.batch.fit_images`
     (called in the image's task), with the ``--sphere`` model's edge profile
-    if any; what is said or plotted afterwards is kept on the job."""
+    if any, and its bad pixels: ``mask`` (``--mask``), or none but its NaN
+    and inf pixels with ``--mask-nonfinite``; what is said or plotted
+    afterwards is kept on the job."""
+    import numpy as np
+
     import dtalign.io as io
 
     from .api.profiles import sphere_edge_profile
 
-    image, job.colour = io.read_image(job.image)
+    masked = mask is not None or args.mask_nonfinite
+    image, job.colour = io.read_image(job.image, nonfinite=masked)
+    if mask is None and masked:
+        mask = np.zeros(image.shape, dtype=bool)  # the NaN and inf pixels only
     poly = io.load_polyline_csv(job.polyline)
     if sphere is not None:
         poly = dataclasses.replace(poly, edge_profile=sphere_edge_profile(poly.vertices_vu,
                                                                           **sphere))
     job.loaded = (image, poly)
-    return image, args.noise_sigma, [poly]
+    return image, args.noise_sigma, [poly], mask
 
 
 def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
@@ -860,6 +880,11 @@ _FIT: list[_Option] = [
                       help="search margin in px: N for both axes, or V,U (e.g. 30,20); "
                       f"default {_WINDOW}, as FitOptions.search_window_vu")),
     ("--noise-sigma", dict(type=float, help="image noise sigma (default: estimated)")),
+    ("--mask", dict(metavar="FILE", help="bad-pixel mask for every image (.npy, .png, .fits of "
+                    "the image's shape; nonzero = bad): those pixels, and NaN or inf ones, are "
+                    "ignored")),
+    ("--mask-nonfinite", dict(action="store_true", help="ignore NaN and inf pixels (masked) "
+                              "instead of refusing the image")),
     ("--rotation", _fit_field("fit_rotation", action="store_true",
                               help="also fit an in-plane rotation")),
     ("--ridge", _fit_field("final_gradient_ridge", action="store_true",

@@ -28,7 +28,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 # The model polylines' record and the sphere's limb and terminator are the
 # public builders' (one implementation: a user's builder output is the
@@ -41,8 +41,8 @@ from .api.polylines import (
 )
 
 __all__ = [
-    "Polyline", "Scene", "SphereScene", "disc_scene", "navigation_scene", "render_sphere",
-    "sun_direction_vu",
+    "DEFECTS", "Polyline", "Scene", "SphereScene", "add_defects", "disc_scene", "navigation_scene",
+    "render_sphere", "sun_direction_vu",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -588,3 +588,70 @@ def _camera(signal: FloatArray, background_dn: float, poisson_gain: float | None
     peak_noise = math.sqrt(read_noise_dn**2 + max(shot_peak, 0.0))
     peak_snr = peak / peak_noise if peak_noise > 0.0 else math.inf
     return image, noise_sigma, peak_snr
+
+
+#: The defects :func:`add_defects` plants.
+DEFECTS = ("saturated_blob", "cosmic_rays", "missing_line", "missing_line_nan")
+
+
+def add_defects(
+    image: ArrayLike, kind: str, *, limb_center_vu: tuple[float, float], limb_radius_px: float,
+    saturation_dn: float = 250.0, blob_at_deg: float = 30.0, seed: int = 0,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """A copy of ``image`` with bad pixels planted on a circular limb, and their mask.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        The clean image (a :func:`disc_scene` or :func:`render_sphere` one).
+    kind : str
+        One of :data:`DEFECTS`:
+
+        * ``"saturated_blob"``: the pixels within 6 px of the limb point at
+          ``blob_at_deg`` set to ``saturation_dn``;
+        * ``"cosmic_rays"``: 300 hits anywhere and 80 within 3 px of the
+          limb, each 1 or 2 pixels along a row, adding 200-1000 DN;
+        * ``"missing_line"``: the row half a radius below the centre,
+          which crosses the limb twice, zero-filled;
+        * ``"missing_line_nan"``: the same row set to NaN.
+    limb_center_vu, limb_radius_px
+        The limb the defects sit on, in image pixels.
+    saturation_dn : float
+        The blob's value.
+    blob_at_deg : float
+        Where on the limb the blob sits: the angle from +v toward +u, deg.
+    seed : int
+        Seeds the cosmic rays.
+
+    Returns
+    -------
+    image : ndarray, shape (H, W)
+        The damaged copy (float64).
+    mask : ndarray of bool, shape (H, W)
+        True on every planted bad pixel: what to pass as ``mask``.
+    """
+    img = np.array(image, dtype=np.float64)
+    h, w = img.shape
+    cv, cu = (float(c) for c in limb_center_vu)
+    radius = float(limb_radius_px)
+    mask = np.zeros((h, w), dtype=bool)
+    if kind == "saturated_blob":
+        vv, uu = np.mgrid[0:h, 0:w]
+        phi = np.radians(blob_at_deg)
+        mask = (vv - cv - radius * np.cos(phi)) ** 2 + (uu - cu - radius * np.sin(phi)) ** 2 <= 36.0
+        img[mask] = saturation_dn
+    elif kind == "cosmic_rays":
+        rng = np.random.default_rng(seed)
+        phi = rng.uniform(0.0, 2.0 * np.pi, 80)
+        r = radius + rng.uniform(-3.0, 3.0, 80)
+        rows = np.r_[rng.integers(0, h, 300), np.rint(cv + r * np.cos(phi)).astype(int)]
+        cols = np.r_[rng.integers(0, w, 300), np.rint(cu + r * np.sin(phi)).astype(int)]
+        for a, b, n in zip(rows, cols, rng.integers(1, 3, rows.size), strict=True):
+            mask[a, b : b + n] = True
+        img[mask] += rng.uniform(200.0, 1000.0, int(mask.sum()))
+    elif kind in ("missing_line", "missing_line_nan"):
+        mask[int(round(cv + 0.5 * radius))] = True
+        img[mask] = 0.0 if kind == "missing_line" else np.nan
+    else:
+        raise ValueError(f"kind must be one of {DEFECTS}, got {kind!r}")
+    return img, mask

@@ -1045,6 +1045,17 @@ def path_list(value: Any, name: str, separator: str) -> tuple[str, ...]:
     return tuple(p.strip() for p in paths)
 
 
+def flag(value: Any, name: str) -> bool:
+    """A yes/no field: a JSON bool, or ``true``/``false`` in a CSV cell; False when blank."""
+    if blank(value):
+        return False
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in ("true", "false"):
+        return value.strip().lower() == "true"
+    raise ValueError(f"{name} must be true or false, got {value!r}")
+
+
 def label(value: Any, name: str, default: str) -> str:
     """A name (a string, or an int written as one); ``default`` when blank."""
     if blank(value):

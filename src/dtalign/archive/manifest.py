@@ -44,6 +44,14 @@ Fields (only ``image`` and ``polylines`` are required):
     required; ``edge``, ``law``, ``minnaert_k``, ``psf_sigma_px``
     optional): the fit is then refined with its photometric profile
     (:ref:`profiles`). In a CSV manifest, a JSON list in the cell.
+``mask``
+    Optional: a bad-pixel mask file of the image's shape (anything
+    :func:`dtalign.io.load_image` reads; nonzero = bad). Those pixels, and
+    the image's NaN or inf ones, are ignored
+    (:func:`dtalign.pipeline.prepare_image`'s ``mask``, :ref:`robustness-masks`).
+``mask_nonfinite``
+    Optional, ``true`` or ``false`` (default): without a ``mask``, ignore
+    the image's NaN and inf pixels instead of failing the item.
 
 Relative paths are relative to the manifest's folder. Blank lines, and
 lines starting with ``#``, are skipped. Reading checks the structure of
@@ -76,7 +84,8 @@ PathLike = str | os.PathLike[str]
 DEFAULT_WINDOW = (30, 30)
 
 #: The fields a manifest record may have.
-FIELDS = ("id", "image", "polylines", "noise_sigma", "window", "options", "config", "spheres")
+FIELDS = ("id", "image", "polylines", "noise_sigma", "window", "options", "config", "spheres",
+          "mask", "mask_nonfinite")
 
 #: Keys of a ``spheres`` entry: the keywords of :func:`dtalign.sphere_edge_profile`.
 SPHERE_KEYS = ("center_vu", "radius_px", "phase_deg", "illumination_deg", "edge", "law",
@@ -131,6 +140,12 @@ class Item:
         empty when the manifest gives none.
     line : int
         The manifest line the item came from (for messages).
+    mask : str or None
+        The bad-pixel mask file as the manifest writes it; None without one.
+    mask_path : str or None
+        ``mask`` resolved against the manifest's folder.
+    mask_nonfinite : bool
+        Whether the image's NaN and inf pixels are masked (always, with a ``mask``).
     """
 
     id: str
@@ -144,6 +159,9 @@ class Item:
     config: dict[str, float] = field(default_factory=dict)
     line: int = 0
     spheres: tuple[dict[str, Any] | None, ...] = ()
+    mask: str | None = None
+    mask_path: str | None = None
+    mask_nonfinite: bool = False
 
     @property
     def fingerprint(self) -> str:
@@ -157,6 +175,8 @@ class Item:
                              sorted(self.config.items())]
         if self.spheres:  # an item without spheres keeps the fingerprint it always had
             fields.append(list(self.spheres))
+        if self.mask is not None or self.mask_nonfinite:  # likewise an item without a mask
+            fields.append(["mask", self.mask, self.mask_nonfinite])
         payload = json.dumps(fields, sort_keys=True, default=repr)
         return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
@@ -172,6 +192,10 @@ class Item:
             rec["config"] = dict(self.config)
         if self.spheres:
             rec["spheres"] = list(self.spheres)
+        if self.mask is not None:
+            rec["mask"] = self.mask
+        if self.mask_nonfinite:
+            rec["mask_nonfinite"] = True
         return rec
 
 
@@ -211,6 +235,8 @@ def _item(
     config = check.json_object(record.get("config"), f"{where}: config")
     check.known_names(config, _CONFIG_FIELDS, "config field", where)
     window = record.get("window")
+    mask = None if check.blank(record.get("mask")) else check.path_text(record.get("mask"),
+                                                                        f"{where}: mask")
     return Item(
         id=item_id,
         image=image,
@@ -224,6 +250,9 @@ def _item(
         config=config,
         line=line,
         spheres=_spheres(record.get("spheres"), len(polylines), where),
+        mask=mask,
+        mask_path=None if mask is None else _resolve(base, mask),
+        mask_nonfinite=check.flag(record.get("mask_nonfinite"), f"{where}: mask_nonfinite"),
     )
 
 

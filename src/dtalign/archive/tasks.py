@@ -165,6 +165,14 @@ def fit_rows(item: Item, fits: list[Any], timings: dict[str, Any], *, run_id: st
     return rows
 
 
+def _fraction(region: Any) -> float:
+    """The fraction of the frame ``region`` covers (1 for the whole frame, None)."""
+    if region is None:
+        return 1.0
+    (h, w), (fh, fw) = region.shape, region.frame_shape
+    return h * w / (fh * fw)
+
+
 def _share(timings: dict[str, Any], n: int, k: int) -> float | None:
     """Polyline ``k``'s cost of its item: ``fit_s[k]`` plus its ``1/n`` share of
     ``read_s + prepare_s`` (None when a part is missing)."""
@@ -214,7 +222,15 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
     t0 = time.perf_counter()
     stage = "read"
     try:
-        image = io.load_image(item.image_path)
+        masked = item.mask_path is not None or item.mask_nonfinite
+        image = io.load_image(item.image_path, nonfinite=masked)
+        mask = None
+        if item.mask_path is not None:
+            from ..pipeline.masked import load_mask
+
+            mask = load_mask(item.mask_path)
+        elif masked:  # the NaN and inf pixels only
+            mask = np.zeros(image.shape, dtype=bool)
         polylines = [io.load_polyline_csv(p) for p in item.polyline_paths]
         t1 = time.perf_counter()
         stage = "prepare"
@@ -222,11 +238,11 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
         # the products of the region the polylines reach (dtalign.pipeline.region)
         region = image_region(image, [p.vertices_vu for p in polylines],
                               _options(item), config)
-        products = products_of(image, item.noise_sigma, config, region)
+        products = products_of(image, item.noise_sigma, config, region, mask)
         t2 = time.perf_counter()
         stage = "fit"
-        fits = refit_outside(region, _fit_polylines(item, products, polylines),
-                             lambda redo: _refit(item, image, products, polylines, redo))
+        fits = refit_outside(products.region, _fit_polylines(item, products, polylines),
+                             lambda redo: _refit(item, image, products, polylines, redo, mask))
         t3 = time.perf_counter()
     except Exception as exc:  # the item's own error: recorded, the campaign goes on
         return {"item_id": item.id, "results": [],
@@ -235,8 +251,7 @@ def fit_item(item: Item, run_id: str = "") -> dict[str, Any]:
         "read_s": t1 - t0, "prepare_s": t2 - t1,
         "fit_s": [_fit_seconds(fit, products) for fit in fits], "item_s": t3 - t0,
         "worker": worker, "noise_sigma_estimated": products.noise_sigma_estimated,
-        "region_fraction": 1.0 if region is None
-        else region.shape[0] * region.shape[1] / (region.frame_shape[0] * region.frame_shape[1]),
+        "region_fraction": _fraction(products.region),
         "finished_at": _now(),
     }
     return {"item_id": item.id, "results": fit_rows(item, fits, timings, run_id=run_id),
@@ -284,12 +299,13 @@ def _options(item: Item) -> Any:
 
 
 def _refit(item: Item, image: Any, products: Any, polylines: list[Any],
-           redo: list[int]) -> list[Any]:
+           redo: list[int], mask: Any) -> list[Any]:
     """Polylines ``redo`` fitted again on the frame's products, with the
     noise their region's fits used (their fits left the region)."""
     import dtalign.pipeline as pipeline
 
-    full = pipeline.prepare_image(image, products.noise_sigma, config=products.config)
+    full = pipeline.prepare_image(image, products.noise_sigma, config=products.config,
+                                  mask=mask)
     sub = dataclasses.replace(item, polylines=tuple(item.polylines[i] for i in redo),
                               spheres=tuple(item.spheres[i] for i in redo) if item.spheres
                               else ())

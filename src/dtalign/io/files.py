@@ -110,19 +110,20 @@ def _pillow_array(p: Path) -> np.ndarray:
     )
 
 
-def load_image(path: PathLike) -> FloatArray:
+def load_image(path: PathLike, *, nonfinite: bool = False) -> FloatArray:
     """Read a 2-D image as float64; a colour image's conversion is logged.
 
-    :func:`read_image`, with its note about a colour image logged on the
-    ``dtalign`` logger (``INFO`` for a grey image saved as colour,
-    ``WARNING`` for a colour one read as its luma).
+    :func:`read_image` (``nonfinite`` as there), with its note about a
+    colour image logged on the ``dtalign`` logger (``INFO`` for a grey
+    image saved as colour, ``WARNING`` for a colour one read as its luma).
     """
-    image, note = read_image(path)
+    image, note = read_image(path, nonfinite=nonfinite)
     log_note(note)
     return image
 
 
-def read_image(path: PathLike) -> tuple[FloatArray, Conversion | None]:
+def read_image(path: PathLike, *, nonfinite: bool = False
+               ) -> tuple[FloatArray, Conversion | None]:
     """Read a 2-D image as float64, and say how a colour image was converted.
 
     Parameters
@@ -141,6 +142,10 @@ def read_image(path: PathLike) -> tuple[FloatArray, Conversion | None]:
         ``RGBX`` and ``RGBa`` are converted to RGB by Pillow first. Other
         modes (``LAB``...) and multi-frame files (animations, stacks) are
         refused by name.
+    nonfinite : bool, optional
+        Keep NaN and inf pixels (for a bad-pixel mask to cover them:
+        :func:`dtalign.pipeline.prepare_image`'s ``mask``) instead of
+        refusing the file.
 
     Returns
     -------
@@ -157,7 +162,7 @@ def read_image(path: PathLike) -> tuple[FloatArray, Conversion | None]:
         If the file cannot be read (whatever the reading library raised:
         an empty or truncated file, a header claiming more pixels than
         Pillow's decompression-bomb limit or than the file holds...) or
-        does not hold a non-empty, finite, 2-D image. The message is one
+        does not hold a non-empty, 2-D image, finite unless ``nonfinite``. The message is one
         line and names the file.
     ImportError
         For a FITS file without astropy, or a PNG without Pillow; the
@@ -177,7 +182,7 @@ def read_image(path: PathLike) -> tuple[FloatArray, Conversion | None]:
     if arr.size == 0:
         raise ValueError(f"image {p} is empty (shape {arr.shape})")
     out = np.ascontiguousarray(arr, dtype=np.float64)
-    if not np.isfinite(out).all():
+    if not nonfinite and not np.isfinite(out).all():
         raise ValueError(f"image {p} has NaN or inf pixels")
     return out, note
 

@@ -29,7 +29,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import (
     CancelledError,
     Executor,
@@ -364,21 +364,33 @@ def _log(results: list[Any], label: str) -> None:
             log_fit(r, f"{label}[{i}]")
 
 
-def _image_parts(item: Any, index: int) -> tuple[Any, Any, list[tuple[Any, ...]]]:
-    """``(image, noise_sigma, polylines)`` of an item of :func:`fit_images`."""
-    if isinstance(item, Sequence) and not isinstance(item, (str, bytes)) and len(item) == 3:
-        image, noise, polys = item
+#: The keys of a mapping item of :func:`fit_images` (``image`` and ``polylines`` required).
+_ITEM_KEYS = ("image", "noise_sigma", "polylines", "mask")
+
+
+def _image_parts(item: Any, index: int) -> tuple[Any, Any, list[tuple[Any, ...]], Any]:
+    """``(image, noise_sigma, polylines, mask)`` of an item of :func:`fit_images`."""
+    if isinstance(item, Sequence) and not isinstance(item, (str, bytes)) and len(item) in (3, 4):
+        image, noise, polys, mask = (*item, None) if len(item) == 3 else item
+    elif isinstance(item, Mapping):
+        unknown = sorted(map(str, set(item) - set(_ITEM_KEYS)))
+        if unknown or not {"image", "polylines"} <= set(item):
+            raise TypeError(f"items[{index}] as a mapping needs the keys 'image' and "
+                            f"'polylines' (and may have 'noise_sigma', 'mask'), got "
+                            f"{sorted(map(str, item))}")
+        image, noise, polys, mask = (item.get(k) for k in _ITEM_KEYS)
     elif all(hasattr(item, a) for a in ("image", "noise_sigma", "polylines")):
         image, noise, polys = item.image, item.noise_sigma, item.polylines
+        mask = getattr(item, "mask", None)
     else:
         raise TypeError(
-            f"items[{index}] must be an (image, noise_sigma, polylines) sequence or have "
-            f"image, noise_sigma and polylines attributes (like dtalign.scenes.Scene), "
-            f"got {type(item).__name__}"
+            f"items[{index}] must be an (image, noise_sigma, polylines[, mask]) sequence, a "
+            f"mapping with those keys, or have image, noise_sigma and polylines attributes "
+            f"(like dtalign.scenes.Scene), got {type(item).__name__}"
         )
     if isinstance(polys, (str, bytes)) or not isinstance(polys, Iterable):
         raise TypeError(f"items[{index}] polylines must be an iterable of polylines")
-    return image, noise, [_polyline(p, j) for j, p in enumerate(polys)]
+    return image, noise, [_polyline(p, j) for j, p in enumerate(polys)], mask
 
 
 def _is_path(image: Any) -> bool:
@@ -389,22 +401,26 @@ def _fit_image(job: tuple[Any, ...], abort: threading.Event | None = None) -> li
     """One image's task: its loader called, its path loaded, its products, its
     polylines serially, stopping between them once ``abort`` (the batch's
     stop) is set. Module level: a process pool pickles it."""
-    image, noise, parts, config, checked, collect, index = job
+    image, noise, parts, mask, config, checked, collect, index = job
     if parts is None:  # a loader (fit_images' callable item): the item is made here
-        image, noise, parts = _image_parts(image(), index)
+        image, noise, parts, mask = _image_parts(image(), index)
     if _is_path(image):
         from ..io.files import load_image
 
-        image = load_image(image)
+        image = load_image(image, nonfinite=mask is not None)
+    if _is_path(mask):
+        from .masked import load_mask
+
+        mask = load_mask(mask)
     # the products of the region its polylines reach (dtalign.pipeline.region);
     # a fit that left it is fitted again on the frame's, with the same noise
     region = image_region(image, [p[0] for p in parts], checked.options, config)
-    products = products_of(image, noise, config, region)
+    products = products_of(image, noise, config, region, mask)
     call = _Call(stop=abort)
     fits = _fit_polylines(products, parts, checked, collect, call)
-    return refit_outside(region, fits, lambda redo: _fit_polylines(
-        prepare_image(image, products.noise_sigma, config=config), [parts[i] for i in redo],
-        checked, collect, call))
+    return refit_outside(products.region, fits, lambda redo: _fit_polylines(
+        prepare_image(image, products.noise_sigma, config=config, mask=mask),
+        [parts[i] for i in redo], checked, collect, call))
 
 
 def map_ordered(fn: Callable[[_T], _R], items: Iterable[_T], *,
@@ -519,12 +535,17 @@ def fit_images(items: Iterable[Any], *,
     Parameters
     ----------
     items : iterable
-        ``(image, noise_sigma, polylines)`` sequences or objects with those
-        attributes (like :class:`dtalign.scenes.Scene`); ``image`` an array
-        or a path (loaded in the task, :func:`dtalign.io.load_image`),
+        ``(image, noise_sigma, polylines)`` or ``(image, noise_sigma,
+        polylines, mask)`` sequences, mappings with those keys (``image``
+        and ``polylines`` required), or objects with those attributes
+        (like :class:`dtalign.scenes.Scene`; ``mask`` optional); ``image``
+        an array or a path (loaded in the task, :func:`dtalign.io.load_image`),
         ``noise_sigma`` None to estimate it, ``polylines`` as in
-        :func:`fit_many`. An item may be a loader, a callable returning
-        such an item, called in the image's task.
+        :func:`fit_many`, ``mask`` None, or the image's bad pixels
+        (:func:`~dtalign.pipeline.products.prepare_image`'s ``mask``) as
+        an array or a mask file (nonzero = bad,
+        :func:`~dtalign.pipeline.masked.load_mask`). An item may be a
+        loader, a callable returning such an item, called in the image's task.
     options, **overrides
         As in :func:`fit_many`, for every polyline.
     workers : int, optional
@@ -570,7 +591,7 @@ def fit_images(items: Iterable[Any], *,
         raise TypeError(f"config must be an ImageDerivativesConfig, got {type(config).__name__}")
     progress = _check_progress(progress)
     checked = _jobs.check_options(resolve(options, overrides))
-    jobs = [((item, None, None) if callable(item) else _image_parts(item, i))
+    jobs = [((item, None, None, None) if callable(item) else _image_parts(item, i))
             + (config, checked, collect, i) for i, item in enumerate(items)]
 
     def work(call: _Call) -> list[Any]:

@@ -176,6 +176,12 @@ class PolylineFit:
         ``(H, W)`` of the image fitted against: what :attr:`outside_image`
         is read against; None for a fit built without it (a dict written
         before it was recorded), which then counts no vertex outside.
+    masked_vertices : int or None
+        How many vertices, at the fitted pose, lie on a bad pixel of the
+        image's mask (:func:`~dtalign.pipeline.products.prepare_image`'s
+        ``mask``): the edge was not measured there
+        (:attr:`~dtalign.pipeline.status.FitReason.MASKED_PIXELS`); None
+        when the image had no bad pixel.
 
     Whether to trust the fit is read by :attr:`status`, :attr:`reasons` and
     :attr:`status_message` (:mod:`dtalign.pipeline.status`); its uncertainty
@@ -209,6 +215,7 @@ class PolylineFit:
     edge_kind: str | None = None
     evidence: Evidence | None = field(default=None, repr=False)
     image_shape: tuple[int, int] | None = field(default=None, repr=False)
+    masked_vertices: int | None = field(default=None, repr=False)
 
     @property
     def n_params(self) -> int:
@@ -422,6 +429,8 @@ class PolylineFit:
             are computed again on loading.
         """
         out = {name: to_json(getattr(self, name)) for name in _WRITTEN}
+        if self.masked_vertices is not None:  # only a masked image's fit has the key
+            out["masked_vertices"] = int(self.masked_vertices)
         out.update((key, to_json(getattr(self.lm, name))) for key, name in _LM_KEYS.items())
         out.update((key, to_json(read(self))) for key, read in _READINGS.items())
         if arrays:  # as they are: their values are finite, or NaN where nothing is
@@ -706,7 +715,8 @@ def _inf(x: Any) -> float:
 #: The fields :meth:`PolylineFit.to_dict` writes as they are (the LM's go by
 #: :data:`_LM_KEYS`; the arrays only with ``arrays=True``).
 _WRITTEN = tuple(f.name for f in dataclasses.fields(PolylineFit)
-                 if f.name not in ("lm", "vertices_vu", "normals_vu", "evidence"))
+                 if f.name not in ("lm", "vertices_vu", "normals_vu", "evidence",
+                                   "masked_vertices"))
 
 #: The LM result's fields in :meth:`PolylineFit.to_dict`, by key.
 _LM_KEYS = {"dt_offset_vu": "offset_vu", "dt_rotation_rad": "rotation_rad",
@@ -859,15 +869,17 @@ def fit_polyline(
     config: ImageDerivativesConfig | None = None,
     edge_profile: Any = None,
     options: FitOptions | None = None,
+    mask: ArrayLike | None = None,
     **overrides: Any,
 ) -> PolylineFit:
     """Fit a model polyline to an image in one call.
 
     The answer of ``fit_polyline_products(prepare_image(image, noise_sigma,
-    config=config), vertices_vu, ...)`` (offsets within 1e-9 px, the same
-    status), computed on the region of the frame the polyline can reach
-    (:mod:`dtalign.pipeline.region`, :ref:`region`), with the noise
-    estimated on the region's pixels when not given. To fit several
+    config=config, mask=mask), vertices_vu, ...)`` (offsets within 1e-9 px,
+    the same status), computed on the region of the frame the polyline can
+    reach (:mod:`dtalign.pipeline.region`, :ref:`region`), with the noise
+    estimated on the region's pixels when not given (an image with bad
+    pixels: the masked products of the whole frame). To fit several
     polylines to one image, use :func:`~dtalign.pipeline.batch.fit_images`
     (their one region), or :func:`~dtalign.pipeline.products.prepare_image`
     once and :func:`fit_polyline_products` per polyline (or
@@ -891,6 +903,9 @@ def fit_polyline(
     options : FitOptions, optional
         The call's options (:class:`~dtalign.api.options.FitOptions`);
         the defaults when None.
+    mask : array_like of bool, shape (H, W), optional
+        Bad pixels (True = bad), which the fit ignores; NaN and inf pixels
+        are then bad too (:func:`~dtalign.pipeline.products.prepare_image`).
     **overrides
         Any field of :class:`~dtalign.api.options.FitOptions` by name
         (``search_window_vu``, ``fit_rotation``, ``use_polarity``,
@@ -914,11 +929,11 @@ def fit_polyline(
         region = image_region(image, [verts], resolve(options, overrides), config)
     except (TypeError, ValueError):
         region = None
-    products = products_of(image, noise_sigma, config, region)
+    products = products_of(image, noise_sigma, config, region, mask)
     fit = fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
                                 edge_profile=edge_profile, options=options, **overrides)
-    if not holds(region, fit):  # it left the region: the frame's products, the same noise
-        products = prepare_image(image, products.noise_sigma, config=config)
+    if not holds(products.region, fit):  # it left the region: the frame's, the same noise
+        products = prepare_image(image, products.noise_sigma, config=config, mask=mask)
         fit = fit_polyline_products(products, vertices_vu, normals_vu, sigmas,
                                     edge_profile=edge_profile, options=options, **overrides)
     return fit
@@ -1012,7 +1027,13 @@ def _measured(fit: PolylineFit, products: ImageProducts, profile: Any,
                                     lm.offset_vu[1] - float(beta[1]))
             if beta.shape[0] == 3:
                 changes["rotation_rad"] = lm.rotation_rad - float(beta[2])
-    return dataclasses.replace(fit, **changes)
+    out = dataclasses.replace(fit, **changes)
+    if products.mask is not None:
+        from .masked import masked_vertex_count  # SciPy: only for a masked image
+
+        out = dataclasses.replace(out, masked_vertices=masked_vertex_count(
+            out.transform(out.vertices_vu), products.mask))
+    return out
 
 
 def refined(fit: PolylineFit, products: ImageProducts, profile: Any,
@@ -1024,13 +1045,13 @@ def refined(fit: PolylineFit, products: ImageProducts, profile: Any,
     assert products.image is not None
     ref = refine_with_profile(
         products.image, profile, np.asarray(fit.vertices_vu), fit.lm.offset_vu,
-        rotation_rad=fit.rotation_rad, pivot_vu=fit.pivot_vu,
+        rotation_rad=fit.rotation_rad, pivot_vu=fit.pivot_vu, mask=products.mask,
     )
-    return rival_check(fit, ref, products.image, profile, kind)
+    return rival_check(fit, ref, products.image, profile, kind, products.mask)
 
 
 def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, profile: Any,
-                kind: str | None) -> ProfileRefinement:
+                kind: str | None, mask: NDArray[np.bool_] | None = None) -> ProfileRefinement:
     """``ref`` with where the refinement lands from the rival basin's start,
     when ``fit``'s DT stage was ambiguous across the edge and ``ref`` was
     accepted; ``ref`` itself otherwise.
@@ -1048,7 +1069,7 @@ def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, pro
         return ref
     rival = refine_with_profile(image, profile, np.asarray(fit.vertices_vu),
                                 amb.rival.offset_vu, rotation_rad=amb.rival.rotation_rad,
-                                pivot_vu=fit.pivot_vu)
+                                pivot_vu=fit.pivot_vu, mask=mask)
     floor = floor_px("profile_terminator" if kind == "terminator" else "profile", ref)
     cov = np.asarray(ref.covariance, dtype=np.float64) + floor**2 * np.eye(2)
     sigma = math.sqrt(float(np.linalg.eigvalsh(cov).max())) if np.isfinite(cov).all() else math.inf

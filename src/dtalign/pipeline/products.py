@@ -236,6 +236,11 @@ class ImageProducts:
         cover (:mod:`dtalign.pipeline.region`): ``shape`` is then the
         crop's, and the fits on these products work in its pixels and
         report the frame's.
+    mask : ndarray of bool, shape (H, W), or None
+        The bad pixels (read-only): the ``mask`` given to
+        :func:`prepare_image` and the image's NaN or inf pixels, which
+        the products were computed without (:mod:`dtalign.pipeline.masked`)
+        and the profile refinement leaves out; None when no pixel is bad.
 
     Instances compare by identity (the arrays have no single truth value).
     """
@@ -251,8 +256,13 @@ class ImageProducts:
     timings_s: dict[str, float] = field(default_factory=dict, repr=False)
     image: FloatArray | None = field(default=None, repr=False)
     region: Region | None = field(default=None, repr=False)
+    mask: NDArray[np.bool_] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
+        if self.mask is not None:
+            from .masked import check_mask
+
+            object.__setattr__(self, "mask", _readonly(check_mask(self.mask, self.shape)))
         if self.image is not None:
             if not isinstance(self.image, np.ndarray) or self.image.shape != tuple(self.shape):
                 raise ValueError(f"image must be an ndarray of shape {tuple(self.shape)}")
@@ -281,7 +291,8 @@ class ImageProducts:
 
 
 def prepare_image(
-    image: ArrayLike, noise_sigma: float | None = None, *, config: ImageDerivativesConfig | None = None
+    image: ArrayLike, noise_sigma: float | None = None, *, config: ImageDerivativesConfig | None = None,
+    mask: ArrayLike | None = None,
 ) -> ImageProducts:
     """Compute an image's fitting products once.
 
@@ -298,6 +309,13 @@ def prepare_image(
     config : ImageDerivativesConfig, optional
         Gradient smoothing, edge threshold and DT truncation; defaults when
         None.
+    mask : array_like of bool, shape (H, W), optional
+        Bad pixels (True = bad: saturated, cosmic rays, missing lines). With
+        a mask, NaN and inf pixels are bad too, and the products are
+        computed from the other pixels only (:mod:`dtalign.pipeline.masked`):
+        no edge on a bad pixel, derivatives by normalised convolution, the
+        noise from responses clear of them. An all-False mask on a finite
+        image gives the products of no mask, bit for bit.
 
     Returns
     -------
@@ -306,28 +324,42 @@ def prepare_image(
     Raises
     ------
     TypeError
-        If ``image`` is not a 2-D (or colour) numeric array, or ``config`` is not an
-        :class:`~dtalign.ImageDerivativesConfig`.
+        If ``image`` is not a 2-D (or colour) numeric array, ``config`` is not an
+        :class:`~dtalign.ImageDerivativesConfig`, or ``mask`` is not boolean.
     ValueError
-        If ``image`` is empty or not finite, or ``noise_sigma`` is negative
-        or not finite.
+        If ``image`` is empty or (without a mask) not finite, ``noise_sigma`` is
+        negative or not finite, or ``mask`` does not have the image's shape
+        or masks every pixel.
     """
-    return products_of(image, noise_sigma, config, None)
+    return products_of(image, noise_sigma, config, None, mask)
 
 
 def products_of(image: ArrayLike, noise_sigma: float | None,
-                config: ImageDerivativesConfig | None, region: Region | None) -> ImageProducts:
+                config: ImageDerivativesConfig | None, region: Region | None,
+                mask: ArrayLike | None = None) -> ImageProducts:
     """:func:`prepare_image` of ``image``, or of ``region``'s crop of a 2-D
     ``image`` (:func:`dtalign.pipeline.region.fit_region`): the crop alone
     is converted, checked and estimated, so pixels outside it are never
-    read."""
+    read. An image with bad pixels (``mask``) gets the masked products of
+    the whole frame (:mod:`dtalign.pipeline.masked`), whatever ``region``."""
+    if mask is not None:
+        # colour: the rule of dtalign.api.colour, said on the logger
+        image, note = grey_image(image)
+        log_note(note)
+        from . import masked
+
+        found = masked.bad_pixels(image, mask)
+        if found is not None:
+            parts = masked.masked_parts(*found, noise_sigma, resolve_config(config))
+            if parts["noise_sigma_estimated"] and logger.isEnabledFor(logging.INFO):
+                _quantised_note(parts["noise_sigma"])
+            return ImageProducts(**parts)
     frame = np.asarray(image) if region is not None else None
     if region is not None and frame is not None and frame.shape == region.frame_shape:
         (v0, u0), (h, w) = region.origin_vu, region.shape
         arr = check_image(frame[v0 : v0 + h, u0 : u0 + w], "image")
     else:
-        # colour: the rule of dtalign.api.colour, said on the logger
-        grey, note = grey_image(image)
+        grey, note = grey_image(image)  # (a no-op on an image made grey above)
         log_note(note)
         arr = check_image(grey, "image")
         region = None

@@ -403,6 +403,7 @@ def refine_with_profile(
     rotation_rad: float = 0.0,
     pivot_vu: tuple[float, float] | None = None,
     kernels: Any = None,
+    mask: NDArray[np.bool_] | None = None,
 ) -> ProfileRefinement:
     """Refine a DT-LM offset against ``image`` with ``profile`` (see the module).
 
@@ -421,6 +422,9 @@ def refine_with_profile(
     kernels : module, optional
         The implementation: ``dtalign._kernels.profile`` (default) or
         :mod:`dtalign.reference.profile`.
+    mask : ndarray of bool, shape (H, W), optional
+        Bad pixels (``ImageProducts.mask``): the strips' pixels on them are
+        left out of every fit and scan, as if outside the image.
 
     Returns
     -------
@@ -430,6 +434,8 @@ def refine_with_profile(
         kernels = loop.profile_kernels
     t_start = time.perf_counter()
     pb = _problem(image, profile, vertices_vu, dt_offset_vu, rotation_rad, pivot_vu, kernels)
+    if mask is not None:
+        pb = pb._replace(mask=mask)
     # contrast-weighted step fraction: is there an edge at all?
     contrast = np.ptp(pb.values[:, pb.j0 : pb.j0 + pb.nb], axis=1)
     step_jump = _weighted_median(np.asarray(profile.step_jump), contrast)
@@ -681,13 +687,11 @@ def _scan_start(pb: _Problem, sigma: float) -> tuple[float, float]:
         return pb.d0
     nbar = nbar / norm
     b, c, d, t0, ht = k.tables(pb.values, pb.o0, pb.h, pb.j0, pb.nb, sigma)
-    hgt, wid = pb.image.shape
     ts = np.arange(-SCAN_DARK_PX, SCAN_LIT_PX + 0.5 * SCAN_STEP_PX, SCAN_STEP_PX)
     scores = np.full(ts.shape[0], -np.inf)
     for q, t in enumerate(ts):
         off = np.asarray(pb.d0) + t * nbar
-        kk, ii, jj = k.select_pixels(hgt, wid, np.ascontiguousarray(pb.verts + off), pb.normals,
-                                     pb.tau, HALF_WIDTH_PX)
+        kk, ii, jj = _strips(pb, np.ascontiguousarray(pb.verts + off), pb.normals, pb.tau)
         if ii.shape[0] < 3:
             continue
         obs = np.ascontiguousarray(pb.image[ii, jj])
@@ -729,6 +733,19 @@ class _Problem(NamedTuple):
     d0: tuple[float, float]  #: the DT-LM offset, the start
     kernels: Any
     fit_slope: bool = FIT_SLOPE  #: fit the background slope (:data:`FIT_SLOPE`; not a terminator's)
+    mask: NDArray[np.bool_] | None = None  #: bad pixels, left out of the strips
+
+
+def _strips(pb: _Problem, verts: FloatArray, normals: FloatArray, tau: FloatArray
+            ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """The strips' pixels ``(vertex, row, column)`` of ``verts`` (the kernels'
+    ``select_pixels``), less those on ``pb.mask``."""
+    hgt, wid = pb.image.shape
+    kk, ii, jj = pb.kernels.select_pixels(hgt, wid, verts, normals, tau, HALF_WIDTH_PX)
+    if pb.mask is not None:
+        keep = ~pb.mask[ii, jj]
+        kk, ii, jj = (np.ascontiguousarray(a[keep]) for a in (kk, ii, jj))
+    return kk, ii, jj
 
 
 def _problem(image: FloatArray, profile: EdgeProfile, vertices_vu: ArrayLike,
@@ -767,9 +784,7 @@ def _run(pb: _Problem, idx: NDArray[np.int64] | None, params: FloatArray, fit_si
     if idx is not None:
         arrays = tuple(np.ascontiguousarray(a[idx]) for a in arrays)
     v, nrm, cv, val, shp, tm = arrays
-    hgt, wid = pb.image.shape
-    kk, ii, jj = k.select_pixels(hgt, wid, np.ascontiguousarray(v + np.asarray(pb.d0)), nrm, tm,
-                                 HALF_WIDTH_PX)
+    kk, ii, jj = _strips(pb, np.ascontiguousarray(v + np.asarray(pb.d0)), nrm, tm)
     obs = np.ascontiguousarray(pb.image[ii, jj])
     pv = ii.astype(np.float64)
     pu = jj.astype(np.float64)

@@ -73,6 +73,7 @@ class FitReason(_Text):
     OUTSIDE_IMAGE = "outside_image"
     OUTSIDE_IMAGE_WEIGHTED = "outside_image_weighted"
     PARTLY_OUTSIDE_IMAGE = "partly_outside_image"
+    MASKED_PIXELS = "masked_pixels"
     ALL_POLARITY_REJECTED = "all_polarity_rejected"
     MOST_POLARITY_REJECTED = "most_polarity_rejected"
     DEGENERATE = "degenerate"
@@ -151,6 +152,12 @@ REASONS: dict[FitReason, Reason] = {
         "weight and none outside did: the inside ones alone measure the pose and its sigmas.",
         _HEAD + ": the pose is measured by the {n_in} inside ({inliers_in} inliers), its "
         "sigmas by their geometry"),
+    FitReason.MASKED_PIXELS: Reason(
+        _OK, "some vertices lie on bad pixels of the image's mask (``prepare_image(..., "
+        "mask=...)``), where no edge was measured: the pose and its sigmas rest on the others "
+        "(:ref:`robustness-masks`).",
+        "{fit.masked_vertices} of {n} vertices lie on masked pixels: no edge was measured "
+        "there, the pose rests on the others"),
     FitReason.ALL_POLARITY_REJECTED: Reason(
         _FAILED, "no vertex inside the image has a normal that points up the image gradient: "
         "flip the normals, or there is no gradient under the polyline (comes with "
@@ -280,6 +287,7 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
         R.MOST_POLARITY_REJECTED: rejected != n_in and 2 * rejected > n_in,
         R.DEGENERATE: lm.degenerate,
         R.AT_WINDOW_EDGE: fit.at_window_edge,
+        R.MASKED_PIXELS: bool(getattr(fit, "masked_vertices", None)),
     }
     if not lm.degenerate:  # nothing was measured: the rest means nothing
         given = profile is not None

@@ -51,8 +51,10 @@ def _neighbour(mag: FloatArray, dv: int, du: int) -> FloatArray:
     return padded[1 + dv : 1 + dv + h, 1 + du : 1 + du + w]
 
 
-def _edge_mask(g_v: FloatArray, g_u: FloatArray, mag: FloatArray, threshold: float) -> np.ndarray:
-    """Non-maximum suppression along the quantised gradient direction."""
+def thinned_edges(g_v: FloatArray, g_u: FloatArray, mag: FloatArray, threshold: float
+                  ) -> np.ndarray:
+    """The edge pixels: non-maximum suppression of ``mag`` along the quantised
+    gradient direction, then ``mag > threshold`` (:ref:`contract-image`)."""
     av = np.abs(g_v)
     au = np.abs(g_u)
     horizontal = au >= av * _SECTOR_K
@@ -73,7 +75,9 @@ def _edge_mask(g_v: FloatArray, g_u: FloatArray, mag: FloatArray, threshold: flo
     return keep & (mag > threshold)
 
 
-def _edge_dt(edges: np.ndarray, half_width: float) -> FloatArray:
+def clipped_edge_dt(edges: np.ndarray, half_width: float) -> FloatArray:
+    """The Euclidean distance to the nearest of ``edges``, clipped at ``half_width``
+    (all ``half_width`` without edges)."""
     if not edges.any():
         return np.full(edges.shape, half_width)
     dist = scipy.ndimage.distance_transform_edt(~edges)
@@ -103,5 +107,5 @@ def compute_all_image_derivatives(
     g_u = grad[..., 1]
     magnitude = np.hypot(g_v, g_u)
     threshold = cfg.edge_threshold_k_sigma * max(noise, NOISE_SIGMA_FLOOR)
-    edges = _edge_mask(g_v, g_u, magnitude, threshold)
-    return magnitude, _edge_dt(edges, cfg.dt_half_width_px), grad
+    edges = thinned_edges(g_v, g_u, magnitude, threshold)
+    return magnitude, clipped_edge_dt(edges, cfg.dt_half_width_px), grad
