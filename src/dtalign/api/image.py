@@ -66,6 +66,20 @@ def _gaussian_weights(sigma: float) -> FloatArray:
     return np.ascontiguousarray(phi[::-1], dtype=np.float64)
 
 
+def support_px(cfg: ImageDerivativesConfig) -> int:
+    """How far from a pixel the image decides its products under ``cfg``, pixels.
+
+    The edge DT at a pixel is the distance to the nearest edge pixel within
+    ``dt_half_width_px``; whether a pixel is an edge depends on the image
+    within the Gaussian's radius (:func:`_gaussian_weights`), the Sobel
+    step and the thinning's neighbours (one pixel each). A crop of an image
+    padded by this much gives the whole image's products inside the padding
+    (:mod:`dtalign.pipeline.region`).
+    """
+    radius = (len(_gaussian_weights(cfg.image_gradient_sigma_px)) - 1) // 2
+    return int(math.floor(cfg.dt_half_width_px)) + 1 + radius + 2
+
+
 def _column_cap(half_width: float, shape: tuple[int, int]) -> float:
     """Cap of the 1-D column distances that leaves the clipped DT exact.
 

@@ -282,7 +282,7 @@ def measure_region(inputs: Inputs, repeats: int, min_sample_s: float) -> list[di
       products (``prepare_image`` then ``fit_polyline_products``), the
       pipeline before regions (informational).
     """
-    from .. import compute_all_image_derivatives
+    from ..api.image import compute_all_image_derivatives
     from ..api.profiles import sphere_edge_profile
     from ..pipeline.fit import fit_polyline, fit_polyline_products
     from ..pipeline.products import prepare_image

@@ -80,17 +80,12 @@ class Region(NamedTuple):
 
 
 def support_px(config: ImageDerivativesConfig) -> int:
-    """How far from a pixel the image decides its products, pixels.
+    """How far from a pixel the image decides its products, pixels
+    (:func:`dtalign.api.image.support_px`: the DT's truncation and the
+    derivative kernels' reach)."""
+    from ..api.image import support_px as image_support  # (at call time: it loads the kernels)
 
-    The edge DT at a pixel is the distance to the nearest edge pixel within
-    ``dt_half_width_px``; whether a pixel is an edge depends on the image
-    within the Gaussian's radius, the Sobel step and the thinning's
-    neighbours (one pixel each).
-    """
-    from ..api.image import _gaussian_weights  # (at call time: it loads the kernels)
-
-    radius = (len(_gaussian_weights(config.image_gradient_sigma_px)) - 1) // 2
-    return int(math.floor(config.dt_half_width_px)) + 1 + radius + 2
+    return image_support(config)
 
 
 def _reach(vertices: Any, options: Any, profile: Any) -> tuple[float, float, float, float] | None:
