@@ -234,8 +234,11 @@ def test_every_fit_path_reports_the_same_covariance(nav, nav_products) -> None:
                         search_window_vu=(12, 12), noise_sigma=nav.noise_sigma)
     (many,) = fit_many(nav_products, [limb], search_window_vu=(12, 12), workers=1)
     assert one.uncertainty is not None and one.uncertainty.source == "dt"
-    for other in (call, many):
-        np.testing.assert_array_equal(other.covariance, one.covariance)
+    np.testing.assert_array_equal(many.covariance, one.covariance)
+    # the one-call fit reads the region its polyline reaches, in the crop's
+    # pixels (tests/test_region.py: the frame's pose within 1e-9 px), so its
+    # samples round differently in the last bits: the same covariance to 1e-9
+    np.testing.assert_allclose(call.covariance, one.covariance, rtol=1e-9, atol=0.0)
     # the M-estimator's is the drop-in's, unchanged
     np.testing.assert_array_equal(one.uncertainty.covariance_mestimator, one.lm.covariance)
     assert one.sigma_vu == tuple(math.sqrt(x) for x in np.diag(one.covariance))

@@ -71,7 +71,7 @@ def support_px(cfg: ImageDerivativesConfig) -> int:
 
     The edge DT at a pixel is the distance to the nearest edge pixel within
     ``dt_half_width_px``; whether a pixel is an edge depends on the image
-    within the Gaussian's radius (:func:`_gaussian_weights`), the Sobel
+    within the Gaussian's radius (SciPy's: ``int(4 sigma + 0.5)``), the Sobel
     step and the thinning's neighbours (one pixel each). A crop of an image
     padded by this much gives the whole image's products inside the padding
     (:mod:`dtalign.pipeline.region`).

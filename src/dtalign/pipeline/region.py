@@ -12,15 +12,15 @@ for a fraction of the work (:ref:`region`).
 * :func:`fit_region` is the one place the region is computed, from the
   polylines' vertices, the call's :class:`~dtalign.FitOptions` and the
   :class:`~dtalign.ImageDerivativesConfig`;
-* :func:`prepare_region` computes the products on it (the noise estimated
-  on its pixels when not given);
+* :func:`~dtalign.pipeline.products.products_of` computes the products on
+  it (the noise estimated on its pixels when not given);
 * :func:`holds` tells whether a fit stayed where the region's products
-  equal the frame's. A fit that did not is fitted again on the full frame
-  by the callers (:func:`dtalign.pipeline.fit_polyline`,
-  :func:`dtalign.pipeline.batch.fit_images`).
+  equal the frame's; :func:`refit_outside` fits those that did not again
+  on the full frame, as the callers do (:func:`dtalign.pipeline.fit_polyline`,
+  :func:`dtalign.pipeline.batch.fit_images`, the campaign tasks).
 
-The fits work in the crop's pixel coordinates and report the frame's:
-:func:`dtalign.pipeline.fit.conclude` moves them back.
+The fits work in the crop's pixels and report the frame's: the last step
+of every fit (``dtalign.pipeline.fit.conclude``) moves them back.
 """
 
 from __future__ import annotations
