@@ -292,3 +292,44 @@ def test_bad_arguments_raise_naming_them(builder, name, value, error):
 def test_specific_refusals(call, name, error):
     with pytest.raises(error, match=name):
         call()
+
+
+def _render(center_vu, axes, rotation, phase_deg, ill, shape=(200, 200), sub=4) -> np.ndarray:
+    """A noise-free Lambert image of the ellipsoid, ``sub x sub`` samples a pixel: 10 DN of sky,
+    200 DN of albedo."""
+    m, light = _surface(axes, rotation), _light(phase_deg, ill)
+    fv = (np.arange(shape[0] * sub) + 0.5) / sub - 0.5
+    fu = (np.arange(shape[1] * sub) + 0.5) / sub - 0.5
+    dv, du = np.meshgrid(fv - center_vu[0], fu - center_vu[1], indexing="ij")
+    ci = _cos_i(m, light, np.stack([dv.ravel(), du.ravel()], axis=1))
+    ci = np.nan_to_num(np.clip(ci, 0.0, None)).reshape(shape[0], sub, shape[1], sub)
+    return 10.0 + 200.0 * ci.mean(axis=(1, 3))
+
+
+def test_cli_fit_with_an_ellipsoid_model(tmp_path, capsys):
+    import json
+
+    from dtalign.cli import main
+    from dtalign.io import save_polyline_csv
+
+    rot = _rotation((0.8, 0.3, -0.2, 0.5))
+    axes, truth = (62.0, 50.0, 44.0), (0.6, -1.3)
+    np.save(tmp_path / "e.npy", _render((100.6, 98.7), axes, rot, 50.0, 200.0))
+    model = (100.0, 100.0)
+    save_polyline_csv(tmp_path / "e.csv", ellipsoid_limb_polyline(
+        model, axes, rotation=rot, illumination_deg=200.0, phase_deg=50.0))
+    files = [str(tmp_path / "e.npy"), str(tmp_path / "e.csv"), "--window", "6"]
+    ellipsoid = ",".join(str(x) for x in (*model, *axes, 50.0, 200.0, *rot.ravel()))
+    assert main(["fit", *files, "--ellipsoid", ellipsoid, "--psf-sigma", "0", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["profile"]["accepted"]
+    assert math.dist(d["offset_vu"], truth) < 0.01
+    for argv, message in (
+        (["--ellipsoid", "1,2,3"], "--ellipsoid takes 7 or 16 numbers"),
+        (["--ellipsoid", "1,2,x,4,5,6,7"], "--ellipsoid takes numbers"),
+        (["--ellipsoid", ellipsoid, "--sphere", "1,2,3,4,5"], "exclude each other"),
+        (["--edge", "terminator"], "--edge needs --sphere or --ellipsoid"),
+        (["--ellipsoid", ",".join(["100"] * 7 + ["1"] * 9)], "rotation"),
+    ):
+        assert main(["fit", *files, *argv]) != 0
+        assert message in capsys.readouterr().err
