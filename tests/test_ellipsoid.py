@@ -221,9 +221,12 @@ def test_names_are_exported_lazily():
 
 
 def test_the_docstring_examples_hold():
-    limb = ellipsoid_limb_polyline((150.0, 150.0), (60.0, 80.0, 70.0), illumination_deg=90.0,
-                                   n_vertices=5)
-    assert limb.vertices_vu[2].tolist() == [150.0, 230.0]
+    import doctest
+
+    import dtalign.api.ellipsoid as module
+
+    result = doctest.testmod(module)
+    assert result.attempted >= 6 and result.failed == 0
 
 
 GOOD = dict(center_vu=CENTER, axes_px=(50.0, 40.0, 30.0), illumination_deg=20.0,

@@ -1,6 +1,6 @@
 """Fit a validation scene with dtalign's public API, and score each fit against its truth.
 
-Three fits of every scene, all with ``search_window_vu=(8, 8)``:
+Three fits of every scene (four of an ellipsoid's), all with ``search_window_vu=(8, 8)``:
 
 ``plain``
     the guide's call as a new user writes it: ``fit_polyline(image,

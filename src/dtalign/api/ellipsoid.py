@@ -20,8 +20,9 @@ sphere's result (to rounding).
 
 **The geometry.** The limb is the outline of the ellipsoid, the ellipse
 ``p^T S2^-1 p = 1`` with ``S2`` the image block of ``S = M^-1``; its point
-whose outward normal is ``n`` is ``S2 n / sqrt(n^T S2 n)``, which is how the
-vertices are placed (at the sphere's angles of the normal). The terminator
+where the unit vector ``n`` off the disc is perpendicular to it is ``S2 n /
+sqrt(n^T S2 n)``, which is how the vertices are placed (at the sphere's
+angles of ``n``). The terminator
 is the plane section ``x . (M L) = 0``, the points whose surface normal is
 perpendicular to the Sun; written ``x = S^(1/2) y`` it is a great circle of
 the unit vectors ``y``, walked at the sphere terminator's angles over its
@@ -86,7 +87,8 @@ class _Body:
         self.m = (rot / axes**2) @ rot.T            # x^T M x = 1 on the surface
 
     def outline_point(self, outward: FloatArray) -> FloatArray:
-        """The outline's points (from the centre) whose outward unit normals are ``outward``."""
+        """The outline's points (from the centre) where it is perpendicular to the unit
+        vectors ``outward``, which point off the disc."""
         sp = outward @ self.s[:2, :2]
         return np.asarray(sp / np.sqrt((outward * sp).sum(axis=1))[:, None], dtype=np.float64)
 
@@ -189,14 +191,14 @@ def ellipsoid_limb_polyline(
 ) -> Polyline:
     """The geometric limb of a triaxial ellipsoid: its outline, normals into the disc.
 
-    By default the sunlit half: the part of the outline whose outward normal
-    ``n`` faces the Sun, ``n . s > 0``. At the limb the surface normal is
-    ``(n, 0)``, so ``cos i = sin(phase) n . s`` there, as on a sphere: the
-    lit part of the limb is exactly that half at every phase. The vertex
-    with outward normal ``n`` is ``S2 n / sqrt(n^T S2 n)`` from the centre
-    (the module's *geometry*), at the outward normals' angles
-    :func:`~dtalign.sphere_limb_polyline` places its vertices at; the normals
-    are ``-n``.
+    By default the sunlit half: the part of the outline where the unit
+    vector ``n`` perpendicular to it, pointing off the disc, faces the Sun,
+    ``n . s > 0``. At the limb the surface normal is ``(n, 0)``, so ``cos i
+    = sin(phase) n . s`` there, as on a sphere: the lit part of the limb is
+    exactly that half at every phase. The vertex at ``n`` is ``S2 n /
+    sqrt(n^T S2 n)`` from the centre (the module's *geometry*), ``n`` at the
+    angles of :func:`~dtalign.sphere_limb_polyline`'s vertex directions; the
+    normals are ``-n``, into the disc.
 
     Parameters
     ----------
@@ -337,8 +339,8 @@ def ellipsoid_edge_profile(
         As :func:`~dtalign.sphere_edge_profile`'s.
     edge : {"limb", "terminator"}
         Which edge the vertices lie on. Limb normals point into the disc,
-        against the outline's outward normal at the vertex, its curvature
-        the outline's there; terminator normals point up the gradient of
+        perpendicular to the outline through the vertex (the ellipse
+        ``p^T S2^-1 p = 1``), its curvature the outline's there; terminator normals point up the gradient of
         ``cos i`` at the front surface point under the vertex, its
         curvature the projected terminator's.
 
