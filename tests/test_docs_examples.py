@@ -4,9 +4,10 @@ Every ``.. code-block:: python`` of the two pages is extracted and run, each
 in a fresh namespace (a reader copies one block, not the page), and what
 the text around it promises is checked: the guide's builder example fits
 the rendered limb within a few tenths of a pixel and its polyline is the
-scene's, the profiles page's example refines to the planted offset, the
-guide's batch example finds the ring edge of rank 1, the guide's masked fit
-prints what its text says. ``pycon`` blocks (a
+scene's, its ellipsoid example recovers the planted offset, the profiles
+page's example refines to the planted offset, the guide's batch example
+finds the ring edge of rank 1, the guide's masked fit prints what its text
+says. ``pycon`` blocks (a
 printed result) are not run. ``tests/test_docs_upstream.py`` runs
 docs/upstream.rst's example the same way.
 """
@@ -63,6 +64,7 @@ def test_the_extractor_finds_the_examples():
                          "   b = a\n\nAfter.\n") == ["a = 1\n\nb = a\n"]
     pages = {page: [code for p, _, code in BLOCKS if p == page] for page in PAGES}
     assert any("sphere_limb_polyline" in code for code in pages["guide.rst"])
+    assert any("ellipsoid_edge_profile" in code for code in pages["guide.rst"])
     assert any("sphere_limb_polyline" in code and "edge_profile" in code
                for code in pages["profiles.rst"])
     for code in (c for _, _, c in BLOCKS):  # private helpers are no example
@@ -81,6 +83,12 @@ def test_example_runs_as_written(page, index, code, capsys):
         np.testing.assert_array_equal(limb.normals_vu, sphere.limb.normals_vu)
         assert fit.status == "ok" and printed.startswith("ok (")
         assert 0.05 < math.dist(fit.offset_vu, sphere.true_offset_vu) < 0.6
+    elif "ellipsoid_limb_polyline" in code:
+        # the guide's ellipsoid: its limb and profile recover the planted offset
+        fit = ns["fit"]
+        assert fit.status == "ok" and printed.startswith("ok (")
+        assert fit.profile is not None and fit.profile.accepted
+        assert math.dist(fit.offset_vu, (0.8, -0.7)) < 0.01
     elif "edge_profile" in code:
         # the profiles page's: the refinement is accepted and lands on the truth
         fit, scene = ns["fit"], ns["scene"]

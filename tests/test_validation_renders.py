@@ -104,10 +104,21 @@ def test_limb_declared_plain_fit_covered(fits):
 
 
 def test_triaxial_limb_profile(fits):
-    """An ellipsoid's exact outline and Lambert profile: as accurate as a sphere's."""
+    """An ellipsoid's limb and profile (dtalign.api.ellipsoid): as accurate as a sphere's, and
+    closer than a sphere's profile of the mean radius on the same outline."""
     recs = fits[("triaxial", "limb")]["profile"]
     assert all(r["accepted"] and r["status"] == "ok" for r in recs)
     assert _errors(recs).max() <= 0.01
+    assert (_errors(recs) < _errors(fits[("triaxial", "limb")]["sphere_profile"])).all()
+
+
+def test_triaxial_terminator_profile(fits):
+    """An ellipsoid's terminator and its profile, at phase under 90 deg: accepted, ok, within
+    0.05 px, and closer than a sphere's profile of the mean radius."""
+    recs = fits[("triaxial", "terminator")]["profile"]
+    assert all(r["accepted"] and r["status"] == "ok" for r in recs)
+    assert _errors(recs).max() <= 0.05
+    assert (_errors(recs) < _errors(fits[("triaxial", "terminator")]["sphere_profile"])).all()
 
 
 @pytest.mark.xfail(strict=True, reason="issue 45 item 4: a plain fit of a rendered limb without "

@@ -59,10 +59,10 @@ def run_scenes(n_scenes: int, seed: int, which: list[str]) -> list[dict]:
                 t0 = time.perf_counter()
                 image = families.render_scene(p)
                 t_render = time.perf_counter() - t0
-                for rec in fitting.fit_scene(p, image):
-                    records.append({**{k: p[k] for k in ("family", "edge", "index", "seed")},
-                                    "render_s": t_render, "scene": p, **rec})
-                fits = records[-len(fitting.METHODS):]
+                fits = [{**{k: p[k] for k in ("family", "edge", "index", "seed")},
+                         "render_s": t_render, "scene": p, **rec}
+                        for rec in fitting.fit_scene(p, image)]
+                records += fits
                 print(f"{family:15s} {edge:10s} {index:3d}  render {t_render:5.1f} s  " + "  ".join(
                     f"{r['method']}: {r['status']} {r.get('error_px', float('nan')):.4f}"
                     for r in fits), flush=True)

@@ -27,8 +27,7 @@ Families (what the image has that the fit is not told, if anything):
     long-wavelength relief of 0.4 % of the radius, the model its mean sphere.
 ``triaxial``
     an ellipsoid of axes ``R, (0.85-0.95) R, (0.8-0.9) R``, turned at random;
-    the model its exact outline (:func:`.geometry.ellipsoid_limb_model`).
-    Limbs only: dtalign builds no ellipsoid terminator.
+    the model dtalign's ellipsoid (:mod:`dtalign.api.ellipsoid`).
 ``night_additive``
     Lambert plus a uniform glow of 2 % of the albedo over the whole disc
     (an ``area`` emitter on the body).
@@ -60,10 +59,9 @@ FRAME_PX = 200
 
 
 def edges_of(family: str) -> tuple[str, ...]:
-    """The edges a family renders: the ellipsoid's and the capped limb's are limbs only
-    (dtalign builds no ellipsoid terminator; past phase 90 the disc centre that sets
-    the cap is dark)."""
-    return ("limb",) if family in ("triaxial", "capped_limb") else EDGES
+    """The edges a family renders: the capped limb's are limbs only (past phase 90 the
+    disc centre that sets the cap is dark)."""
+    return ("limb",) if family == "capped_limb" else EDGES
 
 
 def scene_rng(seed: int, family: str, edge: str, index: int) -> np.random.Generator:

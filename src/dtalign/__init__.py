@@ -82,6 +82,10 @@ _LAZY: dict[str, str] = {
     "Polyline": ".api.polylines",
     "sphere_limb_polyline": ".api.polylines",
     "sphere_terminator_polyline": ".api.polylines",
+    # a triaxial ellipsoid's limb, terminator and edge profile
+    "ellipsoid_limb_polyline": ".api.ellipsoid",
+    "ellipsoid_terminator_polyline": ".api.ellipsoid",
+    "ellipsoid_edge_profile": ".api.ellipsoid",
 }
 
 #: Private names today's techniques import (:ref:`contract-private`): importable,
@@ -136,6 +140,11 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         coarse_ncc_search,
         coarse_ncc_search_scored,
         coarse_polarity_search_scored,
+    )
+    from .api.ellipsoid import (
+        ellipsoid_edge_profile,
+        ellipsoid_limb_polyline,
+        ellipsoid_terminator_polyline,
     )
     from .api.gates import DTFitGateConfig, DTFitGateVerdict, evaluate_dt_fit_gates
     from .api.image import (

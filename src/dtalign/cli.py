@@ -401,7 +401,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from .pipeline.batch import fit_images
 
     window = search_window(args.window, "--window", form="option")
-    sphere = _sphere_model(args)  # a malformed --sphere is the command's error, before any image
+    body = _body_model(args)  # a malformed --sphere is the command's error, before any image
     mask = _mask(args)  # as is an unreadable --mask
     jobs, batch = _jobs(args)
     zooms, plot_path, output = _outputs(args)
@@ -433,7 +433,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     interrupted = False
     try:
         with _progress(len(jobs), batch and not args.no_progress and not args.json) as progress:
-            fit_images([functools.partial(_load, job, args, sphere, mask) for job in jobs],
+            fit_images([functools.partial(_load, job, args, body, mask) for job in jobs],
                        search_window_vu=window, errors="collect", progress=progress,
                        on_image=report, **{k: v for k, v in vars(args).items() if k in NAMES})
     except BaseException as exc:
@@ -601,46 +601,57 @@ def _mask(args: argparse.Namespace) -> Any:
         raise CLIError(f"--mask: {_one_line(exc)}") from None
 
 
-def _load(job: _Job, args: argparse.Namespace, sphere: dict[str, Any] | None, mask: Any = None,
+def _load(job: _Job, args: argparse.Namespace,
+          body: tuple[Callable[..., Any], dict[str, Any]] | None, mask: Any = None,
           ) -> tuple[Any, float | None, list[Any], Any]:
     """Job ``job``'s files read, as an item of :func:`~dtalign.pipeline.batch.fit_images`
-    (called in the image's task), with the ``--sphere`` model's edge profile
-    if any, and its bad pixels: ``mask`` (``--mask``), or none but its NaN
+    (called in the image's task), with the ``--sphere`` or ``--ellipsoid`` model's edge
+    profile if any, and its bad pixels: ``mask`` (``--mask``), or none but its NaN
     and inf pixels with ``--mask-nonfinite``; what is said or plotted
     afterwards is kept on the job."""
     import numpy as np
 
     import dtalign.io as io
 
-    from .api.profiles import sphere_edge_profile
-
     masked = mask is not None or args.mask_nonfinite
     image, job.colour = io.read_image(job.image, nonfinite=masked)
     if mask is None and masked:
         mask = np.zeros(image.shape, dtype=bool)  # the NaN and inf pixels only
     poly = io.load_polyline_csv(job.polyline)
-    if sphere is not None:
-        poly = dataclasses.replace(poly, edge_profile=sphere_edge_profile(poly.vertices_vu,
-                                                                          **sphere))
+    if body is not None:
+        build, keywords = body
+        poly = dataclasses.replace(poly, edge_profile=build(poly.vertices_vu, **keywords))
     job.loaded = (image, poly)
     return image, args.noise_sigma, [poly], mask
 
 
-def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
-    """``--sphere``, ``--law``, ``--edge``, ``--psf-sigma`` as keywords of
-    :func:`dtalign.sphere_edge_profile` (None without ``--sphere``)."""
-    if args.sphere is None:
+def _numbers(text: str, option: str, form: str, counts: tuple[int, ...], how_many: str
+             ) -> list[float]:
+    """``option``'s comma-separated numbers, as many as one of ``counts``."""
+    try:
+        values = [float(x) for x in str(text).split(",")]
+    except ValueError:
+        raise CLIError(f"{option} takes numbers {form}, got {text!r}") from None
+    if len(values) not in counts:
+        raise CLIError(f"{option} takes {how_many} numbers {form}, got {text!r}")
+    return values
+
+
+_ELLIPSOID_FORM = "V,U,A,B,C,PHASE,LIGHT[,R11,R12,...,R33]"
+
+
+def _body_model(args: argparse.Namespace) -> tuple[Callable[..., Any], dict[str, Any]] | None:
+    """``--sphere`` or ``--ellipsoid``, with ``--law``, ``--edge`` and ``--psf-sigma``: the
+    edge profile's builder (:func:`dtalign.sphere_edge_profile` or
+    :func:`dtalign.ellipsoid_edge_profile`) and its keywords (None without either)."""
+    if args.sphere is None and args.ellipsoid is None:
         for option, given in (("--law", args.law != "lambert"), ("--edge", args.edge != "limb"),
                               ("--psf-sigma", args.psf_sigma is not None)):
             if given:
-                raise CLIError(f"{option} needs --sphere")
+                raise CLIError(f"{option} needs --sphere or --ellipsoid")
         return None
-    try:
-        values = [float(x) for x in str(args.sphere).split(",")]
-    except ValueError:
-        raise CLIError(f"--sphere takes numbers V,U,R,PHASE,LIGHT, got {args.sphere!r}") from None
-    if len(values) != 5:
-        raise CLIError(f"--sphere takes five numbers V,U,R,PHASE,LIGHT, got {args.sphere!r}")
+    if args.sphere is not None and args.ellipsoid is not None:
+        raise CLIError("--sphere and --ellipsoid exclude each other: the polyline is one body's")
     law, _, k = str(args.law).partition(",")
     minnaert_k: float | None = None
     if law == "minnaert":
@@ -650,9 +661,23 @@ def _sphere_model(args: argparse.Namespace) -> dict[str, Any] | None:
             raise CLIError(f"--law minnaert needs its exponent (minnaert,K), got {args.law!r}") from None
     elif k:
         raise CLIError(f"--law takes lambert, minnaert,K or lommel-seeliger, got {args.law!r}")
-    return {"center_vu": (values[0], values[1]), "radius_px": values[2], "phase_deg": values[3],
-            "illumination_deg": values[4], "edge": args.edge, "law": law,
-            "minnaert_k": minnaert_k, "psf_sigma_px": args.psf_sigma}
+    common = {"edge": args.edge, "law": law, "minnaert_k": minnaert_k,
+              "psf_sigma_px": args.psf_sigma}
+    if args.sphere is not None:
+        from .api.profiles import sphere_edge_profile
+
+        values = _numbers(args.sphere, "--sphere", "V,U,R,PHASE,LIGHT", (5,), "five")
+        return sphere_edge_profile, {"center_vu": (values[0], values[1]), "radius_px": values[2],
+                                     "phase_deg": values[3], "illumination_deg": values[4],
+                                     **common}
+    from .api.ellipsoid import ellipsoid_edge_profile
+
+    values = _numbers(args.ellipsoid, "--ellipsoid", _ELLIPSOID_FORM, (7, 16), "7 or 16")
+    rotation = [values[7:10], values[10:13], values[13:16]] if len(values) == 16 else None
+    return ellipsoid_edge_profile, {"center_vu": (values[0], values[1]),
+                                    "axes_px": tuple(values[2:5]), "rotation": rotation,
+                                    "phase_deg": values[5], "illumination_deg": values[6],
+                                    **common}
 
 
 def _table_single(job: _Job, fit: Any, d: dict[str, Any], estimated: bool) -> str:
@@ -899,16 +924,26 @@ _FIT: list[_Option] = [
                       "centre V,U, radius R px, phase and light direction in degrees (0 = up, "
                       "90 = +u); refines the fit with its photometric profile (see the docs' "
                       "profiles page)")),
+    ("--ellipsoid", dict(metavar=_ELLIPSOID_FORM, help="the polyline is a triaxial "
+                         "ellipsoid's edge: model centre V,U, semi-axes A,B,C px, phase and "
+                         "light direction as --sphere's, and optionally the 3 x 3 rotation row "
+                         "by row, its columns the axes' directions in (v, u, toward the viewer) "
+                         "(default: the identity); refines the fit with its photometric "
+                         "profile")),
     ("--law", dict(default="lambert", metavar="LAW",
-                   help="with --sphere: lambert (default), minnaert,K or lommel-seeliger")),
+                   help="with --sphere or --ellipsoid: lambert (default), minnaert,K or "
+                   "lommel-seeliger")),
     ("--edge", dict(choices=("limb", "terminator"), default="limb",
-                    help="with --sphere: which edge the polyline is (default limb)")),
+                    help="with --sphere or --ellipsoid: which edge the polyline is "
+                    "(default limb)")),
     ("--psf-sigma", dict(type=float, metavar="PX",
-                         help="with --sphere: the PSF's Gaussian sigma (default: estimated)")),
+                         help="with --sphere or --ellipsoid: the PSF's Gaussian sigma "
+                         "(default: estimated)")),
     # the choices are dtalign.api.profiles.EDGE_KINDS (tests/test_terminator.py checks)
     ("--edge-kind", _fit_field("edge_kind", choices=("limb", "terminator", "ring", "other"),
-                               help="what kind of edge the polyline is (with --sphere: --edge's); "
-                               "a terminator without --sphere is reported suspect")),
+                               help="what kind of edge the polyline is (with --sphere or "
+                               "--ellipsoid: --edge's); a terminator without either is "
+                               "reported suspect")),
     *_output_options("a table", "the table"),
     *_plot_options("write a picture of the fit (with several images: OUT_<image label>.png)"),
     ("--no-progress", dict(action="store_true", help="no progress bar")),

@@ -147,6 +147,50 @@ def _phase(value: Any) -> float:
     return out
 
 
+def _limb_directions(illumination_deg: Any, phase_deg: Any, sunlit_only: Any,
+                     n_vertices: Any) -> FloatArray:
+    """The limb's vertex directions, checked arguments: unit in-image vectors ``r`` at the
+    centres of equal arcs of angle, over the half facing the Sun (``r . s > 0``) or the
+    whole turn from opposite the Sun; counter-clockwise on the displayed image."""
+    lit_half = _flag(sunlit_only, "sunlit_only")
+    if illumination_deg is None:
+        if lit_half:
+            raise ValueError("illumination_deg is required with sunlit_only=True (the lit half "
+                             "faces the Sun); pass sunlit_only=False for the whole limb")
+        ill = 0.0
+    else:
+        ill = check.finite_real(illumination_deg, "illumination_deg")
+    if phase_deg is not None:
+        _phase(phase_deg)
+    n = _count(n_vertices, "n_vertices")
+    s = np.asarray(sun_direction_vu(ill))
+    perp = np.array([-s[1], s[0]])
+    # theta from the sub-solar point, at the centres of n equal arcs
+    if lit_half:
+        theta = -0.5 * math.pi + math.pi * (np.arange(n) + 0.5) / n
+    else:
+        theta = -math.pi + 2.0 * math.pi * (np.arange(n) + 0.5) / n
+    return np.asarray(np.cos(theta)[:, None] * s[None, :] + np.sin(theta)[:, None] * perp[None, :],
+                      dtype=np.float64)
+
+
+def _terminator_args(illumination_deg: Any, phase_deg: Any, n_vertices: Any
+                     ) -> tuple[float, float, int]:
+    """A terminator's ``illumination_deg``, ``phase_deg`` (> 0) and ``n_vertices``, checked."""
+    ill = check.finite_real(illumination_deg, "illumination_deg")
+    phase_d = _phase(phase_deg)
+    if phase_d == 0.0:
+        raise ValueError("phase_deg must be > 0 for a terminator: at phase 0 it lies behind "
+                         "the limb")
+    return ill, phase_d, _count(n_vertices, "n_vertices")
+
+
+def _terminator_angles(n: int) -> FloatArray:
+    """The great circle's angles of a terminator's ``n`` vertices: the centres of ``n``
+    equal steps of ``(-pi, 0)``, the visible half (none on the cusps)."""
+    return np.asarray(-math.pi + math.pi * (np.arange(n) + 0.5) / n, dtype=np.float64)
+
+
 def sphere_limb_polyline(
     center_vu: Any,
     radius_px: float,
@@ -224,28 +268,10 @@ def sphere_limb_polyline(
     """
     center = np.asarray(check.pair(center_vu, "center_vu"))
     radius = check.positive_real(radius_px, "radius_px")
-    lit_half = _flag(sunlit_only, "sunlit_only")
-    if illumination_deg is None:
-        if lit_half:
-            raise ValueError("illumination_deg is required with sunlit_only=True (the lit half "
-                             "faces the Sun); pass sunlit_only=False for the whole limb")
-        ill = 0.0
-    else:
-        ill = check.finite_real(illumination_deg, "illumination_deg")
-    if phase_deg is not None:
-        _phase(phase_deg)
-    n = _count(n_vertices, "n_vertices")
+    radial = _limb_directions(illumination_deg, phase_deg, sunlit_only, n_vertices)
     sig = check.positive_real(sigma, "sigma")
-    s = np.asarray(sun_direction_vu(ill))
-    perp = np.array([-s[1], s[0]])
-    # theta from the sub-solar point, at the centres of n equal arcs
-    if lit_half:
-        theta = -0.5 * math.pi + math.pi * (np.arange(n) + 0.5) / n
-    else:
-        theta = -math.pi + 2.0 * math.pi * (np.arange(n) + 0.5) / n
-    radial = np.cos(theta)[:, None] * s[None, :] + np.sin(theta)[:, None] * perp[None, :]
-    return Polyline("limb", center[None, :] + radius * radial, -radial, np.full(n, sig),
-                    edge_kind="limb")
+    return Polyline("limb", center[None, :] + radius * radial, -radial,
+                    np.full(radial.shape[0], sig), edge_kind="limb")
 
 
 def sphere_terminator_polyline(
@@ -308,12 +334,7 @@ def sphere_terminator_polyline(
     """
     center = np.asarray(check.pair(center_vu, "center_vu"))
     radius = check.positive_real(radius_px, "radius_px")
-    ill = check.finite_real(illumination_deg, "illumination_deg")
-    phase_d = _phase(phase_deg)
-    if phase_d == 0.0:
-        raise ValueError("phase_deg must be > 0 for a terminator: at phase 0 it lies behind "
-                         "the limb")
-    n = _count(n_vertices, "n_vertices")
+    ill, phase_d, n = _terminator_args(illumination_deg, phase_deg, n_vertices)
     sig = check.positive_real(sigma, "sigma")
     s = np.asarray(sun_direction_vu(ill))
     perp = np.array([-s[1], s[0]])
@@ -322,7 +343,7 @@ def sphere_terminator_polyline(
     # N(t) = cos t * (perp, 0) + sin t * (cos(p) s, -sin(p)): both are unit
     # vectors perpendicular to L and to each other; N_z = -sin t sin p >= 0
     # for t in (-pi, 0), the visible half.
-    t = -math.pi + math.pi * (np.arange(n) + 0.5) / n
+    t = _terminator_angles(n)
     nv = np.cos(t)[:, None] * perp[None, :] + (np.sin(t) * cos_p)[:, None] * s[None, :]
     nz = -np.sin(t) * sin_p
     pts = center[None, :] + radius * nv

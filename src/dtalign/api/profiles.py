@@ -15,6 +15,7 @@ direction. Nothing here imports Numba.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -177,17 +178,11 @@ def _step_jump(offsets: FloatArray, values: FloatArray) -> FloatArray:
     return np.asarray(np.clip(out, 0.0, 1.0), dtype=np.float64)
 
 
-def _sphere_radiance(pv: FloatArray, pu: FloatArray, center: tuple[float, float], radius: float,
-                     phase: float, sun: tuple[float, float], law: str, k: float
-                     ) -> tuple[FloatArray, FloatArray]:
-    """Radiance (albedo 1) of the sphere at image points (0 off the disc and on the night
-    side), and its derivative along Minnaert's exponent, ``I ln(cos i cos e)``."""
-    qv = (pv - center[0]) / radius
-    qu = (pu - center[1]) / radius
-    rho2 = qv * qv + qu * qu
-    cos_e = np.sqrt(np.clip(1.0 - rho2, 0.0, None))
-    cos_i = math.sin(phase) * (qv * sun[0] + qu * sun[1]) + math.cos(phase) * cos_e
-    lit = (rho2 < 1.0) & (cos_i > 0.0)
+def _law_radiance(cos_i: FloatArray, cos_e: FloatArray, inside: NDArray[np.bool_], law: str,
+                  k: float) -> tuple[FloatArray, FloatArray]:
+    """Radiance (albedo 1) under ``law`` from ``cos i`` and ``cos e`` (0 outside the body and
+    on the night side), and its derivative along Minnaert's exponent, ``I ln(cos i cos e)``."""
+    lit = inside & (cos_i > 0.0)
     ci = np.where(lit, cos_i, 0.0)
     if law == "lambert":
         out = ci
@@ -199,6 +194,18 @@ def _sphere_radiance(pv: FloatArray, pu: FloatArray, center: tuple[float, float]
     with np.errstate(divide="ignore", invalid="ignore"):
         dk = np.where(lit, out * np.log(np.where(lit, ci * np.maximum(cos_e, 1e-300), 1.0)), 0.0)
     return np.asarray(out, dtype=np.float64), np.asarray(dk, dtype=np.float64)
+
+
+def _sphere_radiance(pv: FloatArray, pu: FloatArray, center: tuple[float, float], radius: float,
+                     phase: float, sun: tuple[float, float], law: str, k: float
+                     ) -> tuple[FloatArray, FloatArray]:
+    """:func:`_law_radiance` of the sphere at image points."""
+    qv = (pv - center[0]) / radius
+    qu = (pu - center[1]) / radius
+    rho2 = qv * qv + qu * qu
+    cos_e = np.sqrt(np.clip(1.0 - rho2, 0.0, None))
+    cos_i = math.sin(phase) * (qv * sun[0] + qu * sun[1]) + math.cos(phase) * cos_e
+    return _law_radiance(cos_i, cos_e, rho2 < 1.0, law, k)
 
 
 def _terminator_geometry(rel: FloatArray, radius: float, phase: float,
@@ -220,6 +227,48 @@ def _terminator_geometry(rel: FloatArray, radius: float, phase: float,
     curvature = (math.copysign(1.0, math.cos(phase)) * a * b
                  / (a * a * sin_t2 + b * b * cos_t**2) ** 1.5)
     return grad / size[:, None], np.asarray(curvature, dtype=np.float64)
+
+
+def _law_args(law: Any, minnaert_k: Any, psf_sigma_px: Any, step_px: Any, half_range_px: Any
+              ) -> tuple[float, float | None, float, float]:
+    """The law's and the grid's arguments of a body's edge profile, checked:
+    ``(minnaert_k or 1, psf_sigma_px, step_px, half_range_px)``."""
+    if law not in SPHERE_LAWS:
+        raise ValueError(f"law must be one of {SPHERE_LAWS}, got {law!r}")
+    if law == "minnaert":
+        if minnaert_k is None:
+            raise ValueError("minnaert_k is required with law='minnaert'")
+        k = check.positive_real(minnaert_k, "minnaert_k")
+    elif minnaert_k is not None:
+        raise ValueError("minnaert_k is only used with law='minnaert'")
+    else:
+        k = 1.0
+    psf = None if psf_sigma_px is None else check.nonnegative_real(psf_sigma_px, "psf_sigma_px")
+    h = check.positive_real(step_px, "step_px")
+    half = check.positive_real(half_range_px, "half_range_px")
+    if half < 4.0 * h:
+        raise ValueError("half_range_px must be at least 4 * step_px")
+    return k, psf, h, half
+
+
+def _cell_means(verts: FloatArray, normals: FloatArray,
+                radiance: Callable[[FloatArray, FloatArray], tuple[FloatArray, FloatArray]],
+                h: float, half: float, fit_law: bool
+                ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """The offsets grid (``h`` apart, the edge midway between two cells, ``half`` each way)
+    and the cell means along each vertex's normal of ``radiance(pv, pu) -> (I, dI/dk)``:
+    ``(offsets, values, shape basis or None)``."""
+    n_half = int(math.ceil(half / h))
+    offsets = np.asarray((np.arange(-n_half, n_half) + 0.5) * h, dtype=np.float64)
+    sub = (np.arange(_SUBSAMPLES) + 0.5) / _SUBSAMPLES - 0.5
+    along = (offsets[:, None] + h * sub[None, :]).ravel()
+    pv = verts[:, 0:1] + along[None, :] * normals[:, 0:1]
+    pu = verts[:, 1:2] + along[None, :] * normals[:, 1:2]
+    rad, dk = radiance(pv, pu)
+    shape = (verts.shape[0], offsets.shape[0], _SUBSAMPLES)
+    values = rad.reshape(shape).mean(axis=2)
+    basis = dk.reshape(shape).mean(axis=2) if fit_law else None
+    return offsets, values, basis
 
 
 def sphere_edge_profile(
@@ -302,21 +351,7 @@ def sphere_edge_profile(
     ill = math.radians(check.finite_real(illumination_deg, "illumination_deg"))
     if edge not in ("limb", "terminator"):
         raise ValueError(f"edge must be 'limb' or 'terminator', got {edge!r}")
-    if law not in SPHERE_LAWS:
-        raise ValueError(f"law must be one of {SPHERE_LAWS}, got {law!r}")
-    if law == "minnaert":
-        if minnaert_k is None:
-            raise ValueError("minnaert_k is required with law='minnaert'")
-        k = check.positive_real(minnaert_k, "minnaert_k")
-    elif minnaert_k is not None:
-        raise ValueError("minnaert_k is only used with law='minnaert'")
-    else:
-        k = 1.0
-    psf = None if psf_sigma_px is None else check.nonnegative_real(psf_sigma_px, "psf_sigma_px")
-    h = check.positive_real(step_px, "step_px")
-    half = check.positive_real(half_range_px, "half_range_px")
-    if half < 4.0 * h:
-        raise ValueError("half_range_px must be at least 4 * step_px")
+    k, psf, h, half = _law_args(law, minnaert_k, psf_sigma_px, step_px, half_range_px)
     phase = math.radians(phase_d)
     sun = (-math.cos(ill), math.sin(ill))
     cvec = np.asarray(center)
@@ -331,15 +366,8 @@ def sphere_edge_profile(
         if phase_d == 0.0:
             raise ValueError("a sphere at phase 0 has no terminator")
         normals, curvature = _terminator_geometry(rel, radius, phase, sun)
-    n_half = int(math.ceil(half / h))
-    offsets = np.asarray((np.arange(-n_half, n_half) + 0.5) * h, dtype=np.float64)
-    sub = (np.arange(_SUBSAMPLES) + 0.5) / _SUBSAMPLES - 0.5
-    along = (offsets[:, None] + h * sub[None, :]).ravel()
-    pv = verts[:, 0:1] + along[None, :] * normals[:, 0:1]
-    pu = verts[:, 1:2] + along[None, :] * normals[:, 1:2]
-    rad, dk = _sphere_radiance(pv, pu, center, radius, phase, sun, law, k)
-    shape = (verts.shape[0], offsets.shape[0], _SUBSAMPLES)
-    values = rad.reshape(shape).mean(axis=2)
-    basis = dk.reshape(shape).mean(axis=2) if fit_law else None
+    offsets, values, basis = _cell_means(
+        verts, normals, lambda pv, pu: _sphere_radiance(pv, pu, center, radius, phase, sun, law, k),
+        h, half, fit_law)
     return EdgeProfile(offsets_px=offsets, values=values, normals_vu=normals,
                        curvature_px=curvature, psf_sigma_px=psf, edge=edge, shape_values=basis)
