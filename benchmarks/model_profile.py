@@ -128,7 +128,7 @@ def scenes_table(records: list[dict]) -> str:
                          f"{np.median(d):.4f}", f"{d.max():.4f}",
                          f"{sum(r['accepted'] for r in rs)}"])
     head = ["oversample", "PSF", "noise", "scenes", "sphere err med", "model err med",
-            "|model - sphere| med", "max", "both accepted"]
+            "model to sphere med", "max", "both accepted"]
     return rst_table(head, body)
 
 
@@ -184,7 +184,7 @@ def mitsuba_table(records: list[dict]) -> str:
                      f"{r['sphere_err']:.4f}", f"{r['model_err']:.4f}", f"{r['diff']:.4f}",
                      f"{'yes' if r['accepted_s'] else 'no'} / "
                      f"{'yes' if r['accepted_m'] else 'no'}"])
-    head = ["family", "scene", "PSF", "noise", "sphere err", "model err", "|model - sphere|",
+    head = ["family", "scene", "PSF", "noise", "sphere err", "model err", "model to sphere",
             "accepted (sphere / model)"]
     return rst_table(head, body)
 

@@ -213,7 +213,7 @@ def model_image_edge_profile(
     outside = (mv < 0.0) | (mv > hm - 1) | (mu < 0.0) | (mu > wm - 1)
     if outside.any():
         k = int(np.argmax(outside))
-        raise ValueError(f"vertices_vu {k} {tuple(verts[k])} lies outside model_image (its "
+        raise ValueError(f"vertices_vu {k} {_point(verts[k])} lies outside model_image (its "
                          f"render pixel ({mv[k]:.4g}, {mu[k]:.4g}) is not within the "
                          f"{hm} x {wm} render's pixel centres)")
     n_half = int(math.ceil(half / h))
@@ -226,12 +226,16 @@ def model_image_edge_profile(
     reach = ((pv < 0.0) | (pv > hm - 1) | (pu < 0.0) | (pu > wm - 1)).any(axis=1)
     if reach.any():
         k = int(np.argmax(reach))
-        raise ValueError(f"the profile of vertices_vu {k} {tuple(verts[k])} reaches outside "
+        raise ValueError(f"the profile of vertices_vu {k} {_point(verts[k])} reaches outside "
                          f"model_image ({half:g} px along its normal): render a larger "
                          "window or give a smaller half_range_px")
     values = _bilinear(image, pv, pu).reshape(verts.shape[0], offsets.shape[0], n_sub)
     return EdgeProfile(offsets_px=offsets, values=values.mean(axis=2), normals_vu=normals,
                        curvature_px=curvature, psf_sigma_px=psf, edge=edge)
+
+
+def _point(p: FloatArray) -> str:
+    return f"({float(p[0]):.6g}, {float(p[1]):.6g})"
 
 
 def _bilinear(image: FloatArray, pv: FloatArray, pu: FloatArray) -> FloatArray:
