@@ -19,7 +19,8 @@ image, without the PSF (the PSF estimated too).
     observed frame as the harness renders it (noise, PSF, detector); the
     model render is Mitsuba's render of the same body (the same crater mesh,
     the same albedo map) at the model centre, at ``--oversample`` (4), 16
-    samples a render pixel. The sphere profile knows neither the craters nor
+    samples a render pixel (``--clean``: the scenes without the detector's
+    noise). The sphere profile knows neither the craters nor
     the albedo map; the model render knows both.
 
 Run ``python benchmarks/model_profile.py`` or, for the second set,
@@ -132,8 +133,10 @@ def scenes_table(records: list[dict]) -> str:
     return rst_table(head, body)
 
 
-def mitsuba_runs(n_scenes: int, seed: int, oversample: int, families_: list[str]) -> list[dict]:
-    """The ``mitsuba`` set: one record per harness scene."""
+def mitsuba_runs(n_scenes: int, seed: int, oversample: int, families_: list[str],
+                 clean: bool = False, model_seed: int = 1) -> list[dict]:
+    """The ``mitsuba`` set: one record per harness scene (``clean``: without the
+    detector's noise; the model render's sampler seeded ``model_seed + index``)."""
     from benchmarks.validate import families, fitting
     from benchmarks.validate.render import Body, render, uv_sphere
 
@@ -141,6 +144,8 @@ def mitsuba_runs(n_scenes: int, seed: int, oversample: int, families_: list[str]
     for family in families_:
         for index in range(n_scenes):
             p = families.draw(family, "limb", index, seed)
+            if clean:
+                p.update(gain_e_per_dn=None, read_noise_dn=0.0)
             image = families.render_scene(p)
             rng = np.random.default_rng(p["body_seed"])  # the body as render_scene draws it
             body_kw: dict = {}
@@ -153,7 +158,7 @@ def mitsuba_runs(n_scenes: int, seed: int, oversample: int, families_: list[str]
                               shape=p["shape"], law=p["law"], minnaert_k=p["minnaert_k"],
                               **body_kw)
             t0 = time.perf_counter()
-            model = render(model_body, p["frame_px"], oversample, 16, seed=1 + index)
+            model = render(model_body, p["frame_px"], oversample, 16, seed=model_seed + index)
             t_render = time.perf_counter() - t0
             sphere = dict(center_vu=tuple(p["model_center_vu"]), radius_px=p["radius_px"],
                           phase_deg=p["phase_deg"], illumination_deg=p["illumination_deg"])
@@ -165,7 +170,7 @@ def mitsuba_runs(n_scenes: int, seed: int, oversample: int, families_: list[str]
             off_s, acc_s = _fit(image, limb, sprof)
             off_m, acc_m = _fit(image, limb, mprof)
             records.append(dict(
-                family=family, index=index, noisy=index % 2 == 1, psf=p["psf"]["kind"],
+                family=family, index=index, noisy=p["read_noise_dn"] > 0.0, psf=p["psf"]["kind"],
                 sphere_err=float(np.hypot(*(off_s - truth))),
                 model_err=float(np.hypot(*(off_m - truth))),
                 diff=float(np.hypot(*(off_m - off_s))), accepted_s=acc_s, accepted_m=acc_m,
@@ -196,6 +201,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenes", type=int, default=4, help="scenes per group")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--oversample", type=int, default=4, help="the Mitsuba model's")
+    ap.add_argument("--clean", action="store_true",
+                    help="the Mitsuba scenes without the detector's noise")
+    ap.add_argument("--model-seed", type=int, default=1,
+                    help="the Mitsuba model render's sampler seed (plus the scene's index)")
     ap.add_argument("--families", nargs="+",
                     default=["model_right", "craters", "albedo_texture"])
     args = ap.parse_args(argv)
@@ -204,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         table = scenes_table(scenes_runs(args.scenes, args.seed))
     else:
         table = mitsuba_table(mitsuba_runs(args.scenes, args.seed, args.oversample,
-                                           args.families))
+                                           args.families, args.clean, args.model_seed))
     print()
     print(table)
     print(f"\n{time.perf_counter() - t0:.0f} s in all")
