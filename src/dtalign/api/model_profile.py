@@ -129,8 +129,9 @@ def model_image_edge_profile(
     ----------
     model_image : array_like, shape (H, W)
         The render: each pixel the mean radiance over its area (a box
-        filter; a point sample at its centre is as good to within the
-        blur below), finite, at least 2 x 2. Sky is whatever the render
+        filter; a point sample at its centre does as well, to the blur
+        the accuracy of :ref:`profiles-model-image` states), finite, at
+        least 2 x 2. Sky is whatever the render
         gives it (the fit has a free background).
     vertices_vu : array_like, shape (N, 2)
         The model edge's vertices in **image** coordinates (pixel ``(i, j)``
