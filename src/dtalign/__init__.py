@@ -77,6 +77,7 @@ _LAZY: dict[str, str] = {
     # photometric edge profiles
     "EdgeProfile": ".api.profiles",
     "sphere_edge_profile": ".api.profiles",
+    "model_image_edge_profile": ".api.model_profile",
     "ProfileRefinement": ".pipeline.profile_fit",
     # model polylines: the record and a sphere's limb and terminator
     "Polyline": ".api.polylines",
@@ -153,6 +154,7 @@ if TYPE_CHECKING:  # static analysers see ordinary imports
         compute_image_gradient_vu,
     )
     from .api.lm import lm_subpixel_refine
+    from .api.model_profile import model_image_edge_profile
     from .api.options import FitOptions
     from .api.polylines import Polyline, sphere_limb_polyline, sphere_terminator_polyline
     from .api.profiles import EdgeProfile, sphere_edge_profile
