@@ -331,7 +331,7 @@ def test_cli_fit_with_an_ellipsoid_model(tmp_path, capsys):
         (["--ellipsoid", "1,2,3"], "--ellipsoid takes 7 or 16 numbers"),
         (["--ellipsoid", "1,2,x,4,5,6,7"], "--ellipsoid takes numbers"),
         (["--ellipsoid", ellipsoid, "--sphere", "1,2,3,4,5"], "exclude each other"),
-        (["--edge", "terminator"], "--edge needs --sphere or --ellipsoid"),
+        (["--edge", "terminator"], "--edge needs --sphere, --ellipsoid or --model-render"),
         (["--ellipsoid", ",".join(["100"] * 7 + ["1"] * 9)], "rotation"),
     ):
         assert main(["fit", *files, *argv]) != 0

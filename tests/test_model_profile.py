@@ -334,3 +334,42 @@ def test_a_window_render_takes_its_origin():
         model_image_edge_profile(window, verts, normals, oversample=k, half_range_px=2.0,
                                  step_px=0.25)
     assert re.search("origin_vu", model_image_edge_profile.__doc__ or "")
+
+
+def test_cli_fit_with_a_model_render(tmp_path, capsys):
+    """``dtalign fit --model-render FILE,K``: the technique's render refines the fit as
+    the analytic sphere profile does (``--sphere``), within 0.005 px."""
+    import json
+
+    from dtalign.cli import main
+    from dtalign.io import save_polyline_csv
+
+    k, frame = 4, (160, 160)
+    scene = render_sphere(shape=frame, center_vu=(80.2, 79.7), radius_px=55.0, phase_deg=40.0,
+                          illumination_deg=250.0, offset_vu=(1.3, -0.6), albedo_dn=200.0,
+                          background_dn=10.0, read_noise_dn=1.0, seed=2)
+    np.save(tmp_path / "frame.npy", scene.image)
+    np.save(tmp_path / "render.npy", _fine_sphere(scene.model_center_vu, 55.0, 40.0, 250.0, k,
+                                                  frame))
+    save_polyline_csv(tmp_path / "limb.csv", scene.limb)
+    files = [str(tmp_path / "frame.npy"), str(tmp_path / "limb.csv"), "--window", "6", "--json"]
+    sphere = ",".join(str(x) for x in (*scene.model_center_vu, 55.0, 40.0, 250.0))
+    offsets = []
+    for argv in (["--model-render", f"{tmp_path / 'render.npy'},{k}"], ["--sphere", sphere]):
+        assert main(["fit", *files, *argv]) == 0
+        d = json.loads(capsys.readouterr().out)
+        assert d["profile"]["accepted"]
+        offsets.append(d["offset_vu"])
+    assert math.dist(*offsets) < 0.005
+    assert math.dist(offsets[0], scene.true_offset_vu) < 0.02
+    for argv, message in (
+        (["--model-render", str(tmp_path / "render.npy")], "--model-render takes FILE,K"),
+        (["--model-render", f"{tmp_path / 'render.npy'},0"], "--model-render takes FILE,K"),
+        (["--model-render", f"{tmp_path / 'none.npy'},4"], "--model-render"),
+        (["--model-render", f"{tmp_path / 'render.npy'},4", "--law", "minnaert,0.7"],
+         "a render carries its own law"),
+        (["--model-render", f"{tmp_path / 'render.npy'},4", "--sphere", sphere],
+         "exclude each other"),
+    ):
+        assert main(["fit", *files, *argv]) != 0
+        assert message in capsys.readouterr().err

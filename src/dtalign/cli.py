@@ -620,7 +620,7 @@ def _load(job: _Job, args: argparse.Namespace,
     poly = io.load_polyline_csv(job.polyline)
     if body is not None:
         build, keywords = body
-        poly = dataclasses.replace(poly, edge_profile=build(poly.vertices_vu, **keywords))
+        poly = dataclasses.replace(poly, edge_profile=build(poly, **keywords))
     job.loaded = (image, poly)
     return image, args.noise_sigma, [poly], mask
 
@@ -640,18 +640,43 @@ def _numbers(text: str, option: str, form: str, counts: tuple[int, ...], how_man
 _ELLIPSOID_FORM = "V,U,A,B,C,PHASE,LIGHT[,R11,R12,...,R33]"
 
 
+def _sphere_profile(poly: Any, **keywords: Any) -> Any:
+    """:func:`dtalign.sphere_edge_profile` of a polyline (``--sphere``)."""
+    from .api.profiles import sphere_edge_profile
+
+    return sphere_edge_profile(poly.vertices_vu, **keywords)
+
+
+def _ellipsoid_profile(poly: Any, **keywords: Any) -> Any:
+    """:func:`dtalign.ellipsoid_edge_profile` of a polyline (``--ellipsoid``)."""
+    from .api.ellipsoid import ellipsoid_edge_profile
+
+    return ellipsoid_edge_profile(poly.vertices_vu, **keywords)
+
+
+def _rendered_profile(poly: Any, *, model_image: Any, **keywords: Any) -> Any:
+    """:func:`dtalign.model_image_edge_profile` of a polyline (``--model-render``)."""
+    from .api.model_profile import model_image_edge_profile
+
+    return model_image_edge_profile(model_image, poly.vertices_vu, poly.normals_vu, **keywords)
+
+
 def _body_model(args: argparse.Namespace) -> tuple[Callable[..., Any], dict[str, Any]] | None:
-    """``--sphere`` or ``--ellipsoid``, with ``--law``, ``--edge`` and ``--psf-sigma``: the
-    edge profile's builder (:func:`dtalign.sphere_edge_profile` or
-    :func:`dtalign.ellipsoid_edge_profile`) and its keywords (None without either)."""
-    if args.sphere is None and args.ellipsoid is None:
+    """``--sphere``, ``--ellipsoid`` or ``--model-render``, with ``--law``, ``--edge`` and
+    ``--psf-sigma``: the edge profile's builder (of the polyline) and its keywords
+    (None without any)."""
+    bodies = [o for o, v in (("--sphere", args.sphere), ("--ellipsoid", args.ellipsoid),
+                             ("--model-render", args.model_render)) if v is not None]
+    if not bodies:
         for option, given in (("--law", args.law != "lambert"), ("--edge", args.edge != "limb"),
                               ("--psf-sigma", args.psf_sigma is not None)):
             if given:
-                raise CLIError(f"{option} needs --sphere or --ellipsoid")
+                raise CLIError(f"{option} needs --sphere, --ellipsoid or --model-render")
         return None
-    if args.sphere is not None and args.ellipsoid is not None:
-        raise CLIError("--sphere and --ellipsoid exclude each other: the polyline is one body's")
+    if len(bodies) > 1:
+        raise CLIError(f"{' and '.join(bodies)} exclude each other: the polyline is one body's")
+    if args.model_render is not None:
+        return _rendered_body(args)
     law, _, k = str(args.law).partition(",")
     minnaert_k: float | None = None
     if law == "minnaert":
@@ -664,20 +689,38 @@ def _body_model(args: argparse.Namespace) -> tuple[Callable[..., Any], dict[str,
     common = {"edge": args.edge, "law": law, "minnaert_k": minnaert_k,
               "psf_sigma_px": args.psf_sigma}
     if args.sphere is not None:
-        from .api.profiles import sphere_edge_profile
-
         values = _numbers(args.sphere, "--sphere", "V,U,R,PHASE,LIGHT", (5,), "five")
-        return sphere_edge_profile, {"center_vu": (values[0], values[1]), "radius_px": values[2],
-                                     "phase_deg": values[3], "illumination_deg": values[4],
-                                     **common}
-    from .api.ellipsoid import ellipsoid_edge_profile
-
+        return _sphere_profile, {"center_vu": (values[0], values[1]), "radius_px": values[2],
+                                 "phase_deg": values[3], "illumination_deg": values[4], **common}
     values = _numbers(args.ellipsoid, "--ellipsoid", _ELLIPSOID_FORM, (7, 16), "7 or 16")
     rotation = [values[7:10], values[10:13], values[13:16]] if len(values) == 16 else None
-    return ellipsoid_edge_profile, {"center_vu": (values[0], values[1]),
-                                    "axes_px": tuple(values[2:5]), "rotation": rotation,
-                                    "phase_deg": values[5], "illumination_deg": values[6],
-                                    **common}
+    return _ellipsoid_profile, {"center_vu": (values[0], values[1]),
+                                "axes_px": tuple(values[2:5]), "rotation": rotation,
+                                "phase_deg": values[5], "illumination_deg": values[6], **common}
+
+
+def _rendered_body(args: argparse.Namespace) -> tuple[Callable[..., Any], dict[str, Any]]:
+    """``--model-render FILE,K``: the technique's render of the body, read once, at
+    ``K`` render pixels per image pixel, and ``--edge`` and ``--psf-sigma``
+    (``--law`` is the render's own)."""
+    if args.law != "lambert":
+        raise CLIError("--law needs --sphere or --ellipsoid: a render carries its own law")
+    path, _, k = str(args.model_render).rpartition(",")
+    try:
+        oversample = int(k)
+    except ValueError:
+        oversample = 0
+    if not path or oversample < 1:
+        raise CLIError(f"--model-render takes FILE,K (K render pixels per image pixel, an "
+                       f"integer >= 1), got {args.model_render!r}")
+    import dtalign.io as io
+
+    try:
+        render = io.load_image(path)
+    except (OSError, ValueError, TypeError) as exc:
+        raise CLIError(f"--model-render {path}: {_one_line(exc)}") from None
+    return _rendered_profile, {"model_image": render, "oversample": oversample,
+                               "edge": args.edge, "psf_sigma_px": args.psf_sigma}
 
 
 def _table_single(job: _Job, fit: Any, d: dict[str, Any], estimated: bool) -> str:
@@ -930,6 +973,11 @@ _FIT: list[_Option] = [
                          "by row, its columns the axes' directions in (v, u, toward the viewer) "
                          "(default: the identity); refines the fit with its photometric "
                          "profile")),
+    ("--model-render", dict(metavar="FILE,K", help="the polyline's edge profile sampled "
+                            "from the technique's own render of the body (.npy, .fits, .png), "
+                            "sharp, K render pixels per image pixel, tiling the frame from its "
+                            "pixel (0, 0) (dtalign.model_image_edge_profile); refines the fit "
+                            "with it")),
     ("--law", dict(default="lambert", metavar="LAW",
                    help="with --sphere or --ellipsoid: lambert (default), minnaert,K or "
                    "lommel-seeliger")),
