@@ -89,8 +89,10 @@ def test_a_terminator_without_a_profile_is_never_a_silent_ok(one, caplog):
     T = one.terminator
     plain = fit_polyline(one.image, T.vertices_vu, T.normals_vu, T.sigmas,
                          search_window_vu=WINDOW)
-    assert plain.edge_kind is None and FitReason.TERMINATOR_WITHOUT_PROFILE not in plain.reasons
-    assert plain.status == "ok" and _err(plain, one) > 1.0  # confidently wrong, undeclared
+    # undeclared, the ramp along the normals says terminator: flagged all the same
+    assert plain.edge_kind is None and plain.inferred_edge_kind == "terminator"
+    assert FitReason.TERMINATOR_WITHOUT_PROFILE in plain.reasons
+    assert plain.status == "suspect" and _err(plain, one) > 1.0
     with caplog.at_level(logging.WARNING, logger="dtalign"):
         fit = fit_polyline(one.image, T.vertices_vu, T.normals_vu, T.sigmas,
                            search_window_vu=WINDOW, edge_kind="terminator")
@@ -99,10 +101,11 @@ def test_a_terminator_without_a_profile_is_never_a_silent_ok(one, caplog):
     assert fit.status == "suspect"
     assert "terminator without a profile" in fit.status_message
     assert "terminator without a profile" in caplog.text
-    # a limb, a ring or another edge declared without a profile is not suspect for it
+    # a limb, a ring or another edge declared without a profile is not suspect for it:
+    # a declared kind is taken over the one the image shows
     for kind in ("limb", "ring", "other"):
         other = dataclasses.replace(plain, edge_kind=kind)
-        assert other.reasons == plain.reasons
+        assert other.reasons == ()
 
 
 def test_the_batch_takes_each_polylines_kind(one):

@@ -110,12 +110,20 @@ def test_triaxial_limb_profile(fits):
     assert _errors(recs).max() <= 0.01
 
 
-@pytest.mark.xfail(strict=True, reason="issue 45 item 4: a plain fit of a rendered limb without "
-                   "edge_kind is ok and outside its 99.9 % ellipse (sigma_vu misses the "
-                   "limb's photometric bias unless the kind is declared)")
 def test_plain_limb_fit_not_confidently_wrong(fits):
+    """A plain limb fit given no ``edge_kind`` reads the kind off the image (a step into a
+    surface that keeps brightening inward), so its floor is the limb's."""
     recs = fits[("model_right", "limb")]["plain"]
     assert not any(fitting.confidently_wrong(r) for r in recs)
+    assert all(r["uncertainty_source"] == "dt_limb" for r in recs)
+    assert all(r["status"] == "ok" for r in recs)
+
+
+def test_plain_terminator_fit_flagged(fits):
+    """A plain terminator fit given no ``edge_kind`` is read as a terminator: suspect."""
+    for family in ("model_right", "night_floor"):
+        recs = fits[(family, "terminator")]["plain"]
+        assert all(r["reasons"] == ["terminator_without_profile"] for r in recs)
 
 
 @pytest.mark.xfail(strict=True, reason="issue 45 targets: model-right terminator median <= 0.02 "

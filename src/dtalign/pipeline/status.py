@@ -195,7 +195,9 @@ REASONS: dict[FitReason, Reason] = {
         "brightness rolls off to the edge, as a limb at low phase): the position rests on the "
         "modelled roll-off and the reflectance law"),
     FitReason.TERMINATOR_WITHOUT_PROFILE: Reason(
-        _SUSPECT, "a declared terminator was fitted without an edge profile, and the DT puts a "
+        _SUSPECT, "a terminator (declared, or seen in the image's ramp when no kind was declared: "
+        ":attr:`~dtalign.pipeline.PolylineFit.inferred_edge_kind`) was fitted without an edge "
+        "profile, and the DT puts a "
         "terminator where the brightness ramp crosses the edge threshold (median error "
         f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px, 90th percentile {TERMINATOR_PLAIN_P90_PX:g} px on "
         "rendered Lambert terminators, :ref:`profiles-terminator`): give "
@@ -287,7 +289,8 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
         # start has let the image decide between the two basins
         decided = given and profile.accepted and profile.rival_agrees is True
         rival = amb is not None and amb.ambiguous
-        terminator = fit.edge_kind == "terminator"
+        # declared, or seen in the image when nothing was declared
+        terminator = (fit.edge_kind or getattr(fit, "inferred_edge_kind", None)) == "terminator"
         found.update({
             R.AMBIGUOUS: rival and not amb.along_unobservable and not decided,
             R.PROFILE_REJECTED: given and not profile.accepted,

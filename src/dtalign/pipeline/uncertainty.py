@@ -482,8 +482,12 @@ def evidence(fit: Any, edge_dt: FloatArray, gradient: tuple[FloatArray, FloatArr
 
 
 def source_of(fit: Any) -> str:
-    """Which pose ``fit`` reports and so which floor applies: a key of :data:`FLOORS_PX`."""
-    kind = fit.edge_kind
+    """Which pose ``fit`` reports and so which floor applies: a key of :data:`FLOORS_PX`.
+
+    The kind is the declared one, else the one the image shows
+    (``fit.inferred_edge_kind``): a limb fitted plainly keeps its
+    photometric bias whether or not its kind was declared."""
+    kind = fit.edge_kind or getattr(fit, "inferred_edge_kind", None)
     if fit.profile is not None and fit.profile.accepted:
         return "profile_terminator" if kind == "terminator" else "profile"
     return {"limb": "dt_limb", "terminator": "dt_terminator"}.get(kind or "", "dt")
