@@ -100,6 +100,11 @@ TERMINATOR_PLAIN_P90_PX = 13.8
 #: more than three of its sigmas off (:ref:`profiles-terminator`).
 TERMINATOR_SIGMA_LIMIT_PX = 1.0 / 3.0
 
+#: How far inside the search window, px along each axis, a terminator's
+#: accepted, scan-started profile refinement must put the pose for the
+#: coarse seed on the window's edge not to matter (``at_window_edge``).
+WINDOW_EDGE_CLEARANCE_PX = 1.0
+
 #: What a failed fit's printed summary and the command line show for its
 #: sigmas, which are no measurement; the numeric fields keep their values.
 UNMEASURED_TEXT = "not measured (failed)"
@@ -174,7 +179,9 @@ REASONS: dict[FitReason, Reason] = {
         "{fit.noise_sigma:.4g}: too high for any edge to pass?)"),
     FitReason.AT_WINDOW_EDGE: Reason(
         _FAILED, "the coarse seed is on the boundary of the search window, so the true offset "
-        "may lie outside it: widen ``search_window_vu`` (``--window``).",
+        "may lie outside it: widen ``search_window_vu`` (``--window``). Not raised when a "
+        "terminator's accepted profile refinement, started from its own scan, puts the pose "
+        f"at least {WINDOW_EDGE_CLEARANCE_PX:g} px inside the window.",
         "at window edge: the coarse seed {seed} is on the edge of the search window "
         "±{window}; the true offset may lie outside it: widen search_window_vu"),
     FitReason.AMBIGUOUS: Reason(
@@ -281,7 +288,7 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
         R.ALL_POLARITY_REJECTED: n_in > 0 and rejected == n_in,
         R.MOST_POLARITY_REJECTED: rejected != n_in and 2 * rejected > n_in,
         R.DEGENERATE: lm.degenerate,
-        R.AT_WINDOW_EDGE: fit.at_window_edge,
+        R.AT_WINDOW_EDGE: fit.at_window_edge and not _found_inside_window(fit),
     }
     if not lm.degenerate:  # nothing was measured: the rest means nothing
         given = profile is not None
@@ -304,6 +311,24 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
             R.RANK_DEFICIENT: fit.observable_rank < fit.n_params,
         })
     return tuple(r for r in FitReason if found.get(r))
+
+
+def _found_inside_window(fit: Any) -> bool:
+    """Whether an accepted profile refinement that started from its own scan (a
+    terminator's: :attr:`~dtalign.pipeline.profile_fit.ProfileRefinement.start_offset_vu`)
+    put the pose at least :data:`WINDOW_EDGE_CLEARANCE_PX` inside the search window.
+
+    Its pose does not rest on the coarse seed: a DT lock on a terminator's
+    ramp sits where the ramp crosses the edge threshold, often at the window's
+    edge, and the scan finds the kink from there. Such refinements of rendered
+    terminators are as accurate as the others (:ref:`validation`), so the
+    seed's place says nothing about the pose then.
+    """
+    ref = fit.profile
+    if ref is None or not ref.accepted or ref.start_offset_vu is None:
+        return False
+    return all(w > 0 and abs(o) <= w - WINDOW_EDGE_CLEARANCE_PX
+               for o, w in zip(fit.offset_vu, fit.search_window_vu, strict=True))
 
 
 def _profile_sigma(x: _Facts) -> float:
