@@ -142,19 +142,17 @@ def test_psf_mismatch_limb_profile(fits):
     assert not any(fitting.confidently_wrong(r) for r in recs)
 
 
-def _unmet(reason: str) -> pytest.MarkDecorator:
-    return pytest.mark.xfail(strict=True, reason="issue 45 item 5: " + reason)
-
-
-@pytest.mark.parametrize("family", [
-    pytest.param("law_mismatch", marks=_unmet(
-        "a Minnaert surface fitted as Lambert is ok outside its 99.9 % ellipse")),
-    pytest.param("craters", marks=_unmet(
-        "craters and relief move the limb; the profile fit is ok outside its 99.9 % ellipse")),
-    pytest.param("capped_limb", marks=_unmet(
-        "a limb brightening capped as by saturation, declared Minnaert, is ok and tenths of a "
-        "pixel off")),
-])
+@pytest.mark.parametrize("family", ["law_mismatch", "craters", "capped_limb"])
 def test_mismatched_limb_not_confidently_wrong(fits, family):
+    """A Minnaert surface fitted as Lambert, craters and relief, a capped brightening declared
+    Minnaert: the profile fit leaves residuals its model does not explain, and says so."""
     recs = fits[(family, "limb")]["profile"]
     assert not any(fitting.confidently_wrong(r) for r in recs)
+    assert all("profile_misfit" in r["reasons"] for r in recs)
+
+
+def test_model_right_profile_fits_pass_the_residual_test(fits):
+    """What the profile's model holds leaves no residual it flags."""
+    for key in (("model_right", "limb"), ("model_right", "terminator"), ("triaxial", "limb"),
+                ("psf_mismatch", "limb")):
+        assert all("profile_misfit" not in r["reasons"] for r in fits[key]["profile"]), key

@@ -30,6 +30,7 @@ from .measured import (
     no_edge_run,
     outside_mask,
 )
+from .profile_fit import MISFIT_LIMIT, misfitted
 
 __all__ = [
     "NO_EDGE_GAP", "NO_EDGE_MIN_FRACTION", "REASONS", "SETTLE_ITERATIONS", "SETTLE_SIGMAS", "TERMINATOR_PLAIN_MEDIAN_PX",
@@ -80,6 +81,7 @@ class FitReason(_Text):
     AMBIGUOUS = "ambiguous"
     PROFILE_REJECTED = "profile_rejected"
     SOFT_EDGE = "soft_edge"
+    PROFILE_MISFIT = "profile_misfit"
     TERMINATOR_WITHOUT_PROFILE = "terminator_without_profile"
     TERMINATOR_IMPRECISE = "terminator_imprecise"
     FLAT_PROFILE_VERTICES = "flat_profile_vertices"
@@ -201,6 +203,17 @@ REASONS: dict[FitReason, Reason] = {
         "soft edge: the profile's step at the edge is {fit.profile.step_jump:.2f} of its contrast (the "
         "brightness rolls off to the edge, as a limb at low phase): the position rests on the "
         "modelled roll-off and the reflectance law"),
+    FitReason.PROFILE_MISFIT: Reason(
+        _SUSPECT, "the accepted profile refinement leaves residuals its model does not explain: "
+        "a shape common to the vertices (a reflectance law, a PSF or a brightening that differ "
+        "from the declared ones) or vertex edges spread beyond the noise (relief, craters); its "
+        "pose may then be off by more than its sigma (:ref:`profiles-result`): declare the law, "
+        "or check the surface.",
+        "profile misfit: the fitted model leaves a residual shape of {fit.profile.misfit:.3g} of "
+        "its gain (limit {misfit_limit:g}) and the vertices' edges spread "
+        "{fit.profile.edge_scatter_px:.3g} px about the pose against {fit.profile.edge_noise_px:.3g} "
+        "px from the noise: the profile does not describe this edge (another law, PSF or "
+        "surface), and the pose may be off by more than its sigma"),
     FitReason.TERMINATOR_WITHOUT_PROFILE: Reason(
         _SUSPECT, "a terminator (declared, or seen in the image's ramp when no kind was declared: "
         ":attr:`~dtalign.pipeline.PolylineFit.inferred_edge_kind`) was fitted without an edge "
@@ -302,6 +315,7 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
             R.AMBIGUOUS: rival and not amb.along_unobservable and not decided,
             R.PROFILE_REJECTED: given and not profile.accepted,
             R.SOFT_EDGE: given and profile.soft_edge,
+            R.PROFILE_MISFIT: given and misfitted(profile),
             R.TERMINATOR_WITHOUT_PROFILE: not given and terminator,
             R.TERMINATOR_IMPRECISE: given and profile.accepted and terminator
             and x["profile_sigma"] > TERMINATOR_SIGMA_LIMIT_PX,
@@ -379,6 +393,7 @@ _FACT: dict[str, Callable[[_Facts], Any]] = {
     "seed": lambda x: tuple(x.fit.coarse_offset_vu),
     "window": lambda x: tuple(x.fit.search_window_vu),
     "profile_sigma": _profile_sigma,
+    "misfit_limit": lambda x: MISFIT_LIMIT,
     "n_model": lambda x: len(x.fit.vertices_vu),
     "moved": _moved,
     "null_directions": lambda x: "; ".join(
