@@ -221,7 +221,7 @@ FLAT_CONTRAST = 1e-3
 #: the median residual of the pooled strips.
 MISFIT_BIN_PX = 0.5
 
-#: An accepted refinement whose :attr:`ProfileRefinement.misfit` exceeds
+#: An accepted refinement whose ``ProfileRefinement.misfit`` exceeds
 #: this fraction of its gain leaves a shape its model does not have (the
 #: status's ``profile_misfit``). Measured on the validation renders
 #: (docs/validation.rst): model-right limbs and terminators, the PSF
@@ -236,8 +236,8 @@ MISFIT_NOISE_SIGMAS = 3.0
 
 #: An accepted refinement whose vertices' edges spread about its pose by
 #: more than this beyond the noise, px (``sqrt(scatter^2 - noise^2)`` of
-#: :attr:`ProfileRefinement.edge_scatter_px` and
-#: :attr:`~ProfileRefinement.edge_noise_px`), and by more than
+#: ``ProfileRefinement.edge_scatter_px`` and
+#: ``ProfileRefinement.edge_noise_px``), and by more than
 #: :data:`SCATTER_RATIO` times the noise, fits a surface whose edge the
 #: model does not hold (relief, craters): ``profile_misfit``.
 SCATTER_LIMIT_PX = 0.03
@@ -614,9 +614,9 @@ def misfitted(ref: ProfileRefinement) -> bool:
 def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float]:
     """What ``params`` leave on ``pb``'s strips (those of the refinement's last
     run, its PSF's wings folded into the profile): ``(shape, scatter_px,
-    noise_px)``, :attr:`ProfileRefinement.misfit`,
-    :attr:`~ProfileRefinement.edge_scatter_px` and
-    :attr:`~ProfileRefinement.edge_noise_px`.
+    noise_px)``, ``ProfileRefinement.misfit``,
+    ``ProfileRefinement.edge_scatter_px`` and
+    ``ProfileRefinement.edge_noise_px``.
 
     ``shape`` is the RMS over the :data:`MISFIT_BIN_PX` bins of distance
     past the edge of the bin's median residual, each bin weighted by its

@@ -216,7 +216,7 @@ REASONS: dict[FitReason, Reason] = {
         "surface), and the pose may be off by more than its sigma"),
     FitReason.TERMINATOR_WITHOUT_PROFILE: Reason(
         _SUSPECT, "a terminator (declared, or seen in the image's ramp when no kind was declared: "
-        ":attr:`~dtalign.pipeline.PolylineFit.inferred_edge_kind`) was fitted without an edge "
+        "``PolylineFit.inferred_edge_kind``) was fitted without an edge "
         "profile, and the DT puts a "
         "terminator where the brightness ramp crosses the edge threshold (median error "
         f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px, 90th percentile {TERMINATOR_PLAIN_P90_PX:g} px on "
@@ -329,7 +329,7 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
 
 def _found_inside_window(fit: Any) -> bool:
     """Whether an accepted profile refinement that started from its own scan (a
-    terminator's: :attr:`~dtalign.pipeline.profile_fit.ProfileRefinement.start_offset_vu`)
+    terminator's: ``ProfileRefinement.start_offset_vu``)
     put the pose at least :data:`WINDOW_EDGE_CLEARANCE_PX` inside the search window.
 
     Its pose does not rest on the coarse seed: a DT lock on a terminator's

@@ -123,13 +123,14 @@ CORRELATION_LENGTH_PX: float = 8.0
 #: profile model's residual error with no blur; it grows with the blur
 #: (:data:`PROFILE_FLOOR_PER_PSF`).
 #: ``"profile_terminator"``: an accepted terminator profile refinement,
-#: whose kink is located less sharply than a limb's step.
+#: whose kink is located less sharply than a limb's step; the largest floor
+#: whose 68 % coverage of the rendered terminators stays at most 0.78.
 FLOORS_PX: dict[str, float] = {
     "dt": 0.03,
     "dt_limb": 0.23,
     "dt_terminator": 4.0,
     "profile": 0.003,
-    "profile_terminator": 0.05,
+    "profile_terminator": 0.045,
 }
 
 #: The profile floor's growth with the PSF's sigma ``s`` (px per px): an
