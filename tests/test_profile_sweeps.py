@@ -510,15 +510,30 @@ FIXED = ("1080-terminator-3-vertices-psf-estimated", "9-terminator-4-vertices",
          "ci-limb-3-vertices-heavy-noise")
 
 
+#: The found draws the profile refinement's residual test flags
+#: (``profile_misfit``): a Minnaert limb with k < 1 whose diverging
+#: brightness the pixel model leaves as a residual shape, and a heavy-noise
+#: terminator whose vertices' edges spread twice as far as its noise explains.
+FLAGGED = ("904-terminator-heavy-noise", "ci-limb-minnaert-k0.5-10-vertices",
+           "ci-limb-minnaert-k0.5-5-vertices")
+
+
 @pytest.mark.parametrize("name", FIXED)
 def test_sparse_polylines_found_by_the_sweeps_are_not_confidently_wrong(name):
     family, case = FOUND[name]
     _fit_one(case, family)
 
 
+@pytest.mark.parametrize("name", FLAGGED)
+def test_found_wrong_answers_the_residual_test_flags(name):
+    family, case = FOUND[name]
+    rec = _fit_one(case, family)
+    assert rec["status"] == "suspect" and "profile_misfit" in rec["reasons"], rec
+
+
 @pytest.mark.xfail(strict=True, raises=AssertionError,
                    reason="confident wrong answers found by the sweeps, not fixed")
-@pytest.mark.parametrize("name", sorted(set(FOUND) - set(FIXED)))
+@pytest.mark.parametrize("name", sorted(set(FOUND) - set(FIXED) - set(FLAGGED)))
 def test_found_confident_wrong_answers(name):
     family, case = FOUND[name]
     _fit_one(case, family)

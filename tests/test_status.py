@@ -182,7 +182,7 @@ def test_status_values_are_documented_strings():
         "degenerate", "all_polarity_rejected", "at_window_edge", "most_polarity_rejected",
         "ambiguous", "not_converged", "ambiguous_along_edge", "rank_deficient",
         # the profile refinement's
-        "profile_rejected", "soft_edge", "flat_profile_vertices",
+        "profile_rejected", "soft_edge", "flat_profile_vertices", "profile_misfit",
         # a declared terminator's
         "terminator_without_profile", "terminator_imprecise",
         # vertices outside the image

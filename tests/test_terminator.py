@@ -89,8 +89,10 @@ def test_a_terminator_without_a_profile_is_never_a_silent_ok(one, caplog):
     T = one.terminator
     plain = fit_polyline(one.image, T.vertices_vu, T.normals_vu, T.sigmas,
                          search_window_vu=WINDOW)
-    assert plain.edge_kind is None and FitReason.TERMINATOR_WITHOUT_PROFILE not in plain.reasons
-    assert plain.status == "ok" and _err(plain, one) > 1.0  # confidently wrong, undeclared
+    # undeclared, the ramp along the normals says terminator: flagged all the same
+    assert plain.edge_kind is None and plain.inferred_edge_kind == "terminator"
+    assert FitReason.TERMINATOR_WITHOUT_PROFILE in plain.reasons
+    assert plain.status == "suspect" and _err(plain, one) > 1.0
     with caplog.at_level(logging.WARNING, logger="dtalign"):
         fit = fit_polyline(one.image, T.vertices_vu, T.normals_vu, T.sigmas,
                            search_window_vu=WINDOW, edge_kind="terminator")
@@ -99,10 +101,11 @@ def test_a_terminator_without_a_profile_is_never_a_silent_ok(one, caplog):
     assert fit.status == "suspect"
     assert "terminator without a profile" in fit.status_message
     assert "terminator without a profile" in caplog.text
-    # a limb, a ring or another edge declared without a profile is not suspect for it
+    # a limb, a ring or another edge declared without a profile is not suspect for it:
+    # a declared kind is taken over the one the image shows
     for kind in ("limb", "ring", "other"):
         other = dataclasses.replace(plain, edge_kind=kind)
-        assert other.reasons == plain.reasons
+        assert other.reasons == ()
 
 
 def test_the_batch_takes_each_polylines_kind(one):
@@ -321,3 +324,27 @@ def test_a_blur_trapped_at_zero_is_fitted_again():
             assert d2 < cov.CHI2_2D[1], (seed, d2)  # inside its 95 % ellipse now
     finally:
         log.setLevel(level)
+
+
+@pytest.mark.parametrize(("phase", "light"), [(140.0, 200.0), (150.0, 100.0)])
+def test_a_scan_started_terminator_is_not_failed_for_its_seed_at_the_window_edge(phase, light):
+    """The DT lock on a high-phase terminator's ramp sits on the window's edge; the profile's
+    own scan finds the kink from there, accurately: the status follows that, not the seed."""
+    sc = render_sphere(shape=(240, 240), center_vu=(120.3, 119.6), radius_px=70.0,
+                       phase_deg=phase, illumination_deg=light, offset_vu=(0.4, -0.7),
+                       read_noise_dn=1.0, seed=1)
+    T = sc.terminator
+    prof = sphere_edge_profile(T.vertices_vu, center_vu=sc.model_center_vu, radius_px=70.0,
+                               phase_deg=phase, illumination_deg=light, edge="terminator")
+    fit = fit_polyline(sc.image, T.vertices_vu, T.normals_vu, T.sigmas, search_window_vu=(4, 4),
+                       edge_profile=prof)
+    assert fit.at_window_edge and fit.profile.accepted and fit.profile.start_offset_vu is not None
+    assert FitReason.AT_WINDOW_EDGE not in fit.reasons and fit.status == "ok"
+    assert _err(fit, sc) < 0.05
+    # the same seed without the profile: the pose is the window-edge DT lock's, failed
+    plain = fit_polyline(sc.image, T.vertices_vu, T.normals_vu, T.sigmas,
+                         search_window_vu=(4, 4), edge_kind="terminator")
+    assert FitReason.AT_WINDOW_EDGE in plain.reasons and plain.status == "failed"
+    # a pose within WINDOW_EDGE_CLEARANCE_PX of the window's edge keeps the reason
+    near = dataclasses.replace(fit, offset_vu=(3.5, fit.offset_vu[1]))
+    assert FitReason.AT_WINDOW_EDGE in near.reasons

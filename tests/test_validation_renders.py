@@ -121,12 +121,20 @@ def test_triaxial_terminator_profile(fits):
     assert (_errors(recs) < _errors(fits[("triaxial", "terminator")]["sphere_profile"])).all()
 
 
-@pytest.mark.xfail(strict=True, reason="issue 45 item 4: a plain fit of a rendered limb without "
-                   "edge_kind is ok and outside its 99.9 % ellipse (sigma_vu misses the "
-                   "limb's photometric bias unless the kind is declared)")
 def test_plain_limb_fit_not_confidently_wrong(fits):
+    """A plain limb fit given no ``edge_kind`` reads the kind off the image (a step into a
+    surface that keeps brightening inward), so its floor is the limb's."""
     recs = fits[("model_right", "limb")]["plain"]
     assert not any(fitting.confidently_wrong(r) for r in recs)
+    assert all(r["uncertainty_source"] == "dt_limb" for r in recs)
+    assert all(r["status"] == "ok" for r in recs)
+
+
+def test_plain_terminator_fit_flagged(fits):
+    """A plain terminator fit given no ``edge_kind`` is read as a terminator: suspect."""
+    for family in ("model_right", "night_floor"):
+        recs = fits[(family, "terminator")]["plain"]
+        assert all(r["reasons"] == ["terminator_without_profile"] for r in recs)
 
 
 @pytest.mark.xfail(strict=True, reason="issue 45 targets: model-right terminator median <= 0.02 "
@@ -145,19 +153,17 @@ def test_psf_mismatch_limb_profile(fits):
     assert not any(fitting.confidently_wrong(r) for r in recs)
 
 
-def _unmet(reason: str) -> pytest.MarkDecorator:
-    return pytest.mark.xfail(strict=True, reason="issue 45 item 5: " + reason)
-
-
-@pytest.mark.parametrize("family", [
-    pytest.param("law_mismatch", marks=_unmet(
-        "a Minnaert surface fitted as Lambert is ok outside its 99.9 % ellipse")),
-    pytest.param("craters", marks=_unmet(
-        "craters and relief move the limb; the profile fit is ok outside its 99.9 % ellipse")),
-    pytest.param("capped_limb", marks=_unmet(
-        "a limb brightening capped as by saturation, declared Minnaert, is ok and tenths of a "
-        "pixel off")),
-])
+@pytest.mark.parametrize("family", ["law_mismatch", "craters", "capped_limb"])
 def test_mismatched_limb_not_confidently_wrong(fits, family):
+    """A Minnaert surface fitted as Lambert, craters and relief, a capped brightening declared
+    Minnaert: the profile fit leaves residuals its model does not explain, and says so."""
     recs = fits[(family, "limb")]["profile"]
     assert not any(fitting.confidently_wrong(r) for r in recs)
+    assert all("profile_misfit" in r["reasons"] for r in recs)
+
+
+def test_model_right_profile_fits_pass_the_residual_test(fits):
+    """What the profile's model holds leaves no residual it flags."""
+    for key in (("model_right", "limb"), ("model_right", "terminator"), ("triaxial", "limb"),
+                ("psf_mismatch", "limb")):
+        assert all("profile_misfit" not in r["reasons"] for r in fits[key]["profile"]), key

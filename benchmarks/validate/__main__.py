@@ -19,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 import dtalign
 
 from . import checks, families, fitting, tables
@@ -49,15 +51,32 @@ def run_checks() -> list[dict]:
     return results
 
 
-def run_scenes(n_scenes: int, seed: int, which: list[str]) -> list[dict]:
-    """Draw, render and fit every scene; one record per fit (no images)."""
+def _rendered(p: dict, cache: Path | None) -> np.ndarray:
+    """The render of scene ``p``, read from ``cache`` when it holds it (and
+    written there when not): the renders are deterministic, so a cached one is
+    the same image, and refitting after a change to the fit skips Mitsuba."""
+    if cache is None:
+        return families.render_scene(p)
+    path = cache / f"s{p['seed']}_{p['family']}_{p['edge']}_{p['index']}.npy"
+    if path.exists():
+        return np.load(path)
+    image = families.render_scene(p)
+    cache.mkdir(parents=True, exist_ok=True)
+    np.save(path, image)
+    return image
+
+
+def run_scenes(n_scenes: int, seed: int, which: list[str],
+               cache: Path | None = None) -> list[dict]:
+    """Draw, render (or read from ``cache``) and fit every scene; one record per
+    fit (no images)."""
     records = []
     for family in which:
         for edge in families.edges_of(family):
             for index in range(n_scenes):
                 p = families.draw(family, edge, index, seed)
                 t0 = time.perf_counter()
-                image = families.render_scene(p)
+                image = _rendered(p, cache)
                 t_render = time.perf_counter() - t0
                 fits = [{**{k: p[k] for k in ("family", "edge", "index", "seed")},
                          "render_s": t_render, "scene": p, **rec}
@@ -77,10 +96,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--families", nargs="+", default=list(families.FAMILIES),
                     choices=families.FAMILIES)
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="a directory of renders to read, and to write those it lacks")
     args = ap.parse_args(argv)
     started = datetime.datetime.now(datetime.UTC)
     meta = dict(date=started.isoformat(timespec="seconds"), commit=_commit(), seed=args.seed,
                 scenes=args.scenes, families=args.families, dtalign=dtalign.__version__,
+                render_cache=None if args.cache is None else str(args.cache),
                 **versions())
     print(json.dumps(meta), flush=True)
     t0 = time.perf_counter()
@@ -88,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     if not all(c["ok"] for c in check_results):
         print("a renderer check failed: no scene is fitted", file=sys.stderr)
         return 1
-    records = run_scenes(args.scenes, args.seed, args.families)
+    records = run_scenes(args.scenes, args.seed, args.families, args.cache)
     meta["run_s"] = time.perf_counter() - t0
     rows = tables.summarise(records)
     args.out.mkdir(parents=True, exist_ok=True)

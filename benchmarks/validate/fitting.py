@@ -148,6 +148,13 @@ def score(fit, truth: np.ndarray) -> dict:
         d2=_d2(err, fit.covariance), d2_scaled=_d2(err, fit.uncertainty.covariance_scaled),
         d2_mestimator=_d2(err, fit.uncertainty.covariance_mestimator),
         psf_sigma_px=None if prof is None else float(prof.psf_sigma_px),
+        misfit=None if prof is None else float(getattr(prof, "misfit", float("nan"))),
+        edge_scatter_px=None if prof is None else float(getattr(prof, "edge_scatter_px",
+                                                                  float("nan"))),
+        edge_noise_px=None if prof is None else float(getattr(prof, "edge_noise_px",
+                                                                float("nan"))),
+        uncertainty_source=fit.uncertainty.source,
+        inferred_edge_kind=getattr(fit, "inferred_edge_kind", None),
         exception=None,
     )
 

@@ -49,6 +49,7 @@ from ..api.results import ImageDerivativesConfig, LMRefineResult
 from . import hypotheses as _hypotheses
 from . import jobs
 from . import status as _status
+from .edge_kind import infer_edge_kind
 from .hypotheses import Ambiguity, Hypothesis
 from .observability import (
     _sigma_list,
@@ -182,6 +183,15 @@ class PolylineFit:
         ``mask``): the edge was not measured there
         (:attr:`~dtalign.pipeline.status.FitReason.MASKED_PIXELS`); None
         when the image had no bad pixel.
+    inferred_edge_kind : str or None
+        For a fit given neither ``edge_kind`` nor a profile: the kind the
+        image shows along the normals at the DT-LM pose, ``"limb"`` or
+        ``"terminator"`` (:func:`~dtalign.pipeline.edge_kind.infer_edge_kind`),
+        None for a plain step or when undecided. It chooses the floor of
+        :attr:`covariance` as a declared kind would, and an inferred
+        terminator carries
+        :attr:`~dtalign.pipeline.status.FitReason.TERMINATOR_WITHOUT_PROFILE`.
+        None whenever a kind or a profile was given.
 
     Whether to trust the fit is read by :attr:`status`, :attr:`reasons` and
     :attr:`status_message` (:mod:`dtalign.pipeline.status`); its uncertainty
@@ -216,6 +226,7 @@ class PolylineFit:
     evidence: Evidence | None = field(default=None, repr=False)
     image_shape: tuple[int, int] | None = field(default=None, repr=False)
     masked_vertices: int | None = field(default=None, repr=False)
+    inferred_edge_kind: str | None = None
 
     @property
     def n_params(self) -> int:
@@ -1017,6 +1028,11 @@ def _measured(fit: PolylineFit, products: ImageProducts, profile: Any,
     found = None if fit.lm.degenerate else evidence(
         fit, products.edge_dt, (products.gradient_magnitude, products.gradient_vu), threshold)
     changes["evidence"] = found
+    if kind is None and profile is None and found is not None and products.image is not None:
+        # nothing declared: read the kind off the image, so that the floor
+        # (uncertainty.source_of) knows a limb's or terminator's bias
+        changes["inferred_edge_kind"] = infer_edge_kind(
+            products.image, found.points_vu, fit.normals_vu, fit.lm.weights)
     if found is not None and not (ref is not None and ref.accepted):
         # the DT-LM pose less the second edges' pull (uncertainty.second_edge_pull):
         # a thin crescent's other edge pushes the detected edge away from it

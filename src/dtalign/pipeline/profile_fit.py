@@ -43,6 +43,8 @@ __all__ = [
     "MAX_TAU_PX",
     "MIN_VERTICES",
     "edge_kind_of",
+    "misfit",
+    "misfitted",
     "profile_samples",
     "MAX_WALK_PX",
     "SCAN_DARK_PX",
@@ -55,6 +57,11 @@ __all__ = [
     "SOFT_EDGE_STEP_JUMP",
     "FIT_WINGS",
     "FLAT_CONTRAST",
+    "MISFIT_BIN_PX",
+    "MISFIT_LIMIT",
+    "MISFIT_NOISE_SIGMAS",
+    "SCATTER_LIMIT_PX",
+    "SCATTER_RATIO",
     "MIN_WING_FRACTION",
     "ProfileRefinement",
     "refine_with_profile",
@@ -210,6 +217,36 @@ SIGMA_VERTICES = 48
 #: against its gain.
 FLAT_CONTRAST = 1e-3
 
+#: The bins of distance past the edge, px, in which :func:`misfit` takes
+#: the median residual of the pooled strips.
+MISFIT_BIN_PX = 0.5
+
+#: An accepted refinement whose ``ProfileRefinement.misfit`` exceeds
+#: this fraction of its gain leaves a shape its model does not have (the
+#: status's ``profile_misfit``). Measured on the validation renders
+#: (docs/validation.rst): model-right limbs and terminators, the PSF
+#: estimated, leave at most 0.002; a Minnaert surface fitted as Lambert
+#: 0.02, craters 0.007, a capped brightening 0.8.
+MISFIT_LIMIT = 0.004
+
+#: The residual shape :func:`misfit` reports is what exceeds the noise's
+#: share of the bins' squared medians by this many of its standard
+#: deviations: a heavy noise's chance shape is not a model's error.
+MISFIT_NOISE_SIGMAS = 3.0
+
+#: An accepted refinement whose vertices' edges spread about its pose by
+#: more than this beyond the noise, px (``sqrt(scatter^2 - noise^2)`` of
+#: ``ProfileRefinement.edge_scatter_px`` and
+#: ``ProfileRefinement.edge_noise_px``), and by more than
+#: :data:`SCATTER_RATIO` times the noise, fits a surface whose edge the
+#: model does not hold (relief, craters): ``profile_misfit``.
+SCATTER_LIMIT_PX = 0.03
+#: See :data:`SCATTER_LIMIT_PX`. The noise's share is read from the
+#: residuals of all the strips' pixels, most of them on the sky, so it is a
+#: little low where the signal's shot noise dominates: model-right noisy
+#: limbs read up to 1.5.
+SCATTER_RATIO = 1.6
+
 #: A limb profile whose contrast-weighted median ``EdgeProfile.step_jump``
 #: is below this has no usable edge: its brightness rolls off to the edge
 #: (a Lambert limb below ~10-15 deg phase), so the edge's position rests on
@@ -272,6 +309,23 @@ class ProfileRefinement:
     n_flat_vertices : int
         Vertices left out because their profile has no contrast across the
         strip (:data:`FLAT_CONTRAST`: an unlit part of a limb).
+    misfit : float
+        What the fitted model leaves that the noise does not
+        (:func:`misfit`): the median residual of the strips' pixels in each
+        :data:`MISFIT_BIN_PX` bin of distance past the edge, pooled over
+        the vertices so that the noise averages away, its root mean square
+        over the bins, as a fraction of the fitted gain. A model that is
+        right leaves a few thousandths; a reflectance law, a surface or a
+        PSF that differ from the declared leave a systematic shape, which
+        above :data:`MISFIT_LIMIT` makes the fit suspect
+        (``profile_misfit``). NaN when not measured.
+    edge_scatter_px, edge_noise_px : float
+        The robust spread of the vertices' own edge positions about the
+        fitted pose, along their normals, px, and the spread the residuals'
+        noise explains (:func:`misfit`): a surface whose relief or texture
+        moves the edge from vertex to vertex spreads them beyond the noise,
+        which :data:`SCATTER_LIMIT_PX` and :data:`SCATTER_RATIO` flag
+        (``profile_misfit``). NaN when not measured.
     start_offset_vu : tuple of float or None
         Where the Gauss-Newton started when not at the DT-LM offset: a
         terminator's scan (:data:`SCAN_DARK_PX`); None otherwise. A
@@ -315,6 +369,9 @@ class ProfileRefinement:
     wing_fraction: float = 0.0
     wing_sigma_px: float = math.nan
     n_flat_vertices: int = 0
+    misfit: float = math.nan
+    edge_scatter_px: float = math.nan
+    edge_noise_px: float = math.nan
 
     #: JSON's None reads back as NaN (:mod:`dtalign.pipeline.records`).
     NONFINITE: ClassVar[float] = math.nan
@@ -530,6 +587,8 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
     dt = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
     if start is not None:
         walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
+    final = pb if start is not None else _with_wings(pb, params)
+    shape, scatter, noise = misfit(final, np.asarray(p, dtype=np.float64))
     return ProfileRefinement(
         offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
         gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
@@ -541,7 +600,87 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
         step_jump=float(step_jump), soft_edge=bool(soft),
         time_s=time.perf_counter() - t_start, start_offset_vu=start,
+        misfit=shape, edge_scatter_px=scatter, edge_noise_px=noise,
     )
+
+
+def misfitted(ref: ProfileRefinement) -> bool:
+    """Whether an accepted refinement leaves what its model does not explain: a
+    shape (:data:`MISFIT_LIMIT`) or a spread of its vertices' edges beyond the
+    noise (:data:`SCATTER_LIMIT_PX`, :data:`SCATTER_RATIO`). False when not
+    measured (NaN) or not accepted."""
+    if not ref.accepted:
+        return False
+    scatter, noise = ref.edge_scatter_px, ref.edge_noise_px
+    spread = (scatter > SCATTER_RATIO * noise
+              and math.sqrt(max(scatter * scatter - noise * noise, 0.0)) > SCATTER_LIMIT_PX)
+    return bool(ref.misfit > MISFIT_LIMIT or spread)
+
+
+def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float]:
+    """What ``params`` leave on ``pb``'s strips (those of the refinement's last
+    run, its PSF's wings folded into the profile): ``(shape, scatter_px,
+    noise_px)``, ``ProfileRefinement.misfit``,
+    ``ProfileRefinement.edge_scatter_px`` and
+    ``ProfileRefinement.edge_noise_px``.
+
+    ``shape`` is the RMS over the :data:`MISFIT_BIN_PX` bins of distance
+    past the edge of the bin's median residual, each bin weighted by its
+    pixels, less what the noise leaves in such medians and
+    :data:`MISFIT_NOISE_SIGMAS` times its spread, over ``|gain|``: the
+    median pools hundreds of pixels from every vertex, so
+    the noise averages away and a shape common to the vertices (a wrong
+    law, a capped brightening, a PSF the model does not have) stays. ``scatter_px`` is the robust spread (1.4826 MAD) of each
+    vertex's own edge shift along its normal, the residuals of its strip
+    projected on the model's derivative along the normal, ``sum(g r) /
+    sum(g^2)``: what the noise gives, ``noise_px``, is the residuals' own
+    robust scale over ``sqrt(sum(g^2))``, the median over the vertices;
+    relief or texture that moves the edge from vertex to vertex spreads it
+    further. NaN for no pixels or a zero gain."""
+    k = pb.kernels
+    gain = abs(float(params[2]))
+    hgt, wid = pb.image.shape
+    kk, ii, jj = k.select_pixels(hgt, wid, np.ascontiguousarray(pb.verts + np.asarray(pb.d0)),
+                                 pb.normals, pb.tau, HALF_WIDTH_PX)
+    if ii.shape[0] == 0 or not gain > 0.0:
+        return math.nan, math.nan, math.nan
+    pv, pu = ii.astype(np.float64), jj.astype(np.float64)
+    tab = k.all_tables(pb.values, pb.shape, pb.o0, pb.h, pb.j0, pb.nb, float(params[4]))
+    held = params.copy()
+    held[7] = 0.0  # the wings, when any, are in the profile (_with_wings)
+    r, jac = k.evaluate(np.ascontiguousarray(pb.image[ii, jj]), kk, pv, pu, pb.verts,
+                        pb.normals, pb.curv, *tab[:6], pb.use_shape, tab[6], tab[7], *tab[:6],
+                        False, tab[6], tab[7], held)
+    r = np.asarray(r)
+    n = pb.normals[kk]
+    past = ((pv - pb.verts[kk, 0] - held[0]) * n[:, 0]
+            + (pu - pb.verts[kk, 1] - held[1]) * n[:, 1])
+    bins = np.round(past / MISFIT_BIN_PX).astype(np.int64)
+    order = np.argsort(bins, kind="stable")
+    groups = np.split(r[order], np.flatnonzero(np.diff(bins[order])) + 1)
+    med = np.array([np.median(g) for g in groups])
+    count = np.array([g.shape[0] for g in groups], dtype=np.float64)
+    # what the noise leaves in a bin's squared median: v = (1.2533 sigma)^2 / n
+    # on average, with a spread of sqrt(2) v, sigma the residuals' robust scale
+    # (which a shape inflates: the estimate is cautious); the shape is what
+    # exceeds that by MISFIT_NOISE_SIGMAS of its spread
+    scale = 1.4826 * float(np.median(np.abs(r)))
+    v = (1.2533 * scale) ** 2 / count
+    total = float(count.sum())
+    excess = float(np.sum(count * (med**2 - v))) / total
+    spread = math.sqrt(2.0 * float(np.sum((count * v) ** 2))) / total
+    shape = math.sqrt(max(excess - MISFIT_NOISE_SIGMAS * spread, 0.0)) / gain
+    # each vertex's edge shift: its residuals on the model's slope along the normal
+    slope = np.asarray(jac)[:, 0] * n[:, 0] + np.asarray(jac)[:, 1] * n[:, 1]
+    nv = pb.verts.shape[0]
+    sgg = np.bincount(kk, slope * slope, minlength=nv)
+    seen = sgg > 0.0
+    if not seen.any():
+        return shape, math.nan, math.nan
+    shift = np.bincount(kk, slope * r, minlength=nv)[seen] / sgg[seen]
+    scatter = 1.4826 * float(np.median(np.abs(shift - np.median(shift))))
+    noise = scale * float(np.median(1.0 / np.sqrt(sgg[seen])))
+    return shape, scatter, noise
 
 
 def _start(d0: tuple[float, float], sigma: float, wings: bool) -> FloatArray:

@@ -30,6 +30,7 @@ from .measured import (
     no_edge_run,
     outside_mask,
 )
+from .profile_fit import MISFIT_LIMIT, misfitted
 
 __all__ = [
     "NO_EDGE_GAP", "NO_EDGE_MIN_FRACTION", "REASONS", "SETTLE_ITERATIONS", "SETTLE_SIGMAS", "TERMINATOR_PLAIN_MEDIAN_PX",
@@ -81,6 +82,7 @@ class FitReason(_Text):
     AMBIGUOUS = "ambiguous"
     PROFILE_REJECTED = "profile_rejected"
     SOFT_EDGE = "soft_edge"
+    PROFILE_MISFIT = "profile_misfit"
     TERMINATOR_WITHOUT_PROFILE = "terminator_without_profile"
     TERMINATOR_IMPRECISE = "terminator_imprecise"
     FLAT_PROFILE_VERTICES = "flat_profile_vertices"
@@ -100,6 +102,11 @@ TERMINATOR_PLAIN_P90_PX = 13.8
 #: ``terminator_imprecise``: an ``ok`` terminator more than 1 px off is then
 #: more than three of its sigmas off (:ref:`profiles-terminator`).
 TERMINATOR_SIGMA_LIMIT_PX = 1.0 / 3.0
+
+#: How far inside the search window, px along each axis, a terminator's
+#: accepted, scan-started profile refinement must put the pose for the
+#: coarse seed on the window's edge not to matter (``at_window_edge``).
+WINDOW_EDGE_CLEARANCE_PX = 1.0
 
 #: What a failed fit's printed summary and the command line show for its
 #: sigmas, which are no measurement; the numeric fields keep their values.
@@ -181,7 +188,9 @@ REASONS: dict[FitReason, Reason] = {
         "{fit.noise_sigma:.4g}: too high for any edge to pass?)"),
     FitReason.AT_WINDOW_EDGE: Reason(
         _FAILED, "the coarse seed is on the boundary of the search window, so the true offset "
-        "may lie outside it: widen ``search_window_vu`` (``--window``).",
+        "may lie outside it: widen ``search_window_vu`` (``--window``). Not raised when a "
+        "terminator's accepted profile refinement, started from its own scan, puts the pose "
+        f"at least {WINDOW_EDGE_CLEARANCE_PX:g} px inside the window.",
         "at window edge: the coarse seed {seed} is on the edge of the search window "
         "±{window}; the true offset may lie outside it: widen search_window_vu"),
     FitReason.AMBIGUOUS: Reason(
@@ -201,8 +210,21 @@ REASONS: dict[FitReason, Reason] = {
         "soft edge: the profile's step at the edge is {fit.profile.step_jump:.2f} of its contrast (the "
         "brightness rolls off to the edge, as a limb at low phase): the position rests on the "
         "modelled roll-off and the reflectance law"),
+    FitReason.PROFILE_MISFIT: Reason(
+        _SUSPECT, "the accepted profile refinement leaves residuals its model does not explain: "
+        "a shape common to the vertices (a reflectance law, a PSF or a brightening that differ "
+        "from the declared ones) or vertex edges spread beyond the noise (relief, craters); its "
+        "pose may then be off by more than its sigma (:ref:`profiles-result`): declare the law, "
+        "or check the surface.",
+        "profile misfit: the fitted model leaves a residual shape of {fit.profile.misfit:.3g} of "
+        "its gain (limit {misfit_limit:g}) and the vertices' edges spread "
+        "{fit.profile.edge_scatter_px:.3g} px about the pose against {fit.profile.edge_noise_px:.3g} "
+        "px from the noise: the profile does not describe this edge (another law, PSF or "
+        "surface), and the pose may be off by more than its sigma"),
     FitReason.TERMINATOR_WITHOUT_PROFILE: Reason(
-        _SUSPECT, "a declared terminator was fitted without an edge profile, and the DT puts a "
+        _SUSPECT, "a terminator (declared, or seen in the image's ramp when no kind was declared: "
+        "``PolylineFit.inferred_edge_kind``) was fitted without an edge "
+        "profile, and the DT puts a "
         "terminator where the brightness ramp crosses the edge threshold (median error "
         f"{TERMINATOR_PLAIN_MEDIAN_PX:g} px, 90th percentile {TERMINATOR_PLAIN_P90_PX:g} px on "
         "rendered Lambert terminators, :ref:`profiles-terminator`): give "
@@ -286,7 +308,7 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
         R.ALL_POLARITY_REJECTED: n_in > 0 and rejected == n_in,
         R.MOST_POLARITY_REJECTED: rejected != n_in and 2 * rejected > n_in,
         R.DEGENERATE: lm.degenerate,
-        R.AT_WINDOW_EDGE: fit.at_window_edge,
+        R.AT_WINDOW_EDGE: fit.at_window_edge and not _found_inside_window(fit),
         R.MASKED_PIXELS: bool(getattr(fit, "masked_vertices", None)),
     }
     if not lm.degenerate:  # nothing was measured: the rest means nothing
@@ -295,11 +317,13 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
         # start has let the image decide between the two basins
         decided = given and profile.accepted and profile.rival_agrees is True
         rival = amb is not None and amb.ambiguous
-        terminator = fit.edge_kind == "terminator"
+        # declared, or seen in the image when nothing was declared
+        terminator = (fit.edge_kind or getattr(fit, "inferred_edge_kind", None)) == "terminator"
         found.update({
             R.AMBIGUOUS: rival and not amb.along_unobservable and not decided,
             R.PROFILE_REJECTED: given and not profile.accepted,
             R.SOFT_EDGE: given and profile.soft_edge,
+            R.PROFILE_MISFIT: given and misfitted(profile),
             R.TERMINATOR_WITHOUT_PROFILE: not given and terminator,
             R.TERMINATOR_IMPRECISE: given and profile.accepted and terminator
             and x["profile_sigma"] > TERMINATOR_SIGMA_LIMIT_PX,
@@ -309,6 +333,24 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
             R.RANK_DEFICIENT: fit.observable_rank < fit.n_params,
         })
     return tuple(r for r in FitReason if found.get(r))
+
+
+def _found_inside_window(fit: Any) -> bool:
+    """Whether an accepted profile refinement that started from its own scan (a
+    terminator's: ``ProfileRefinement.start_offset_vu``)
+    put the pose at least :data:`WINDOW_EDGE_CLEARANCE_PX` inside the search window.
+
+    Its pose does not rest on the coarse seed: a DT lock on a terminator's
+    ramp sits where the ramp crosses the edge threshold, often at the window's
+    edge, and the scan finds the kink from there. Such refinements of rendered
+    terminators are as accurate as the others (:ref:`validation`), so the
+    seed's place says nothing about the pose then.
+    """
+    ref = fit.profile
+    if ref is None or not ref.accepted or ref.start_offset_vu is None:
+        return False
+    return all(w > 0 and abs(o) <= w - WINDOW_EDGE_CLEARANCE_PX
+               for o, w in zip(fit.offset_vu, fit.search_window_vu, strict=True))
 
 
 def _profile_sigma(x: _Facts) -> float:
@@ -359,6 +401,7 @@ _FACT: dict[str, Callable[[_Facts], Any]] = {
     "seed": lambda x: tuple(x.fit.coarse_offset_vu),
     "window": lambda x: tuple(x.fit.search_window_vu),
     "profile_sigma": _profile_sigma,
+    "misfit_limit": lambda x: MISFIT_LIMIT,
     "n_model": lambda x: len(x.fit.vertices_vu),
     "moved": _moved,
     "null_directions": lambda x: "; ".join(

@@ -123,13 +123,14 @@ CORRELATION_LENGTH_PX: float = 8.0
 #: profile model's residual error with no blur; it grows with the blur
 #: (:data:`PROFILE_FLOOR_PER_PSF`).
 #: ``"profile_terminator"``: an accepted terminator profile refinement,
-#: whose kink is located less sharply than a limb's step.
+#: whose kink is located less sharply than a limb's step; the largest floor
+#: whose 68 % coverage of the rendered terminators stays at most 0.78.
 FLOORS_PX: dict[str, float] = {
     "dt": 0.03,
     "dt_limb": 0.23,
     "dt_terminator": 4.0,
     "profile": 0.003,
-    "profile_terminator": 0.05,
+    "profile_terminator": 0.045,
 }
 
 #: The profile floor's growth with the PSF's sigma ``s`` (px per px): an
@@ -482,8 +483,12 @@ def evidence(fit: Any, edge_dt: FloatArray, gradient: tuple[FloatArray, FloatArr
 
 
 def source_of(fit: Any) -> str:
-    """Which pose ``fit`` reports and so which floor applies: a key of :data:`FLOORS_PX`."""
-    kind = fit.edge_kind
+    """Which pose ``fit`` reports and so which floor applies: a key of :data:`FLOORS_PX`.
+
+    The kind is the declared one, else the one the image shows
+    (``fit.inferred_edge_kind``): a limb fitted plainly keeps its
+    photometric bias whether or not its kind was declared."""
+    kind = fit.edge_kind or getattr(fit, "inferred_edge_kind", None)
     if fit.profile is not None and fit.profile.accepted:
         return "profile_terminator" if kind == "terminator" else "profile"
     return {"limb": "dt_limb", "terminator": "dt_terminator"}.get(kind or "", "dt")

@@ -1,0 +1,59 @@
+"""The profile refinement's residual test (ProfileRefinement.misfit, profile_misfit)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from dtalign import scenes, sphere_edge_profile
+from dtalign.pipeline import fit_polyline
+from dtalign.pipeline import profile_fit as pf
+from dtalign.pipeline.status import FitReason
+
+
+def _fit(law: str, fit_law: str):
+    sc = scenes.render_sphere(shape=(240, 240), center_vu=(120.3, 119.6), radius_px=70.0,
+                              phase_deg=40.0, illumination_deg=30.0, offset_vu=(0.4, -0.7),
+                              read_noise_dn=1.0, seed=1, law=law,
+                              minnaert_k=0.7 if law == "minnaert" else None)
+    P = sc.limb
+    extra = {"minnaert_k": 0.7} if fit_law == "minnaert" else {}
+    prof = sphere_edge_profile(P.vertices_vu, center_vu=sc.model_center_vu, radius_px=70.0,
+                               phase_deg=40.0, illumination_deg=30.0, law=fit_law, **extra)
+    return fit_polyline(sc.image, P.vertices_vu, P.normals_vu, P.sigmas,
+                        search_window_vu=(8, 8), edge_profile=prof), sc
+
+
+def test_a_minnaert_limb_fitted_as_lambert_is_flagged():
+    fit, sc = _fit("minnaert", "lambert")
+    assert fit.profile.accepted and fit.profile.misfit > pf.MISFIT_LIMIT
+    assert FitReason.PROFILE_MISFIT in fit.reasons and fit.status == "suspect"
+    assert "profile misfit" in fit.status_message
+
+
+@pytest.mark.parametrize("law", ["minnaert", "lambert"])
+def test_the_declared_law_leaves_no_flagged_residual(law):
+    fit, sc = _fit(law, law)
+    ref = fit.profile
+    assert ref.accepted and ref.misfit < pf.MISFIT_LIMIT / 4
+    assert not pf.misfitted(ref) and fit.status == "ok"
+    assert 0.0 < ref.edge_noise_px and ref.edge_scatter_px < ref.edge_noise_px + pf.SCATTER_LIMIT_PX
+    assert math.hypot(*np.subtract(fit.offset_vu, sc.true_offset_vu)) < 0.01
+
+
+def test_the_rule():
+    fit, _ = _fit("lambert", "lambert")
+    ref = fit.profile
+    def with_(**kw):
+        return pf.misfitted(dataclasses.replace(ref, **kw))
+    assert with_(misfit=2 * pf.MISFIT_LIMIT)
+    # a spread beyond the noise: both beyond SCATTER_LIMIT_PX and SCATTER_RATIO times the noise
+    assert with_(misfit=0.0, edge_noise_px=0.01, edge_scatter_px=0.05)
+    assert not with_(misfit=0.0, edge_noise_px=0.04, edge_scatter_px=0.06)  # within the ratio
+    assert not with_(misfit=0.0, edge_noise_px=0.001, edge_scatter_px=0.02)  # below the limit
+    # not measured, or not accepted: nothing to flag
+    assert not with_(misfit=math.nan, edge_noise_px=math.nan, edge_scatter_px=math.nan)
+    assert not with_(accepted=False, misfit=1.0)
