@@ -639,9 +639,8 @@ def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float]:
     further. NaN for no pixels or a zero gain."""
     k = pb.kernels
     gain = abs(float(params[2]))
-    hgt, wid = pb.image.shape
-    kk, ii, jj = k.select_pixels(hgt, wid, np.ascontiguousarray(pb.verts + np.asarray(pb.d0)),
-                                 pb.normals, pb.tau, HALF_WIDTH_PX)
+    kk, ii, jj = _strips(pb, np.ascontiguousarray(pb.verts + np.asarray(pb.d0)), pb.normals,
+                         pb.tau)  # (less the masked pixels)
     if ii.shape[0] == 0 or not gain > 0.0:
         return math.nan, math.nan, math.nan
     pv, pu = ii.astype(np.float64), jj.astype(np.float64)
