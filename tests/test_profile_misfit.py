@@ -54,6 +54,45 @@ def test_the_rule():
     assert with_(misfit=0.0, edge_noise_px=0.01, edge_scatter_px=0.05)
     assert not with_(misfit=0.0, edge_noise_px=0.04, edge_scatter_px=0.06)  # within the ratio
     assert not with_(misfit=0.0, edge_noise_px=0.001, edge_scatter_px=0.02)  # below the limit
+    # a terminator's horns moving its pose: beyond HORN_SHIFT_SIGMAS and HORN_SHIFT_MIN_PX
+    assert with_(horn_shift_px=-0.5, horn_shift_sigma_px=0.1)
+    assert not with_(horn_shift_px=0.2, horn_shift_sigma_px=0.1)  # within the sigmas
+    assert not with_(horn_shift_px=0.09, horn_shift_sigma_px=0.001)  # below the minimum
     # not measured, or not accepted: nothing to flag
     assert not with_(misfit=math.nan, edge_noise_px=math.nan, edge_scatter_px=math.nan)
+    assert not with_(horn_shift_px=math.nan, horn_shift_sigma_px=math.nan)
     assert not with_(accepted=False, misfit=1.0)
+
+
+def _crescent(law: str, radius_px: float, phase_deg: float, psf_sigma_px: float):
+    """A noise-free terminator, its PSF estimated by the fit."""
+    sc = scenes.render_sphere(shape=(200, 200), center_vu=(100.0, 100.0), radius_px=radius_px,
+                              phase_deg=phase_deg, illumination_deg=0.0, law=law,
+                              psf_sigma_px=psf_sigma_px, n_vertices=58)
+    P = sc.terminator
+    prof = sphere_edge_profile(P.vertices_vu, center_vu=sc.model_center_vu, radius_px=radius_px,
+                               phase_deg=phase_deg, illumination_deg=0.0, edge="terminator",
+                               law=law)
+    fit = fit_polyline(sc.image, P.vertices_vu, P.normals_vu, P.sigmas,
+                       search_window_vu=(8, 8), edge_profile=prof)
+    return fit, math.hypot(*np.subtract(fit.offset_vu, sc.true_offset_vu))
+
+
+def test_a_crescent_whose_horns_move_the_pose_is_flagged():
+    # Lommel-Seeliger's horns are bright: fitted with them, this crescent's
+    # pose lies 1.6 px off at 8 of its sigmas; without them, 0.3 px
+    fit, err = _crescent("lommel-seeliger", 40.0, 106.0, 2.0)
+    ref = fit.profile
+    assert ref.accepted and err > 1.0
+    assert abs(ref.horn_shift_px) > pf.HORN_SHIFT_SIGMAS * ref.horn_shift_sigma_px
+    assert pf.horns_disagree(ref) and FitReason.PROFILE_MISFIT in fit.reasons
+    assert fit.status == "suspect" and "horns" in fit.status_message
+
+
+@pytest.mark.parametrize("law, phase_deg", [("lambert", 135.0), ("lommel-seeliger", 45.0),
+                                            ("lambert", 106.0)])
+def test_a_crescent_whose_horns_agree_is_not_flagged(law, phase_deg):
+    fit, err = _crescent(law, 60.0, phase_deg, 0.8)
+    ref = fit.profile
+    assert ref.accepted and fit.status == "ok" and not pf.horns_disagree(ref)
+    assert err < 0.05

@@ -62,6 +62,10 @@ __all__ = [
     "MISFIT_NOISE_SIGMAS",
     "SCATTER_LIMIT_PX",
     "SCATTER_RATIO",
+    "HORN_FRACTION",
+    "HORN_SHIFT_SIGMAS",
+    "HORN_SHIFT_MIN_PX",
+    "horns_disagree",
     "MIN_WING_FRACTION",
     "ProfileRefinement",
     "refine_with_profile",
@@ -217,6 +221,31 @@ SIGMA_VERTICES = 48
 #: against its gain.
 FLAT_CONTRAST = 1e-3
 
+#: A terminator's vertex whose profile, past its brightest value on the lit
+#: side of its strip, falls back below this fraction of it has the limb
+#: within its strip: a horn of the crescent, where the 1-D model across the
+#: terminator (the terminator's curvature for every pixel of the strip) does
+#: not describe the limb that cuts it.
+HORN_FRACTION = 0.5
+
+#: A terminator's accepted refinement is refitted without its horns
+#: (:data:`HORN_FRACTION`) from its own pose; a shift of the pose along the
+#: polyline's mean normal beyond this many sigmas of the shift (the larger of
+#: the two fits' sigmas along it: the difference of their variances, the
+#: figure for nested fits of the same pixels, collapses to 0 when their
+#: residual scales differ, and flagged honest fits) and beyond
+#: :data:`HORN_SHIFT_MIN_PX` is
+#: ``ProfileRefinement.horn_shift_px`` that :func:`misfitted` reports: the
+#: horns and the rest of the terminator put the edge in different places.
+#: Under Lommel-Seeliger the horns are bright (``cos i / (cos i + cos e)``
+#: stays near 1/2 as both cosines vanish), and a crescent's terminator at
+#: phase 100-110 deg, its blur estimated, lay 0.3-1.6 px off at 4-10 sigma
+#: with the horns, 0.07-0.3 px without (docs/profiles.rst, "A
+#: terminator's horns").
+HORN_SHIFT_SIGMAS = 2.5
+#: See :data:`HORN_SHIFT_SIGMAS`.
+HORN_SHIFT_MIN_PX = 0.1
+
 #: The bins of distance past the edge, px, in which :func:`misfit` takes
 #: the median residual of the pooled strips.
 MISFIT_BIN_PX = 0.5
@@ -309,6 +338,12 @@ class ProfileRefinement:
     n_flat_vertices : int
         Vertices left out because their profile has no contrast across the
         strip (:data:`FLAT_CONTRAST`: an unlit part of a limb).
+    horn_shift_px, horn_shift_sigma_px : float
+        A terminator's: how far its pose moves along the polyline's mean
+        normal when refitted without the vertices whose strips the limb cuts
+        (the crescent's horns: :data:`HORN_SHIFT_SIGMAS`), and the sigma of
+        that shift; NaN when not measured (not a terminator, no horns, too
+        few vertices without them, or a rejected refinement).
     misfit : float
         What the fitted model leaves that the noise does not
         (:func:`misfit`): the median residual of the strips' pixels in each
@@ -369,6 +404,8 @@ class ProfileRefinement:
     wing_fraction: float = 0.0
     wing_sigma_px: float = math.nan
     n_flat_vertices: int = 0
+    horn_shift_px: float = math.nan
+    horn_shift_sigma_px: float = math.nan
     misfit: float = math.nan
     edge_scatter_px: float = math.nan
     edge_noise_px: float = math.nan
@@ -528,6 +565,45 @@ def refine_with_profile(
         )
 
 
+def _horns(pb: _Problem) -> NDArray[np.bool_]:
+    """The vertices of a terminator whose profile, within the strips' reach,
+    falls past its brightest value toward the lit side (the offsets' end)
+    below :data:`HORN_FRACTION` of it: the limb cuts their strips."""
+    vals = pb.values[:, pb.j0 : pb.j0 + pb.nb]
+    if vals.shape[1] == 0:
+        return np.zeros(vals.shape[0], dtype=bool)
+    peak = np.argmax(vals, axis=1)
+    top = vals[np.arange(vals.shape[0]), peak]
+    after = np.where(np.arange(vals.shape[1])[None, :] >= peak[:, None], vals, np.inf)
+    return np.asarray((top > 0.0) & (after.min(axis=1) < HORN_FRACTION * top))
+
+
+def _horn_shift(pb: _Problem, params: FloatArray, cov: FloatArray, known: bool
+                ) -> tuple[float, float]:
+    """A terminator's pose shift along the polyline's mean normal when its last
+    run (``pb`` from ``params``, its offset's covariance ``cov``) is repeated
+    without its horns (:func:`_horns`), and that shift's sigma
+    (:data:`HORN_SHIFT_SIGMAS`); NaN, NaN when there are no horns, fewer than
+    :data:`MIN_VERTICES` vertices without them, or the run cannot be made."""
+    horn = _horns(pb)
+    nbar = pb.normals.sum(axis=0)
+    norm = math.hypot(float(nbar[0]), float(nbar[1]))
+    if not horn.any() or int((~horn).sum()) < MIN_VERTICES or not norm > 0.0:
+        return math.nan, math.nan
+    nbar = nbar / norm
+    try:
+        p_h, _, _, inv_h, scale_h, _, _ = _run(_kept(pb, ~horn), None, params, not known,
+                                               TOLERANCE_PX)
+    except _Unusable:
+        return math.nan, math.nan
+    cov_h = np.asarray(inv_h)[:2, :2] * float(scale_h) ** 2
+    shift = float((np.asarray(p_h)[:2] - params[:2]) @ nbar)
+    if not (math.isfinite(shift) and np.isfinite(cov_h).all() and np.isfinite(cov).all()):
+        return math.nan, math.nan
+    var = max(float(nbar @ cov_h @ nbar), float(nbar @ cov @ nbar))
+    return shift, math.sqrt(max(var, 0.0))
+
+
 def _kept(pb: _Problem, keep: NDArray[np.bool_]) -> _Problem:
     """``pb`` over the vertices ``keep`` only (each keeps its strip's length)."""
     def sub(a: FloatArray) -> FloatArray:
@@ -589,6 +665,9 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
         walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
     final = pb if start is not None else _with_wings(pb, params)
     shape, scatter, noise = misfit(final, np.asarray(p, dtype=np.float64))
+    horn_shift = horn_sigma = math.nan
+    if start is not None and not reason:
+        horn_shift, horn_sigma = _horn_shift(pb, np.asarray(p, dtype=np.float64), cov, known)
     return ProfileRefinement(
         offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
         gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
@@ -601,20 +680,30 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
         step_jump=float(step_jump), soft_edge=bool(soft),
         time_s=time.perf_counter() - t_start, start_offset_vu=start,
         misfit=shape, edge_scatter_px=scatter, edge_noise_px=noise,
+        horn_shift_px=horn_shift, horn_shift_sigma_px=horn_sigma,
     )
 
 
 def misfitted(ref: ProfileRefinement) -> bool:
     """Whether an accepted refinement leaves what its model does not explain: a
-    shape (:data:`MISFIT_LIMIT`) or a spread of its vertices' edges beyond the
-    noise (:data:`SCATTER_LIMIT_PX`, :data:`SCATTER_RATIO`). False when not
+    shape (:data:`MISFIT_LIMIT`), a spread of its vertices' edges beyond the
+    noise (:data:`SCATTER_LIMIT_PX`, :data:`SCATTER_RATIO`), or a terminator's
+    horns that move its pose (:func:`horns_disagree`). False when not
     measured (NaN) or not accepted."""
     if not ref.accepted:
         return False
     scatter, noise = ref.edge_scatter_px, ref.edge_noise_px
     spread = (scatter > SCATTER_RATIO * noise
               and math.sqrt(max(scatter * scatter - noise * noise, 0.0)) > SCATTER_LIMIT_PX)
-    return bool(ref.misfit > MISFIT_LIMIT or spread)
+    return bool(ref.misfit > MISFIT_LIMIT or spread or horns_disagree(ref))
+
+
+def horns_disagree(ref: ProfileRefinement) -> bool:
+    """Whether a terminator's horns move its pose (``horn_shift_px`` beyond
+    :data:`HORN_SHIFT_SIGMAS` of its sigma and :data:`HORN_SHIFT_MIN_PX`);
+    False when not measured."""
+    shift, sigma = abs(ref.horn_shift_px), ref.horn_shift_sigma_px
+    return bool(shift > HORN_SHIFT_MIN_PX and shift > HORN_SHIFT_SIGMAS * sigma)
 
 
 def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float]:

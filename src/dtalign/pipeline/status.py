@@ -30,7 +30,7 @@ from .measured import (
     no_edge_run,
     outside_mask,
 )
-from .profile_fit import MISFIT_LIMIT, misfitted
+from .profile_fit import MISFIT_LIMIT, horns_disagree, misfitted
 
 __all__ = [
     "NO_EDGE_GAP", "NO_EDGE_MIN_FRACTION", "REASONS", "SETTLE_ITERATIONS", "SETTLE_SIGMAS", "TERMINATOR_PLAIN_MEDIAN_PX",
@@ -213,13 +213,14 @@ REASONS: dict[FitReason, Reason] = {
     FitReason.PROFILE_MISFIT: Reason(
         _SUSPECT, "the accepted profile refinement leaves residuals its model does not explain: "
         "a shape common to the vertices (a reflectance law, a PSF or a brightening that differ "
-        "from the declared ones) or vertex edges spread beyond the noise (relief, craters); its "
+        "from the declared ones), vertex edges spread beyond the noise (relief, craters), or a "
+        "terminator whose horns (the vertices whose strips the limb cuts) move its pose; its "
         "pose may then be off by more than its sigma (:ref:`profiles-result`): declare the law, "
         "or check the surface.",
         "profile misfit: the fitted model leaves a residual shape of {fit.profile.misfit:.3g} of "
         "its gain (limit {misfit_limit:g}) and the vertices' edges spread "
         "{fit.profile.edge_scatter_px:.3g} px about the pose against {fit.profile.edge_noise_px:.3g} "
-        "px from the noise: the profile does not describe this edge (another law, PSF or "
+        "px from the noise{horns}: the profile does not describe this edge (another law, PSF or "
         "surface), and the pose may be off by more than its sigma"),
     FitReason.TERMINATOR_WITHOUT_PROFILE: Reason(
         _SUSPECT, "a terminator (declared, or seen in the image's ramp when no kind was declared: "
@@ -361,6 +362,11 @@ def _profile_sigma(x: _Facts) -> float:
     return float(np.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0)))
 
 
+def _ratio(a: float, b: float) -> float:
+    """``a / b``, inf for a zero ``b``."""
+    return a / b if b > 0.0 else float("inf")
+
+
 def _moved(x: _Facts) -> str:
     s, n = x.fit.settling, x.fit.lm.iterations
     if s is None:
@@ -402,6 +408,11 @@ _FACT: dict[str, Callable[[_Facts], Any]] = {
     "window": lambda x: tuple(x.fit.search_window_vu),
     "profile_sigma": _profile_sigma,
     "misfit_limit": lambda x: MISFIT_LIMIT,
+    "horns": lambda x: (
+        f"; refitted without its horns (the vertices whose strips the limb cuts) the pose moves "
+        f"{x.fit.profile.horn_shift_px:+.3g} px along the mean normal, "
+        f"{_ratio(abs(x.fit.profile.horn_shift_px), x.fit.profile.horn_shift_sigma_px):.3g} of "
+        "its sigmas" if horns_disagree(x.fit.profile) else ""),
     "n_model": lambda x: len(x.fit.vertices_vu),
     "moved": _moved,
     "null_directions": lambda x: "; ".join(
