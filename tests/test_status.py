@@ -184,7 +184,7 @@ def test_status_values_are_documented_strings():
         # the profile refinement's
         "profile_rejected", "soft_edge", "flat_profile_vertices", "profile_misfit",
         # a declared terminator's
-        "terminator_without_profile", "terminator_imprecise",
+        "terminator_without_profile", "terminator_imprecise", "night_side_lit",
         # vertices outside the image
         "outside_image", "outside_image_weighted", "partly_outside_image",
         # vertices on the image's bad pixels

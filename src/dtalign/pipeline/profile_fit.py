@@ -66,6 +66,11 @@ __all__ = [
     "HORN_SHIFT_SIGMAS",
     "HORN_SHIFT_MIN_PX",
     "horns_disagree",
+    "NIGHT_BOX_PX",
+    "NIGHT_BLOCK_PX",
+    "NIGHT_SKY_QUANTILE",
+    "NIGHT_SIGMAS",
+    "NIGHT_MIN_FRACTION",
     "MIN_WING_FRACTION",
     "ProfileRefinement",
     "refine_with_profile",
@@ -246,6 +251,31 @@ HORN_SHIFT_SIGMAS = 2.5
 #: See :data:`HORN_SHIFT_SIGMAS`.
 HORN_SHIFT_MIN_PX = 0.1
 
+#: A terminator's night side above the sky. The profile's night side is dark
+#: (0), and the refinement's free background takes whatever level it has.
+#: Lit by the planet or a ring (additive), the kink stays where it was; floored
+#: (``max(shading, floor)``: an ambient term, a simulator's or a stray
+#: light's), the kink moves to where the shading reaches the floor, toward the
+#: lit side. The two give the same strips to first order, so the fit cannot
+#: tell them apart; its covariance holds the difference instead
+#: (``ProfileRefinement.night_shift_vu``; docs/profiles.rst, "A night side
+#: above the sky"). The sky is read around the polyline at the fitted pose,
+#: this far beyond its vertices' box, px (the region a fit reads holds it:
+#: :mod:`dtalign.pipeline.region`) ...
+NIGHT_BOX_PX = 32.0
+#: ... in blocks of this many pixels a side, whose means average the noise ...
+NIGHT_BLOCK_PX = 4
+#: ... as this quantile of the blocks' means, corrected by the noise of a
+#: block's mean (the blocks' own spread, among the darkest): the sky is the
+#: darkest population around a body.
+NIGHT_SKY_QUANTILE = 0.05
+#: The night side is lit when it lies above that sky by more than this many
+#: of a block mean's noise ...
+NIGHT_SIGMAS = 3.0
+#: ... and by more than this fraction of the fitted gain (a noise-free image's
+#: numerical level moves the kink by less than a hundredth of a pixel).
+NIGHT_MIN_FRACTION = 1e-3
+
 #: The bins of distance past the edge, px, in which :func:`misfit` takes
 #: the median residual of the pooled strips.
 MISFIT_BIN_PX = 0.5
@@ -361,6 +391,19 @@ class ProfileRefinement:
         moves the edge from vertex to vertex spreads them beyond the noise,
         which :data:`SCATTER_LIMIT_PX` and :data:`SCATTER_RATIO` flag
         (``profile_misfit``). NaN when not measured.
+    night_level : float
+        A terminator's: its fitted background (the night side's level) less
+        the sky's around it (:data:`NIGHT_BOX_PX`), image units; NaN when not
+        measured (not a terminator, a rejected refinement, too little image
+        around it).
+    night_shift_vu : tuple of float or None
+        A terminator whose night side is lit (``night_level`` beyond
+        :data:`NIGHT_SIGMAS` of its noise and :data:`NIGHT_MIN_FRACTION` of
+        the gain): how far, along the polyline's mean normal toward the lit
+        side, a night side floored at that level rather than lit would have
+        moved the fitted kink (where the profile, times the gain, reaches
+        the level). The pipeline's covariance adds it (``night_side_lit``);
+        None otherwise.
     start_offset_vu : tuple of float or None
         Where the Gauss-Newton started when not at the DT-LM offset: a
         terminator's scan (:data:`SCAN_DARK_PX`); None otherwise. A
@@ -409,6 +452,8 @@ class ProfileRefinement:
     misfit: float = math.nan
     edge_scatter_px: float = math.nan
     edge_noise_px: float = math.nan
+    night_level: float = math.nan
+    night_shift_vu: tuple[float, float] | None = None
 
     #: JSON's None reads back as NaN (:mod:`dtalign.pipeline.records`).
     NONFINITE: ClassVar[float] = math.nan
@@ -604,6 +649,66 @@ def _horn_shift(pb: _Problem, params: FloatArray, cov: FloatArray, known: bool
     return shift, math.sqrt(max(var, 0.0))
 
 
+def _sky(pb: _Problem, verts: FloatArray) -> tuple[float, float] | None:
+    """The sky's level around ``verts`` (:data:`NIGHT_BOX_PX`), image units,
+    and the noise of a block's mean: the :data:`NIGHT_SKY_QUANTILE` of the
+    :data:`NIGHT_BLOCK_PX` blocks' means, raised by that quantile of a block
+    mean's noise (the median spread within the darkest tenth of the blocks,
+    over the block's side); None when fewer than 20 blocks free of bad pixels
+    fit."""
+    hgt, wid = pb.image.shape
+    lo = np.clip(np.floor(verts.min(axis=0) - NIGHT_BOX_PX), 0, (hgt, wid)).astype(np.int64)
+    hi = np.clip(np.ceil(verts.max(axis=0) + NIGHT_BOX_PX), 0, (hgt, wid)).astype(np.int64)
+    b = NIGHT_BLOCK_PX
+    nv, nu = (int(hi[0] - lo[0]) // b, int(hi[1] - lo[1]) // b)
+    if nv * nu < 20:
+        return None
+    box = pb.image[lo[0]:lo[0] + nv * b, lo[1]:lo[1] + nu * b]
+    blocks = box.reshape(nv, b, nu, b).transpose(0, 2, 1, 3).reshape(nv * nu, b * b)
+    if pb.mask is not None:
+        bad = pb.mask[lo[0]:lo[0] + nv * b, lo[1]:lo[1] + nu * b]
+        good = ~bad.reshape(nv, b, nu, b).transpose(0, 2, 1, 3).reshape(nv * nu, b * b).any(1)
+        blocks = blocks[good]
+    if blocks.shape[0] < 20:
+        return None
+    means = blocks.mean(axis=1)
+    darkest = means <= np.quantile(means, 0.1)
+    noise = float(np.median(blocks[darkest].std(axis=1, ddof=1))) / b
+    # the quantile of a Gaussian's: 1.645 of its sigmas below its mean
+    return float(np.quantile(means, NIGHT_SKY_QUANTILE)) + 1.645 * noise, noise
+
+
+def _night_side(pb: _Problem, params: FloatArray) -> tuple[float, tuple[float, float] | None]:
+    """A terminator's ``(night_level, night_shift_vu)`` at its fitted
+    ``params`` (``ProfileRefinement``): NaN and None when not measured."""
+    verts = pb.verts + params[:2]
+    measured = _sky(pb, verts)
+    if measured is None:
+        return math.nan, None
+    sky, noise = measured
+    gain, level = float(params[2]), float(params[3]) - sky
+    nbar = pb.normals.sum(axis=0)
+    norm = math.hypot(float(nbar[0]), float(nbar[1]))
+    if not (gain > 0.0 and math.isfinite(level) and norm > 0.0):
+        return math.nan, None
+    if not (level > NIGHT_SIGMAS * noise and level > NIGHT_MIN_FRACTION * gain):
+        return level, None
+    # where each vertex's model (the fitted shape amplitude included) first
+    # reaches the level past the kink: a floor there is the kink it fits
+    vals = pb.values + params[5] * pb.shape if pb.use_shape else pb.values
+    offsets = pb.o0 + pb.h * np.arange(vals.shape[1])
+    past = offsets >= 0.0
+    off, rows = offsets[past], vals[:, past] - level / gain
+    first = np.argmax(rows >= 0.0, axis=1)
+    reached = rows[np.arange(rows.shape[0]), first] >= 0.0
+    prev = np.maximum(first - 1, 0)
+    a, c = rows[np.arange(rows.shape[0]), prev], rows[np.arange(rows.shape[0]), first]
+    frac = np.where((first > 0) & (c > a), -a / np.where(c > a, c - a, 1.0), 0.0)
+    cross = np.where(reached, off[prev] + frac * (off[first] - off[prev]), off[-1])
+    shift = float(np.median(cross)) / norm
+    return level, (float(nbar[0] * shift), float(nbar[1] * shift))
+
+
 def _kept(pb: _Problem, keep: NDArray[np.bool_]) -> _Problem:
     """``pb`` over the vertices ``keep`` only (each keeps its strip's length)."""
     def sub(a: FloatArray) -> FloatArray:
@@ -665,9 +770,11 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
         walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
     final = pb if start is not None else _with_wings(pb, params)
     shape, scatter, noise = misfit(final, np.asarray(p, dtype=np.float64))
-    horn_shift = horn_sigma = math.nan
+    horn_shift = horn_sigma = night_level = math.nan
+    night_shift = None
     if start is not None and not reason:
         horn_shift, horn_sigma = _horn_shift(pb, np.asarray(p, dtype=np.float64), cov, known)
+        night_level, night_shift = _night_side(pb, np.asarray(p, dtype=np.float64))
     return ProfileRefinement(
         offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
         gain=float(p[2]), background=float(p[3]), background_slope=float(p[6]),
@@ -681,6 +788,7 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
         time_s=time.perf_counter() - t_start, start_offset_vu=start,
         misfit=shape, edge_scatter_px=scatter, edge_noise_px=noise,
         horn_shift_px=horn_shift, horn_shift_sigma_px=horn_sigma,
+        night_level=night_level, night_shift_vu=night_shift,
     )
 
 

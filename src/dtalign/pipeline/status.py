@@ -85,6 +85,7 @@ class FitReason(_Text):
     PROFILE_MISFIT = "profile_misfit"
     TERMINATOR_WITHOUT_PROFILE = "terminator_without_profile"
     TERMINATOR_IMPRECISE = "terminator_imprecise"
+    NIGHT_SIDE_LIT = "night_side_lit"
     FLAT_PROFILE_VERTICES = "flat_profile_vertices"
     NOT_CONVERGED = "not_converged"
     AMBIGUOUS_ALONG_EDGE = "ambiguous_along_edge"
@@ -241,6 +242,15 @@ REASONS: dict[FitReason, Reason] = {
         "terminator imprecise: the profile refinement's one-sigma is {profile_sigma:.3g} px "
         f"along some direction (above {TERMINATOR_SIGMA_LIMIT_PX:.2f} px): the pose is barely "
         "measured there"),
+    FitReason.NIGHT_SIDE_LIT: Reason(
+        _OK, "a terminator's night side is brighter than the sky around it: lit by the planet "
+        "or a ring, the kink stays where it is; floored at that level (an ambient term, stray "
+        "light), the kink moves toward the lit side, and the image cannot tell the two apart, "
+        "so the covariance holds the difference "
+        "(:ref:`a night side above the sky <profiles-night-side>`).",
+        "night side lit: it reads {fit.profile.night_level:.3g} above the sky "
+        "({night_percent:.2g} % of the gain); floored at that level instead, the terminator "
+        "would lie {night_shift:.3g} px toward the night side, which its sigma holds"),
     FitReason.FLAT_PROFILE_VERTICES: Reason(
         _OK, "vertices whose edge profiles have no contrast (an unlit part of a limb) were left "
         "out of the profile refinement, which fitted the others: pass the sunlit part of a limb.",
@@ -328,6 +338,7 @@ def _reasons(x: _Facts) -> tuple[FitReason, ...]:
             R.TERMINATOR_WITHOUT_PROFILE: not given and terminator,
             R.TERMINATOR_IMPRECISE: given and profile.accepted and terminator
             and x["profile_sigma"] > TERMINATOR_SIGMA_LIMIT_PX,
+            R.NIGHT_SIDE_LIT: given and profile.accepted and profile.night_shift_vu is not None,
             R.FLAT_PROFILE_VERTICES: given and profile.n_flat_vertices > 0,
             R.NOT_CONVERGED: not fit.settled,
             R.AMBIGUOUS_ALONG_EDGE: rival and amb.along_unobservable,
@@ -413,6 +424,8 @@ _FACT: dict[str, Callable[[_Facts], Any]] = {
         f"{x.fit.profile.horn_shift_px:+.3g} px along the mean normal, "
         f"{_ratio(abs(x.fit.profile.horn_shift_px), x.fit.profile.horn_shift_sigma_px):.3g} of "
         "its sigmas" if horns_disagree(x.fit.profile) else ""),
+    "night_percent": lambda x: 100.0 * _ratio(x.fit.profile.night_level, x.fit.profile.gain),
+    "night_shift": lambda x: float(np.hypot(*x.fit.profile.night_shift_vu)),
     "n_model": lambda x: len(x.fit.vertices_vu),
     "moved": _moved,
     "null_directions": lambda x: "; ".join(

@@ -600,6 +600,11 @@ def pose_uncertainty(fit: Any, found: Evidence) -> PoseUncertainty:
         noise[:2, :] = 0.0
         noise[:, :2] = 0.0
         noise[:2, :2] = prof if np.isfinite(prof).all() else np.inf
+        night = fit.profile.night_shift_vu
+        if night is not None:
+            # a terminator whose night side is lit: floored there instead, its
+            # kink would lie this far from the fitted one (``night_side_lit``)
+            bias[:2, :2] = np.outer(night, night)
     else:
         # the pose is corrected by beta (:func:`dtalign.pipeline.fit.conclude`),
         # but beta is a modelled shift: its size stays in the covariance as
