@@ -41,6 +41,7 @@ def test_the_declared_law_leaves_no_flagged_residual(law):
     assert ref.accepted and ref.misfit < pf.MISFIT_LIMIT / 4
     assert not pf.misfitted(ref) and fit.status == "ok"
     assert 0.0 < ref.edge_noise_px and ref.edge_scatter_px < ref.edge_noise_px + pf.SCATTER_LIMIT_PX
+    assert 0.0 < ref.gain_noise and ref.gain_scatter < ref.gain_noise + pf.GAIN_SCATTER_LIMIT
     assert math.hypot(*np.subtract(fit.offset_vu, sc.true_offset_vu)) < 0.01
 
 
@@ -58,10 +59,40 @@ def test_the_rule():
     assert with_(horn_shift_px=-0.5, horn_shift_sigma_px=0.1)
     assert not with_(horn_shift_px=0.2, horn_shift_sigma_px=0.1)  # within the sigmas
     assert not with_(horn_shift_px=0.09, horn_shift_sigma_px=0.001)  # below the minimum
+    # the vertices' own gains spread: beyond GAIN_SCATTER_LIMIT and SCATTER_RATIO times the noise
+    assert with_(gain_scatter=0.05, gain_noise=0.01)
+    assert not with_(gain_scatter=0.06, gain_noise=0.04)  # within the ratio
+    assert not with_(gain_scatter=0.012, gain_noise=0.001)  # below the limit
+    assert not with_(gain_scatter=math.nan, gain_noise=math.nan)
     # not measured, or not accepted: nothing to flag
     assert not with_(misfit=math.nan, edge_noise_px=math.nan, edge_scatter_px=math.nan)
     assert not with_(horn_shift_px=math.nan, horn_shift_sigma_px=math.nan)
     assert not with_(accepted=False, misfit=1.0)
+
+
+@pytest.mark.parametrize("amplitude, flagged", [(0.0, False), (0.05, True), (0.25, True)])
+def test_an_albedo_that_varies_along_the_limb_is_flagged(amplitude, flagged):
+    """A Lambert limb whose albedo varies by +-amplitude around the disc (three
+    cycles): one gain fits none of it, and the vertices' own gains spread."""
+    sc = scenes.render_sphere(shape=(240, 240), center_vu=(120.3, 119.6), radius_px=70.0,
+                              phase_deg=40.0, illumination_deg=30.0, offset_vu=(0.4, -0.7),
+                              background_dn=10.0, seed=1)
+    v, u = np.mgrid[:240, :240]
+    albedo = 1.0 + amplitude * np.sin(3.0 * np.arctan2(v - 120.3, u - 119.6))
+    image = 10.0 + (sc.image - 10.0) * albedo
+    image = image + np.random.default_rng(2).normal(0.0, 1.0, image.shape)
+    P = sc.limb
+    prof = sphere_edge_profile(P.vertices_vu, center_vu=sc.model_center_vu, radius_px=70.0,
+                               phase_deg=40.0, illumination_deg=30.0)
+    fit = fit_polyline(image, P.vertices_vu, P.normals_vu, P.sigmas, search_window_vu=(8, 8),
+                       edge_profile=prof)
+    ref = fit.profile
+    assert ref.accepted
+    excess = math.sqrt(max(ref.gain_scatter**2 - ref.gain_noise**2, 0.0))
+    assert (excess > pf.GAIN_SCATTER_LIMIT) is flagged
+    assert (fit.status == "suspect" and FitReason.PROFILE_MISFIT in fit.reasons) is flagged
+    if flagged:
+        assert "their gains" in fit.status_message
 
 
 def _crescent(law: str, radius_px: float, phase_deg: float, psf_sigma_px: float):

@@ -170,10 +170,11 @@ def test_psf_mismatch_limb_profile(fits):
     assert not any(fitting.confidently_wrong(r) for r in recs)
 
 
-@pytest.mark.parametrize("family", ["law_mismatch", "craters", "capped_limb"])
+@pytest.mark.parametrize("family", ["law_mismatch", "craters", "capped_limb", "albedo_texture"])
 def test_mismatched_limb_not_confidently_wrong(fits, family):
     """A Minnaert surface fitted as Lambert, craters and relief, a capped brightening declared
-    Minnaert: the profile fit leaves residuals its model does not explain, and says so."""
+    Minnaert, an albedo map (its vertices' own gains spread: ``gain_scatter``): the profile fit
+    leaves residuals its model does not explain, and says so."""
     recs = fits[(family, "limb")]["profile"]
     assert not any(fitting.confidently_wrong(r) for r in recs)
     assert all("profile_misfit" in r["reasons"] for r in recs)

@@ -30,7 +30,7 @@ SUBSET = (
     ("psf_mismatch", "limb", 2), ("law_mismatch", "limb", 0), ("craters", "limb", 0),
     ("triaxial", "limb", 0), ("triaxial", "terminator", 3), ("night_floor", "terminator", 0),
     ("capped_limb", "limb", 0), ("night_floor", "terminator", 2),
-    ("night_additive", "terminator", 2),
+    ("night_additive", "terminator", 2), ("albedo_texture", "limb", 1),
 )
 
 

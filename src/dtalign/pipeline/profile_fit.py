@@ -62,6 +62,7 @@ __all__ = [
     "MISFIT_NOISE_SIGMAS",
     "SCATTER_LIMIT_PX",
     "SCATTER_RATIO",
+    "GAIN_SCATTER_LIMIT",
     "HORN_FRACTION",
     "HORN_SHIFT_SIGMAS",
     "HORN_SHIFT_MIN_PX",
@@ -306,6 +307,17 @@ SCATTER_LIMIT_PX = 0.03
 #: limbs read up to 1.5.
 SCATTER_RATIO = 1.6
 
+#: An accepted refinement whose vertices' own gains spread by more than this
+#: fraction of its gain beyond the noise (``sqrt(scatter^2 - noise^2)`` of
+#: ``ProfileRefinement.gain_scatter`` and ``ProfileRefinement.gain_noise``),
+#: and by more than :data:`SCATTER_RATIO` times the noise, fits one gain to a
+#: surface whose brightness varies along the edge (an albedo map, craters):
+#: ``profile_misfit``. On the validation renders the honest limbs (the model
+#: right, the PSF mismatched and estimated, the ellipsoid, a lit or floored
+#: night side, heavy noise) leave at most 0.007 beyond the noise where their
+#: spread exceeds 1.6 of it; an albedo map of +-25 % leaves 0.03-0.13.
+GAIN_SCATTER_LIMIT = 0.015
+
 #: A limb profile whose contrast-weighted median ``EdgeProfile.step_jump``
 #: is below this has no usable edge: its brightness rolls off to the edge
 #: (a Lambert limb below ~10-15 deg phase), so the edge's position rests on
@@ -391,6 +403,14 @@ class ProfileRefinement:
         moves the edge from vertex to vertex spreads them beyond the noise,
         which :data:`SCATTER_LIMIT_PX` and :data:`SCATTER_RATIO` flag
         (``profile_misfit``). NaN when not measured.
+    gain_scatter, gain_noise : float
+        The robust spread of the vertices' own gains (each fitted with its
+        shift and background on its strip) as a fraction of the fitted gain,
+        and the spread the residuals' noise explains (:func:`misfit`): an
+        albedo that varies along the edge, or a surface whose brightness
+        does, spreads them beyond the noise, which :data:`GAIN_SCATTER_LIMIT`
+        and :data:`SCATTER_RATIO` flag (``profile_misfit``). NaN when not
+        measured.
     night_level : float
         A terminator's: its fitted background (the night side's level) less
         the sky's around it (:data:`NIGHT_BOX_PX`), image units; NaN when not
@@ -452,6 +472,8 @@ class ProfileRefinement:
     misfit: float = math.nan
     edge_scatter_px: float = math.nan
     edge_noise_px: float = math.nan
+    gain_scatter: float = math.nan
+    gain_noise: float = math.nan
     night_level: float = math.nan
     night_shift_vu: tuple[float, float] | None = None
 
@@ -769,7 +791,7 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
     if start is not None:
         walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
     final = pb if start is not None else _with_wings(pb, params)
-    shape, scatter, noise = misfit(final, np.asarray(p, dtype=np.float64))
+    shape, scatter, noise, gains, gains_noise = misfit(final, np.asarray(p, dtype=np.float64))
     horn_shift = horn_sigma = night_level = math.nan
     night_shift = None
     if start is not None and not reason:
@@ -786,7 +808,8 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
         step_jump=float(step_jump), soft_edge=bool(soft),
         time_s=time.perf_counter() - t_start, start_offset_vu=start,
-        misfit=shape, edge_scatter_px=scatter, edge_noise_px=noise,
+        misfit=shape, edge_scatter_px=scatter, edge_noise_px=noise, gain_scatter=gains,
+        gain_noise=gains_noise,
         horn_shift_px=horn_shift, horn_shift_sigma_px=horn_sigma,
         night_level=night_level, night_shift_vu=night_shift,
     )
@@ -795,15 +818,23 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
 def misfitted(ref: ProfileRefinement) -> bool:
     """Whether an accepted refinement leaves what its model does not explain: a
     shape (:data:`MISFIT_LIMIT`), a spread of its vertices' edges beyond the
-    noise (:data:`SCATTER_LIMIT_PX`, :data:`SCATTER_RATIO`), or a terminator's
+    noise (:data:`SCATTER_LIMIT_PX`, :data:`SCATTER_RATIO`) or of their gains
+    (:data:`GAIN_SCATTER_LIMIT`), or a terminator's
     horns that move its pose (:func:`horns_disagree`). False when not
     measured (NaN) or not accepted."""
     if not ref.accepted:
         return False
-    scatter, noise = ref.edge_scatter_px, ref.edge_noise_px
-    spread = (scatter > SCATTER_RATIO * noise
-              and math.sqrt(max(scatter * scatter - noise * noise, 0.0)) > SCATTER_LIMIT_PX)
-    return bool(ref.misfit > MISFIT_LIMIT or spread or horns_disagree(ref))
+    return bool(ref.misfit > MISFIT_LIMIT or _beyond(ref.edge_scatter_px, ref.edge_noise_px,
+                                                     SCATTER_LIMIT_PX)
+                or _beyond(ref.gain_scatter, ref.gain_noise, GAIN_SCATTER_LIMIT)
+                or horns_disagree(ref))
+
+
+def _beyond(scatter: float, noise: float, limit: float) -> bool:
+    """A spread beyond :data:`SCATTER_RATIO` times the noise's, and beyond ``limit``
+    once the noise's is taken out (``sqrt(scatter^2 - noise^2)``); False for NaN."""
+    return bool(scatter > SCATTER_RATIO * noise
+                and math.sqrt(max(scatter * scatter - noise * noise, 0.0)) > limit)
 
 
 def horns_disagree(ref: ProfileRefinement) -> bool:
@@ -814,12 +845,13 @@ def horns_disagree(ref: ProfileRefinement) -> bool:
     return bool(shift > HORN_SHIFT_MIN_PX and shift > HORN_SHIFT_SIGMAS * sigma)
 
 
-def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float]:
+def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float, float, float]:
     """What ``params`` leave on ``pb``'s strips (those of the refinement's last
     run, its PSF's wings folded into the profile): ``(shape, scatter_px,
     noise_px)``, ``ProfileRefinement.misfit``,
     ``ProfileRefinement.edge_scatter_px`` and
-    ``ProfileRefinement.edge_noise_px``.
+    ``ProfileRefinement.edge_noise_px``, then ``(gain_scatter, gain_noise)``,
+    ``ProfileRefinement.gain_scatter`` and ``ProfileRefinement.gain_noise``.
 
     ``shape`` is the RMS over the :data:`MISFIT_BIN_PX` bins of distance
     past the edge of the bin's median residual, each bin weighted by its
@@ -833,13 +865,16 @@ def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float]:
     sum(g^2)``: what the noise gives, ``noise_px``, is the residuals' own
     robust scale over ``sqrt(sum(g^2))``, the median over the vertices;
     relief or texture that moves the edge from vertex to vertex spreads it
-    further. NaN for no pixels or a zero gain."""
+    further. ``gain_scatter`` is the same for each vertex's own gain, fitted
+    with its shift and background (a 3 x 3 system per vertex), over ``|gain|``:
+    an albedo that varies along the edge spreads it beyond ``gain_noise``.
+    NaN for no pixels or a zero gain."""
     k = pb.kernels
     gain = abs(float(params[2]))
     kk, ii, jj = _strips(pb, np.ascontiguousarray(pb.verts + np.asarray(pb.d0)), pb.normals,
                          pb.tau)  # (less the masked pixels)
     if ii.shape[0] == 0 or not gain > 0.0:
-        return math.nan, math.nan, math.nan
+        return math.nan, math.nan, math.nan, math.nan, math.nan
     pv, pu = ii.astype(np.float64), jj.astype(np.float64)
     tab = k.all_tables(pb.values, pb.shape, pb.o0, pb.h, pb.j0, pb.nb, float(params[4]))
     held = params.copy()
@@ -872,11 +907,38 @@ def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float]:
     sgg = np.bincount(kk, slope * slope, minlength=nv)
     seen = sgg > 0.0
     if not seen.any():
-        return shape, math.nan, math.nan
+        return shape, math.nan, math.nan, math.nan, math.nan
     shift = np.bincount(kk, slope * r, minlength=nv)[seen] / sgg[seen]
     scatter = 1.4826 * float(np.median(np.abs(shift - np.median(shift))))
     noise = scale * float(np.median(1.0 / np.sqrt(sgg[seen])))
-    return shape, scatter, noise
+    gains, gains_noise = _gain_scatter(kk, nv, np.stack([slope, jac[:, 2], jac[:, 3]], axis=1),
+                                       r, scale)
+    return shape, scatter, noise, gains / gain, gains_noise / gain
+
+
+def _gain_scatter(kk: NDArray[np.int64], nv: int, cols: FloatArray, r: FloatArray,
+                  scale: float) -> tuple[float, float]:
+    """The robust spread (1.4826 MAD) of each vertex's own gain change, the
+    residuals of its strip fitted on ``cols`` (the model's derivatives by
+    the shift along its normal, the gain and the background: a 3 x 3 system
+    per vertex), and the spread the noise explains (``scale`` times the
+    root of the gain's diagonal of each inverse, the median over the
+    vertices); NaN, NaN when fewer than :data:`MIN_VERTICES` vertices'
+    systems are solvable."""
+    iu = np.triu_indices(3)
+    a = np.zeros((nv, 3, 3))
+    for i, j in zip(*iu, strict=True):
+        a[:, i, j] = a[:, j, i] = np.bincount(kk, cols[:, i] * cols[:, j], minlength=nv)
+    b = np.stack([np.bincount(kk, cols[:, i] * r, minlength=nv) for i in range(3)], axis=1)
+    det = np.linalg.det(a)
+    diag = np.einsum("kii->ki", a)
+    solvable = np.abs(det) > 1e-9 * np.prod(np.maximum(diag, 1e-300), axis=1)
+    if int(solvable.sum()) < MIN_VERTICES:
+        return math.nan, math.nan
+    inv = np.linalg.inv(a[solvable])
+    dg = np.einsum("kj,kj->k", inv[:, 1, :], b[solvable])
+    spread = 1.4826 * float(np.median(np.abs(dg - np.median(dg))))
+    return spread, scale * float(np.median(np.sqrt(np.maximum(inv[:, 1, 1], 0.0))))
 
 
 def _start(d0: tuple[float, float], sigma: float, wings: bool) -> FloatArray:

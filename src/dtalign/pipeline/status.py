@@ -214,14 +214,16 @@ REASONS: dict[FitReason, Reason] = {
     FitReason.PROFILE_MISFIT: Reason(
         _SUSPECT, "the accepted profile refinement leaves residuals its model does not explain: "
         "a shape common to the vertices (a reflectance law, a PSF or a brightening that differ "
-        "from the declared ones), vertex edges spread beyond the noise (relief, craters), or a "
+        "from the declared ones), vertex edges or gains spread beyond the noise (relief, "
+        "craters, an albedo that varies along the edge), or a "
         "terminator whose horns (the vertices whose strips the limb cuts) move its pose; its "
         "pose may then be off by more than its sigma (:ref:`profiles-result`): declare the law, "
         "or check the surface.",
         "profile misfit: the fitted model leaves a residual shape of {fit.profile.misfit:.3g} of "
         "its gain (limit {misfit_limit:g}) and the vertices' edges spread "
         "{fit.profile.edge_scatter_px:.3g} px about the pose against {fit.profile.edge_noise_px:.3g} "
-        "px from the noise{horns}: the profile does not describe this edge (another law, PSF or "
+        "px from the noise, their gains {fit.profile.gain_scatter:.3g} of the gain against "
+        "{fit.profile.gain_noise:.3g}{horns}: the profile does not describe this edge (another law, PSF or "
         "surface), and the pose may be off by more than its sigma"),
     FitReason.TERMINATOR_WITHOUT_PROFILE: Reason(
         _SUSPECT, "a terminator (declared, or seen in the image's ramp when no kind was declared: "
