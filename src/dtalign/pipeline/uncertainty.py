@@ -225,8 +225,10 @@ class PoseUncertainty:
         Which pose and floor: a key of :data:`FLOORS_PX`.
     bias : ndarray, shape (P, P), or None
         ``beta beta^T``, the DT-LM pose's shift by second edges of the
-        opposite polarity (part 4 above; zero for an accepted profile
-        refinement), read-only; None when the covariance is all ``inf``.
+        opposite polarity (part 4 above); for an accepted profile
+        refinement zero, or ``b b^T`` with ``b`` its
+        ``ProfileRefinement.night_shift_vu`` (a terminator whose night side
+        is lit). Read-only; None when the covariance is all ``inf``.
     """
 
     covariance: FloatArray
