@@ -887,10 +887,14 @@ def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float, float
     past = ((pv - pb.verts[kk, 0] - held[0]) * n[:, 0]
             + (pu - pb.verts[kk, 1] - held[1]) * n[:, 1])
     bins = np.round(past / MISFIT_BIN_PX).astype(np.int64)
-    order = np.argsort(bins, kind="stable")
-    groups = np.split(r[order], np.flatnonzero(np.diff(bins[order])) + 1)
-    med = np.array([np.median(g) for g in groups])
-    count = np.array([g.shape[0] for g in groups], dtype=np.float64)
+    # each bin's median: its residuals sorted within it, the middle one (or
+    # the mean of the middle two), as np.median gives
+    rs = r[np.lexsort((r, bins))]
+    bs = np.sort(bins, kind="stable")
+    first = np.concatenate(([0], np.flatnonzero(np.diff(bs)) + 1))
+    sizes = np.diff(np.append(first, bs.shape[0]))
+    med = (rs[first + (sizes - 1) // 2] + rs[first + sizes // 2]) / 2.0
+    count = sizes.astype(np.float64)
     # what the noise leaves in a bin's squared median: v = (1.2533 sigma)^2 / n
     # on average, with a spread of sqrt(2) v, sigma the residuals' robust scale
     # (which a shape inflates: the estimate is cautious); the shape is what
@@ -925,20 +929,24 @@ def _gain_scatter(kk: NDArray[np.int64], nv: int, cols: FloatArray, r: FloatArra
     root of the gain's diagonal of each inverse, the median over the
     vertices); NaN, NaN when fewer than :data:`MIN_VERTICES` vertices'
     systems are solvable."""
-    iu = np.triu_indices(3)
-    a = np.zeros((nv, 3, 3))
-    for i, j in zip(*iu, strict=True):
-        a[:, i, j] = a[:, j, i] = np.bincount(kk, cols[:, i] * cols[:, j], minlength=nv)
-    b = np.stack([np.bincount(kk, cols[:, i] * r, minlength=nv) for i in range(3)], axis=1)
-    det = np.linalg.det(a)
-    diag = np.einsum("kii->ki", a)
-    solvable = np.abs(det) > 1e-9 * np.prod(np.maximum(diag, 1e-300), axis=1)
+    def s(i: int, j: int) -> FloatArray:
+        return np.bincount(kk, cols[:, i] * cols[:, j], minlength=nv)
+
+    a00, a01, a02, a11, a12, a22 = s(0, 0), s(0, 1), s(0, 2), s(1, 1), s(1, 2), s(2, 2)
+    b0, b1, b2 = (np.bincount(kk, cols[:, i] * r, minlength=nv) for i in range(3))
+    # the gain's row of each symmetric system's inverse: its cofactors over
+    # the determinant (closed form: no batched LAPACK call per refinement)
+    c10, c11, c12 = a02 * a12 - a01 * a22, a00 * a22 - a02 * a02, a01 * a02 - a00 * a12
+    det = a00 * (a11 * a22 - a12 * a12) + a01 * c10 + a02 * (a01 * a12 - a11 * a02)
+    scale3 = np.maximum(a00, 1e-300) * np.maximum(a11, 1e-300) * np.maximum(a22, 1e-300)
+    solvable = np.abs(det) > 1e-9 * scale3
     if int(solvable.sum()) < MIN_VERTICES:
         return math.nan, math.nan
-    inv = np.linalg.inv(a[solvable])
-    dg = np.einsum("kj,kj->k", inv[:, 1, :], b[solvable])
+    d = det[solvable]
+    dg = (c10[solvable] * b0[solvable] + c11[solvable] * b1[solvable]
+          + c12[solvable] * b2[solvable]) / d
     spread = 1.4826 * float(np.median(np.abs(dg - np.median(dg))))
-    return spread, scale * float(np.median(np.sqrt(np.maximum(inv[:, 1, 1], 0.0))))
+    return spread, scale * float(np.median(np.sqrt(np.maximum(c11[solvable] / d, 0.0))))
 
 
 def _start(d0: tuple[float, float], sigma: float, wings: bool) -> FloatArray:
