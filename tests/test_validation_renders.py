@@ -154,6 +154,19 @@ def test_lit_night_side_terminator_covered(fits):
                for r in fits[("model_right", "terminator")]["profile"])
 
 
+def test_noise_free_terminator_sigma_is_its_floor(fits):
+    """A noise-free model-right terminator's pixels leave residuals far below the Tukey scale's
+    floor: its reported one-sigma is the profile floor (its model's error), not that floor's
+    covariance on top of it, and it still holds the error."""
+    from dtalign.pipeline.uncertainty import FLOORS_PX
+
+    rec = next(r for r in fits[("model_right", "terminator")]["profile"] if r["index"] == 0)
+    floor = FLOORS_PX["profile_terminator"]
+    assert rec["status"] == "ok"
+    assert floor <= max(rec["sigma_vu"]) <= 1.05 * floor
+    assert rec["d2"] <= fitting.CHI2_95
+
+
 @pytest.mark.xfail(strict=True, reason="issue 45 targets: model-right terminator median <= 0.02 "
                    "px with the profile; seed 0's scenes read more")
 def test_model_right_terminator_median(fits):

@@ -139,7 +139,8 @@ TERMINATOR_CENTRED_PX = 0.3
 #: An accepted refinement of a fit whose DT stage found an ambiguous rival
 #: basin is run again from the rival's DT-LM pose; when it lands within
 #: this many of the refinement's one-sigma (its covariance plus the
-#: profile floor, the largest axis) of the same offset, the image itself
+#: profile floor and a lit night side's shift, the largest axis) of the
+#: same offset, the image itself
 #: decides between the two basins and the fit is not ``ambiguous``. Two
 #: sigmas keeps the starts that agree on rendered terminators and leaves
 #: out a refinement that lands far from its rival's
@@ -365,11 +366,16 @@ class ProfileRefinement:
     n_pixels : int
         Pixels fitted.
     residual_scale : float
-        1.4826 MAD of the final residuals (image units).
+        1.4826 MAD of the final residuals (image units), as the pixels give
+        it (the Tukey weights' own scale is floored at the kernels'
+        ``SCALE_FLOOR`` of the gain; this one is not).
     covariance : tuple of tuple of float
-        2 x 2 covariance of the offset from the weighted information and
-        the residual scale (pixels^2); it does not include the model's
-        own error.
+        2 x 2 covariance of the offset from the weighted information and a
+        residual scale (pixels^2): a terminator's ``residual_scale``, the
+        pixels' noise alone; a limb's the Tukey weights', floored at about
+        its model's per-pixel error (:func:`_covariance_scale`). The
+        model's common error is the pipeline's floor, which its covariance
+        adds (:mod:`dtalign.pipeline.uncertainty`).
     step_jump : float
         The profile's contrast-weighted median step fraction.
     soft_edge : bool
@@ -784,18 +790,23 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
     d0 = pb.d0
     off = (float(p[0]), float(p[1]))
     walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
-    cov = np.asarray(inv)[:2, :2] * float(scale) ** 2
-    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]), cov,
+    # at the Tukey weights' scale, floored at the model's accuracy: what the
+    # horns' test is calibrated on (its runs' covariances are the same kind)
+    weighted = np.asarray(inv)[:2, :2] * float(scale) ** 2
+    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]), weighted,
                         "the DT lock" if start is None else "where its last run started")
     dt = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
     if start is not None:
         walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
     final = pb if start is not None else _with_wings(pb, params)
-    shape, scatter, noise, gains, gains_noise = misfit(final, np.asarray(p, dtype=np.float64))
+    left = misfit(final, np.asarray(p, dtype=np.float64))
+    cov = np.asarray(inv)[:2, :2] * _covariance_scale(profile.edge, left.residual_scale,
+                                                      float(scale)) ** 2
     horn_shift = horn_sigma = night_level = math.nan
     night_shift = None
     if start is not None and not reason:
-        horn_shift, horn_sigma = _horn_shift(pb, np.asarray(p, dtype=np.float64), cov, known)
+        horn_shift, horn_sigma = _horn_shift(pb, np.asarray(p, dtype=np.float64), weighted,
+                                             known)
         night_level, night_shift = _night_side(pb, np.asarray(p, dtype=np.float64))
     return ProfileRefinement(
         offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
@@ -804,15 +815,34 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
         psf_sigma_px=float(p[4]), wing_fraction=float(params[7]),
         wing_sigma_px=float(params[8]) if params[7] > 0.0 else math.nan,
         psf_estimated=not known, iterations=iterations, converged=bool(conv), walk_px=walk,
-        n_pixels=int(npx), residual_scale=float(scale),
+        n_pixels=int(npx), residual_scale=float(left.residual_scale),
         covariance=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
         step_jump=float(step_jump), soft_edge=bool(soft),
         time_s=time.perf_counter() - t_start, start_offset_vu=start,
-        misfit=shape, edge_scatter_px=scatter, edge_noise_px=noise, gain_scatter=gains,
-        gain_noise=gains_noise,
+        misfit=left.misfit, edge_scatter_px=left.edge_scatter_px,
+        edge_noise_px=left.edge_noise_px, gain_scatter=left.gain_scatter,
+        gain_noise=left.gain_noise,
         horn_shift_px=horn_shift, horn_shift_sigma_px=horn_sigma,
         night_level=night_level, night_shift_vu=night_shift,
     )
+
+
+def _covariance_scale(edge: str, residual_scale: float, tukey_scale: float) -> float:
+    """The residual scale of a refinement's reported covariance: a
+    terminator's pixels' own (``residual_scale``), a limb's (or ring's) the
+    Tukey weights' ``tukey_scale``, floored at the kernels' ``SCALE_FLOOR``
+    of the gain.
+
+    A step's per-pixel model error (its pixel sampling, the PSF's shape) is
+    about that floor, and its covariance keeps it. A kink's is far below it
+    (the profile is near zero on both sides), so a floored scale would
+    report the floor, not the pixels: a terminator's model error is the
+    pipeline's floor instead (``FLOORS_PX["profile_terminator"]``; the
+    figures are on the docs' validation page).
+    """
+    if edge == "terminator" and math.isfinite(residual_scale):
+        return residual_scale
+    return tukey_scale
 
 
 def misfitted(ref: ProfileRefinement) -> bool:
@@ -845,13 +875,26 @@ def horns_disagree(ref: ProfileRefinement) -> bool:
     return bool(shift > HORN_SHIFT_MIN_PX and shift > HORN_SHIFT_SIGMAS * sigma)
 
 
-def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float, float, float]:
+class Misfit(NamedTuple):
+    """What a refinement's parameters leave on its strips (:func:`misfit`);
+    each field is the :class:`ProfileRefinement` attribute of its name."""
+
+    misfit: float
+    edge_scatter_px: float
+    edge_noise_px: float
+    gain_scatter: float
+    gain_noise: float
+    residual_scale: float
+
+
+def misfit(pb: _Problem, params: FloatArray) -> Misfit:
     """What ``params`` leave on ``pb``'s strips (those of the refinement's last
-    run, its PSF's wings folded into the profile): ``(shape, scatter_px,
-    noise_px)``, ``ProfileRefinement.misfit``,
-    ``ProfileRefinement.edge_scatter_px`` and
-    ``ProfileRefinement.edge_noise_px``, then ``(gain_scatter, gain_noise)``,
-    ``ProfileRefinement.gain_scatter`` and ``ProfileRefinement.gain_noise``.
+    run, its PSF's wings folded into the profile).
+
+    ``residual_scale`` is the residuals' robust scale (1.4826 MAD), as the
+    pixels give it: the Tukey weights' scale is floored at
+    ``SCALE_FLOOR`` of the gain, this one is not (the reported covariance's
+    noise term).
 
     ``shape`` is the RMS over the :data:`MISFIT_BIN_PX` bins of distance
     past the edge of the bin's median residual, each bin weighted by its
@@ -874,7 +917,7 @@ def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float, float
     kk, ii, jj = _strips(pb, np.ascontiguousarray(pb.verts + np.asarray(pb.d0)), pb.normals,
                          pb.tau)  # (less the masked pixels)
     if ii.shape[0] == 0 or not gain > 0.0:
-        return math.nan, math.nan, math.nan, math.nan, math.nan
+        return Misfit(math.nan, math.nan, math.nan, math.nan, math.nan, math.nan)
     pv, pu = ii.astype(np.float64), jj.astype(np.float64)
     tab = k.all_tables(pb.values, pb.shape, pb.o0, pb.h, pb.j0, pb.nb, float(params[4]))
     held = params.copy()
@@ -911,13 +954,13 @@ def misfit(pb: _Problem, params: FloatArray) -> tuple[float, float, float, float
     sgg = np.bincount(kk, slope * slope, minlength=nv)
     seen = sgg > 0.0
     if not seen.any():
-        return shape, math.nan, math.nan, math.nan, math.nan
+        return Misfit(shape, math.nan, math.nan, math.nan, math.nan, scale)
     shift = np.bincount(kk, slope * r, minlength=nv)[seen] / sgg[seen]
     scatter = 1.4826 * float(np.median(np.abs(shift - np.median(shift))))
     noise = scale * float(np.median(1.0 / np.sqrt(sgg[seen])))
     gains, gains_noise = _gain_scatter(kk, nv, np.stack([slope, jac[:, 2], jac[:, 3]], axis=1),
                                        r, scale)
-    return shape, scatter, noise, gains / gain, gains_noise / gain
+    return Misfit(shape, scatter, noise, gains / gain, gains_noise / gain, scale)
 
 
 def _gain_scatter(kk: NDArray[np.int64], nv: int, cols: FloatArray, r: FloatArray,
