@@ -2,7 +2,8 @@
 
 ``python -m benchmarks.validate.fixtures`` renders the renderer's checks
 (:mod:`.checks`) and the fixed subset :data:`SUBSET` of the harness's
-scenes (seed :data:`SEED`, the same draws as a run of that seed) and writes
+scenes (seed :data:`SEED`, the same draws as a run of that seed; and
+:data:`SUBSET_SEED1` of seed 1) and writes
 each as a compressed ``.npz`` in ``tests/data/validation/``: the image as
 float32 and the render's metadata (the scene's parameters as JSON: planted
 and model centres, radius, Sun, phase, PSF, family, seeds; the Mitsuba,
@@ -32,6 +33,9 @@ SUBSET = (
     ("capped_limb", "limb", 0), ("night_floor", "terminator", 2),
     ("night_additive", "terminator", 2), ("albedo_texture", "limb", 1),
 )
+#: (family, edge, index) of seed 1's scenes the test reads as well (``scene_s1_*``):
+#: terminators whose pixels fix the pose weakly, and whose model is wrong
+SUBSET_SEED1 = (("psf_mismatch", "terminator", 0), ("craters", "terminator", 0))
 
 
 def _save(path: Path, image: np.ndarray, meta: dict) -> None:
@@ -50,6 +54,11 @@ def main() -> int:
         _save(OUT / f"scene_{family}_{edge}_{index}.npz", families.render_scene(p),
               {"scene": p, **ver})
         print("scene", family, edge, index, flush=True)
+    for family, edge, index in SUBSET_SEED1:
+        p = families.draw(family, edge, index, 1)
+        _save(OUT / f"scene_s1_{family}_{edge}_{index}.npz", families.render_scene(p),
+              {"scene": p, **ver})
+        print("scene (seed 1)", family, edge, index, flush=True)
     total = sum(f.stat().st_size for f in OUT.glob("*.npz"))
     print(f"{OUT}: {total / 1e6:.2f} MB")
     return 0

@@ -1075,8 +1075,7 @@ def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, pro
     The rival's refinement agrees when it is accepted too and lands within
     :data:`~dtalign.pipeline.profile_fit.RIVAL_AGREEMENT_SIGMAS` of ``ref``'s
     one-sigma (its covariance plus the profile floor of
-    :mod:`dtalign.pipeline.uncertainty` and a lit night side's shift, as the
-    pipeline's covariance holds them; the largest axis): the photometry
+    :mod:`dtalign.pipeline.uncertainty`, the largest axis): the photometry
     then picks the same pose from either basin, which
     :func:`~dtalign.pipeline.status.assess` reads as no ambiguity.
     """
@@ -1089,8 +1088,6 @@ def rival_check(fit: PolylineFit, ref: ProfileRefinement, image: FloatArray, pro
                                 pivot_vu=fit.pivot_vu, mask=mask)
     floor = floor_px("profile_terminator" if kind == "terminator" else "profile", ref)
     cov = np.asarray(ref.covariance, dtype=np.float64) + floor**2 * np.eye(2)
-    if ref.night_shift_vu is not None:
-        cov += np.outer(ref.night_shift_vu, ref.night_shift_vu)
     sigma = math.sqrt(float(np.linalg.eigvalsh(cov).max())) if np.isfinite(cov).all() else math.inf
     apart = math.hypot(rival.offset_vu[0] - ref.offset_vu[0], rival.offset_vu[1] - ref.offset_vu[1])
     agrees = bool(rival.accepted and apart <= RIVAL_AGREEMENT_SIGMAS * sigma)

@@ -367,15 +367,15 @@ class ProfileRefinement:
         Pixels fitted.
     residual_scale : float
         1.4826 MAD of the final residuals (image units), as the pixels give
-        it (the Tukey weights' own scale is floored at the kernels'
-        ``SCALE_FLOOR`` of the gain; this one is not).
+        it.
     covariance : tuple of tuple of float
-        2 x 2 covariance of the offset from the weighted information and a
-        residual scale (pixels^2): a terminator's ``residual_scale``, the
-        pixels' noise alone; a limb's the Tukey weights', floored at about
-        its model's per-pixel error (:func:`_covariance_scale`). The
-        model's common error is the pipeline's floor, which its covariance
-        adds (:mod:`dtalign.pipeline.uncertainty`).
+        2 x 2 covariance of the offset from the weighted information and
+        the Tukey weights' residual scale, which is floored at the kernels'
+        ``SCALE_FLOOR`` of the gain, the model's per-pixel accuracy
+        (pixels^2): where the pixels fix the pose weakly, a model error
+        that leaves no residual moves it that much. The model's common
+        error is the pipeline's floor, which its covariance adds
+        (:mod:`dtalign.pipeline.uncertainty`).
     step_jump : float
         The profile's contrast-weighted median step fraction.
     soft_edge : bool
@@ -790,23 +790,21 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
     d0 = pb.d0
     off = (float(p[0]), float(p[1]))
     walk = math.hypot(off[0] - d0[0], off[1] - d0[1])
-    # at the Tukey weights' scale, floored at the model's accuracy: what the
-    # horns' test is calibrated on (its runs' covariances are the same kind)
-    weighted = np.asarray(inv)[:2, :2] * float(scale) ** 2
-    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]), weighted,
+    # at the Tukey weights' scale, floored at the model's per-pixel accuracy:
+    # where the pixels fix the pose weakly, a model error that leaves no
+    # residual moves it by this much (docs/uncertainty.rst, part 1)
+    cov = np.asarray(inv)[:2, :2] * float(scale) ** 2
+    reason = _rejection(int(npx), bool(conv), iterations, walk, float(p[2]), cov,
                         "the DT lock" if start is None else "where its last run started")
     dt = (float(dt_offset_vu[0]), float(dt_offset_vu[1]))
     if start is not None:
         walk = math.hypot(off[0] - dt[0], off[1] - dt[1])
     final = pb if start is not None else _with_wings(pb, params)
     left = misfit(final, np.asarray(p, dtype=np.float64))
-    cov = np.asarray(inv)[:2, :2] * _covariance_scale(profile.edge, left.residual_scale,
-                                                      float(scale)) ** 2
     horn_shift = horn_sigma = night_level = math.nan
     night_shift = None
     if start is not None and not reason:
-        horn_shift, horn_sigma = _horn_shift(pb, np.asarray(p, dtype=np.float64), weighted,
-                                             known)
+        horn_shift, horn_sigma = _horn_shift(pb, np.asarray(p, dtype=np.float64), cov, known)
         night_level, night_shift = _night_side(pb, np.asarray(p, dtype=np.float64))
     return ProfileRefinement(
         offset_vu=off, dt_offset_vu=dt, accepted=not reason, reason=reason,
@@ -825,24 +823,6 @@ def _refine(pb: _Problem, profile: EdgeProfile, dt_offset_vu: tuple[float, float
         horn_shift_px=horn_shift, horn_shift_sigma_px=horn_sigma,
         night_level=night_level, night_shift_vu=night_shift,
     )
-
-
-def _covariance_scale(edge: str, residual_scale: float, tukey_scale: float) -> float:
-    """The residual scale of a refinement's reported covariance: a
-    terminator's pixels' own (``residual_scale``), a limb's (or ring's) the
-    Tukey weights' ``tukey_scale``, floored at the kernels' ``SCALE_FLOOR``
-    of the gain.
-
-    A step's per-pixel model error (its pixel sampling, the PSF's shape) is
-    about that floor, and its covariance keeps it. A kink's is far below it
-    (the profile is near zero on both sides), so a floored scale would
-    report the floor, not the pixels: a terminator's model error is the
-    pipeline's floor instead (``FLOORS_PX["profile_terminator"]``; the
-    figures are on the docs' validation page).
-    """
-    if edge == "terminator" and math.isfinite(residual_scale):
-        return residual_scale
-    return tukey_scale
 
 
 def misfitted(ref: ProfileRefinement) -> bool:
@@ -892,9 +872,8 @@ def misfit(pb: _Problem, params: FloatArray) -> Misfit:
     run, its PSF's wings folded into the profile).
 
     ``residual_scale`` is the residuals' robust scale (1.4826 MAD), as the
-    pixels give it: the Tukey weights' scale is floored at
-    ``SCALE_FLOOR`` of the gain, this one is not (the reported covariance's
-    noise term).
+    pixels give it (the Tukey weights' scale is floored at
+    ``SCALE_FLOOR`` of the gain; this one is not).
 
     ``shape`` is the RMS over the :data:`MISFIT_BIN_PX` bins of distance
     past the edge of the bin's median residual, each bin weighted by its
