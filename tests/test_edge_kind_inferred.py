@@ -46,6 +46,24 @@ def test_a_rendered_terminator_is_read_as_one_and_is_suspect(sphere):
     assert str(fit.status) == "suspect"
 
 
+@pytest.mark.parametrize("seed", [7, 13, 46])
+def test_heavy_noise_does_not_hide_a_terminator(seed):
+    """A faint, noisy terminator on few vertices: the noise moves its median profile
+    between neighbouring samples by more than MAX_INNER_STEP of the step, which once read
+    as a second edge inside (no kind, the plain step's floor). Steps the noise explains do
+    not count, and the ramp is read for what it is."""
+    rng = np.random.default_rng(seed)
+    sc = scenes.render_sphere(radius_px=float(rng.uniform(50, 90)),
+                              phase_deg=float(rng.uniform(25, 60)),
+                              illumination_deg=float(rng.uniform(0, 360)), offset_vu=(0.4, -0.3),
+                              albedo_dn=60.0, background_dn=10.0, read_noise_dn=4.0,
+                              poisson_gain=2.0, seed=seed, n_vertices=70, psf_sigma_px=1.0)
+    fit = _plain(sc.image, sc.terminator)
+    assert fit.inferred_edge_kind == "terminator"
+    assert fit.uncertainty.source == "dt_terminator"
+    assert fit.status != "ok"
+
+
 def test_a_uniform_disc_is_a_plain_step():
     sc = scenes.disc_scene()
     p = sc.polyline

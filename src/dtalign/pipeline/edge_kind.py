@@ -72,7 +72,10 @@ SIGNIFICANCE: float = 5.0
 #: inside the edge (:data:`NEAR_PX` to :data:`FAR_PX`, 1 px apart), as a
 #: fraction of the step, for a drift to be read as the surface's: rendered
 #: limbs read up to 0.1, terminators 0.11-0.19; a second edge inside (a
-#: crater's rim a few pixels in, a neighbouring ring) reads 0.3-0.65.
+#: crater's rim a few pixels in, a neighbouring ring) reads 0.3-0.65. A
+#: change the noise explains (:data:`SIGNIFICANCE` of the standard error of
+#: the median of the vertices' own changes) does not count: a heavy-noise
+#: terminator's 66 vertices read 0.30 from noise alone.
 MAX_INNER_STEP: float = 0.25
 #: Fewer usable vertices (an inlier, its whole profile inside the image) than
 #: this, and no kind is inferred.
@@ -127,7 +130,12 @@ def infer_edge_kind(image: ArrayLike, points_vu: ArrayLike, normals_vu: ArrayLik
         return None  # no step up along the normals that the noise does not explain
     step = float(np.median(jump))
     drift = float(np.median(moved)) / step
-    inner = np.abs(np.diff(np.median(strips[n_sky:], axis=1))).max() / step
+    # the steps between neighbouring samples inside, those the noise does not
+    # explain (heavy noise alone moves a median profile of few vertices by
+    # more than MAX_INNER_STEP of a faint step)
+    steps = np.abs(np.diff(np.median(strips[n_sky:], axis=1)))
+    noise = np.array([_standard_error(row, n) for row in np.diff(strips[n_sky:], axis=0)])
+    inner = float(np.max(np.where(steps > SIGNIFICANCE * noise, steps, 0.0))) / step
     if inner > MAX_INNER_STEP:
         return None  # a second edge inside (a crater's rim, another ring), not a surface
     if abs(float(np.median(moved))) <= SIGNIFICANCE * _standard_error(moved, n):
