@@ -43,6 +43,7 @@ __all__ = [
     "MAX_TAU_PX",
     "MIN_VERTICES",
     "edge_kind_of",
+    "Misfit",
     "misfit",
     "misfitted",
     "profile_samples",
@@ -139,8 +140,7 @@ TERMINATOR_CENTRED_PX = 0.3
 #: An accepted refinement of a fit whose DT stage found an ambiguous rival
 #: basin is run again from the rival's DT-LM pose; when it lands within
 #: this many of the refinement's one-sigma (its covariance plus the
-#: profile floor and a lit night side's shift, the largest axis) of the
-#: same offset, the image itself
+#: profile floor, the largest axis) of the same offset, the image itself
 #: decides between the two basins and the fit is not ``ambiguous``. Two
 #: sigmas keeps the starts that agree on rendered terminators and leaves
 #: out a refinement that lands far from its rival's
@@ -367,7 +367,7 @@ class ProfileRefinement:
         Pixels fitted.
     residual_scale : float
         1.4826 MAD of the final residuals (image units), as the pixels give
-        it.
+        it; NaN when not measured (no pixels, a gain that is not positive).
     covariance : tuple of tuple of float
         2 x 2 covariance of the offset from the weighted information and
         the Tukey weights' residual scale, which is floored at the kernels'
@@ -871,26 +871,25 @@ def misfit(pb: _Problem, params: FloatArray) -> Misfit:
     """What ``params`` leave on ``pb``'s strips (those of the refinement's last
     run, its PSF's wings folded into the profile).
 
-    ``residual_scale`` is the residuals' robust scale (1.4826 MAD), as the
-    pixels give it (the Tukey weights' scale is floored at
-    ``SCALE_FLOOR`` of the gain; this one is not).
-
-    ``shape`` is the RMS over the :data:`MISFIT_BIN_PX` bins of distance
+    ``misfit`` is the RMS over the :data:`MISFIT_BIN_PX` bins of distance
     past the edge of the bin's median residual, each bin weighted by its
     pixels, less what the noise leaves in such medians and
     :data:`MISFIT_NOISE_SIGMAS` times its spread, over ``|gain|``: the
-    median pools hundreds of pixels from every vertex, so
-    the noise averages away and a shape common to the vertices (a wrong
-    law, a capped brightening, a PSF the model does not have) stays. ``scatter_px`` is the robust spread (1.4826 MAD) of each
-    vertex's own edge shift along its normal, the residuals of its strip
-    projected on the model's derivative along the normal, ``sum(g r) /
-    sum(g^2)``: what the noise gives, ``noise_px``, is the residuals' own
-    robust scale over ``sqrt(sum(g^2))``, the median over the vertices;
-    relief or texture that moves the edge from vertex to vertex spreads it
-    further. ``gain_scatter`` is the same for each vertex's own gain, fitted
-    with its shift and background (a 3 x 3 system per vertex), over ``|gain|``:
-    an albedo that varies along the edge spreads it beyond ``gain_noise``.
-    NaN for no pixels or a zero gain."""
+    median pools hundreds of pixels from every vertex, so the noise
+    averages away and a shape common to the vertices (a wrong law, a capped
+    brightening, a PSF the model does not have) stays. ``edge_scatter_px``
+    is the robust spread (1.4826 MAD) of each vertex's own edge shift along
+    its normal, the residuals of its strip projected on the model's
+    derivative along the normal, ``sum(g r) / sum(g^2)``: what the noise
+    gives, ``edge_noise_px``, is ``residual_scale`` over ``sqrt(sum(g^2))``,
+    the median over the vertices; relief or texture that moves the edge
+    from vertex to vertex spreads it further. ``gain_scatter`` is the same
+    for each vertex's own gain, fitted with its shift and background (a 3 x
+    3 system per vertex), over ``|gain|``: an albedo that varies along the
+    edge spreads it beyond ``gain_noise``. ``residual_scale`` is the
+    residuals' robust scale (1.4826 MAD), as the pixels give it (the Tukey
+    weights' scale is floored at ``SCALE_FLOOR`` of the gain; this one is
+    not). All NaN for no pixels or a gain that is not positive."""
     k = pb.kernels
     gain = abs(float(params[2]))
     kk, ii, jj = _strips(pb, np.ascontiguousarray(pb.verts + np.asarray(pb.d0)), pb.normals,
@@ -952,7 +951,8 @@ def _gain_scatter(kk: NDArray[np.int64], nv: int, cols: FloatArray, r: FloatArra
     vertices); NaN, NaN when fewer than :data:`MIN_VERTICES` vertices'
     systems are solvable."""
     def s(i: int, j: int) -> FloatArray:
-        return np.bincount(kk, cols[:, i] * cols[:, j], minlength=nv)
+        return np.bincount(kk, cols[:, i] * cols[:, j], minlength=nv).astype(np.float64,
+                                                                             copy=False)
 
     a00, a01, a02, a11, a12, a22 = s(0, 0), s(0, 1), s(0, 2), s(1, 1), s(1, 2), s(2, 2)
     b0, b1, b2 = (np.bincount(kk, cols[:, i] * r, minlength=nv) for i in range(3))
