@@ -22,30 +22,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from dtalign import fit_polyline
-from dtalign.api.sampling import sample_dt_bilinear
-from dtalign.pipeline import edge_kind as ek
+from dtalign.pipeline.edge_kind import edge_drift
 from dtalign.scenes import render_sphere
 
 LAWS = ("lambert", "minnaert", "lommel-seeliger")
 BANDS = (-2.0, 0.0, 0.2, 0.3, 0.4, 0.5, 0.6, 2.0)
 CHI2_999 = 13.8155
-
-
-def drift_of(image: np.ndarray, fit) -> float:
-    """The median drift along the fit's inliers' normals at its pose (the
-    sampling of :func:`~dtalign.pipeline.edge_kind.infer_edge_kind`)."""
-    keep = np.asarray(fit.lm.weights) > 0.0
-    pts = np.asarray(fit.vertices_vu)[keep] + np.asarray(fit.offset_vu)
-    nrm = np.asarray(fit.normals_vu)[keep]
-    nrm = nrm / np.hypot(nrm[:, 0], nrm[:, 1])[:, None]
-    ts = np.array(ek.SKY_PX + ek.NEAR_PX + ek.FAR_PX)
-    at = pts[None] + ts[:, None, None] * nrm[None]
-    vals = sample_dt_bilinear(image, at.reshape(-1, 2)).reshape(len(ts), -1)
-    n_sky, n_near = len(ek.SKY_PX), len(ek.NEAR_PX)
-    sky = np.median(vals[:n_sky], axis=0)
-    near = vals[n_sky:n_sky + n_near].mean(axis=0)
-    far = vals[n_sky + n_near:].mean(axis=0)
-    return float(np.median(far - near) / np.median(near - sky))
 
 
 def run(n_scenes: int, seed: int) -> list[dict]:
@@ -71,7 +53,8 @@ def run(n_scenes: int, seed: int) -> list[dict]:
         d2 = float(err @ np.linalg.pinv(cov) @ err) if np.isfinite(cov).all() else 0.0
         out.append(dict(edge=edge, law=law, phase=kw["phase_deg"], status=str(fit.status),
                         kind=fit.inferred_edge_kind, error_px=float(np.hypot(*err)), d2=d2,
-                        drift=drift_of(sc.image, fit)))
+                        drift=edge_drift(sc.image, fit.evidence.points_vu, fit.normals_vu,
+                                         fit.lm.weights)))
     return out
 
 
@@ -85,7 +68,8 @@ def main(argv: Sequence[str] | None = None) -> int:
           f"{'wrong':>5s}")
     for edge in ("limb", "terminator"):
         for lo, hi in zip(BANDS[:-1], BANDS[1:], strict=True):
-            band = [r for r in recs if r["edge"] == edge and lo < r["drift"] <= hi]
+            band = [r for r in recs if r["edge"] == edge and r["drift"] is not None
+                    and lo < r["drift"] <= hi]
             ok = [r for r in band if r["status"] == "ok"]
             wrong = sum(r["error_px"] > 1.0 or r["d2"] > CHI2_999 for r in ok)
             errs = [r["error_px"] for r in ok]

@@ -10,7 +10,13 @@ import pytest
 from dtalign import scenes
 from dtalign.pipeline import PolylineFit, fit_polyline
 from dtalign.pipeline import uncertainty as unc
-from dtalign.pipeline.edge_kind import MIN_VERTICES, infer_edge_kind
+from dtalign.pipeline.edge_kind import (
+    LIMB_DRIFT,
+    MIN_VERTICES,
+    RAMP_DRIFT,
+    edge_drift,
+    infer_edge_kind,
+)
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +68,14 @@ def test_heavy_noise_does_not_hide_a_terminator(seed):
     assert fit.inferred_edge_kind == "terminator"
     assert fit.uncertainty.source == "dt_terminator"
     assert fit.status != "ok"
+
+
+def test_the_drift_is_the_one_the_kind_is_read_from(sphere):
+    for poly, kind in ((sphere.limb, "limb"), (sphere.terminator, "terminator")):
+        fit = _plain(sphere.image, poly)
+        drift = edge_drift(sphere.image, fit.evidence.points_vu, fit.normals_vu, fit.lm.weights)
+        assert fit.inferred_edge_kind == kind
+        assert (drift > RAMP_DRIFT) if kind == "terminator" else (LIMB_DRIFT <= drift <= RAMP_DRIFT)
 
 
 def test_a_uniform_disc_is_a_plain_step():

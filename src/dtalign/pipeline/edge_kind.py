@@ -46,6 +46,7 @@ __all__ = [
     "RAMP_DRIFT",
     "SIGNIFICANCE",
     "SKY_PX",
+    "edge_drift",
     "infer_edge_kind",
 ]
 
@@ -106,26 +107,11 @@ def infer_edge_kind(image: ArrayLike, points_vu: ArrayLike, normals_vu: ArrayLik
         inside (:data:`MAX_INNER_STEP`), or fewer than
         :data:`MIN_VERTICES` usable vertices.
     """
-    img = np.asarray(image, dtype=np.float64)
-    pts = np.asarray(points_vu, dtype=np.float64)
-    nrm = np.asarray(normals_vu, dtype=np.float64)
-    length = np.hypot(nrm[:, 0], nrm[:, 1])
-    keep = (np.asarray(weights) > 0.0) & (length > 0.0) & np.isfinite(pts).all(axis=1)
-    t = np.array(SKY_PX + NEAR_PX + MID_PX + FAR_PX)
-    unit = nrm[keep] / length[keep, None]
-    at = pts[keep][None, :, :] + t[:, None, None] * unit[None, :, :]
-    h, w = img.shape
-    inside = ((at[..., 0] >= 0) & (at[..., 0] <= h - 1)
-              & (at[..., 1] >= 0) & (at[..., 1] <= w - 1)).all(axis=0)
-    if int(inside.sum()) < MIN_VERTICES:
+    levels = _levels(image, points_vu, normals_vu, weights)
+    if levels is None:
         return None
-    strips = sample_dt_bilinear(img, at[:, inside].reshape(-1, 2)).reshape(len(t), -1)
-    n_sky, n_near, n_far = len(SKY_PX), len(NEAR_PX), len(FAR_PX)
-    sky = np.median(strips[:n_sky], axis=0)
-    near = strips[n_sky:n_sky + n_near].mean(axis=0)
-    far = strips[-n_far:].mean(axis=0)
-    jump, moved = near - sky, far - near
-    n = jump.size
+    strips, jump, moved = levels
+    n, n_sky = jump.size, len(SKY_PX)
     if not float(np.median(jump)) > SIGNIFICANCE * _standard_error(jump, n):
         return None  # no step up along the normals that the noise does not explain
     step = float(np.median(jump))
@@ -145,6 +131,48 @@ def infer_edge_kind(image: ArrayLike, points_vu: ArrayLike, normals_vu: ArrayLik
     if LIMB_DRIFT <= abs(drift) <= RAMP_DRIFT:
         return "limb"
     return None
+
+
+def edge_drift(image: ArrayLike, points_vu: ArrayLike, normals_vu: ArrayLike,
+               weights: ArrayLike) -> float | None:
+    """The ``drift`` :func:`infer_edge_kind` reads (the median change of the
+    bright side past its first level, over the median step), whatever kind
+    it then infers; None for fewer than :data:`MIN_VERTICES` usable vertices
+    or no step. Parameters as :func:`infer_edge_kind`'s."""
+    levels = _levels(image, points_vu, normals_vu, weights)
+    if levels is None:
+        return None
+    _, jump, moved = levels
+    step = float(np.median(jump))
+    return float(np.median(moved)) / step if step != 0.0 else None
+
+
+def _levels(image: ArrayLike, points_vu: ArrayLike, normals_vu: ArrayLike, weights: ArrayLike
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The usable vertices' samples along their normals (one row per offset of
+    :data:`SKY_PX`, :data:`NEAR_PX`, :data:`MID_PX`, :data:`FAR_PX`), their
+    steps ``near - sky`` and drifts ``far - near``; None for fewer than
+    :data:`MIN_VERTICES` usable vertices (an inlier whose whole profile is
+    inside the image)."""
+    img = np.asarray(image, dtype=np.float64)
+    pts = np.asarray(points_vu, dtype=np.float64)
+    nrm = np.asarray(normals_vu, dtype=np.float64)
+    length = np.hypot(nrm[:, 0], nrm[:, 1])
+    keep = (np.asarray(weights) > 0.0) & (length > 0.0) & np.isfinite(pts).all(axis=1)
+    t = np.array(SKY_PX + NEAR_PX + MID_PX + FAR_PX)
+    unit = nrm[keep] / length[keep, None]
+    at = pts[keep][None, :, :] + t[:, None, None] * unit[None, :, :]
+    h, w = img.shape
+    inside = ((at[..., 0] >= 0) & (at[..., 0] <= h - 1)
+              & (at[..., 1] >= 0) & (at[..., 1] <= w - 1)).all(axis=0)
+    if int(inside.sum()) < MIN_VERTICES:
+        return None
+    strips = sample_dt_bilinear(img, at[:, inside].reshape(-1, 2)).reshape(len(t), -1)
+    n_sky, n_near, n_far = len(SKY_PX), len(NEAR_PX), len(FAR_PX)
+    sky = np.median(strips[:n_sky], axis=0)
+    near = strips[n_sky:n_sky + n_near].mean(axis=0)
+    far = strips[-n_far:].mean(axis=0)
+    return strips, near - sky, far - near
 
 
 def _standard_error(x: np.ndarray, n: int) -> float:

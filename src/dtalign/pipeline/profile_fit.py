@@ -315,8 +315,9 @@ SCATTER_RATIO = 1.6
 #: surface whose brightness varies along the edge (an albedo map, craters):
 #: ``profile_misfit``. On the validation renders the honest fits (the model
 #: right, the PSF mismatched and estimated, the ellipsoid, a lit or floored
-#: night side, heavy noise; limbs and terminators) leave at most 0.0085 beyond the noise where their
-#: spread exceeds 1.6 of it; an albedo map of +-25 % leaves 0.035-0.17.
+#: night side, heavy noise; limbs and terminators) leave at most 0.0085
+#: beyond the noise where their spread exceeds 1.6 of it; an albedo map of
+#: +-25 % leaves 0.035-0.17.
 GAIN_SCATTER_LIMIT = 0.015
 
 #: A limb profile whose contrast-weighted median ``EdgeProfile.step_jump``
